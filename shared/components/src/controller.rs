@@ -1,0 +1,112 @@
+//! The controller process's work: u(k) from y(k) and the estimate for tick k.
+//!
+//! u_c(k) = u_fb + u_ff + u_d, where
+//! - ŷ_flex and u_d are the observer block's outputs at tick k: the estimate's
+//!   free response plus its direct gain times [y(k); u_a(k)];
+//! - u_fb is the feedback filter on e_meas = r(k) − (y(k) − ŷ_flex(k));
+//! - u_ff is the feedforward for the tick the command will be applied at,
+//!   advanced by the loop delay so that the delay does not cost tracking.
+
+use flexloop_control::lti::LtiRunner;
+use flexloop_protocol::{
+    Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
+    Measurement, flags,
+};
+use flexloop_scenario::LoopDesign;
+use flexloop_scenario::reference::{Derivatives, Reference};
+
+pub struct ControllerCore {
+    feedback: Option<LtiRunner>,
+    feedforward: [Derivatives; MAX_INPUTS],
+    reference: Reference,
+    ts: f64,
+    loop_delay_samples: u32,
+    n_outputs: usize,
+    n_inputs: usize,
+    input_limit: f64,
+    generation: u32,
+    observer_input: [f64; MAX_OBSERVER_INPUTS],
+    observer_output: [f64; MAX_OBSERVER_OUTPUTS],
+    error: [f64; MAX_OUTPUTS],
+}
+
+impl ControllerCore {
+    pub fn new(design: &LoopDesign, generation: u32) -> Self {
+        let mut feedforward = [[0.0; 5]; MAX_INPUTS];
+        for (dst, src) in feedforward.iter_mut().zip(&design.feedforward) {
+            *dst = *src;
+        }
+        Self {
+            feedback: design.feedback.clone().map(LtiRunner::new),
+            feedforward,
+            reference: design.reference.clone(),
+            ts: design.ts,
+            loop_delay_samples: design.loop_delay_samples,
+            n_outputs: design.n_outputs,
+            n_inputs: design.n_inputs,
+            input_limit: design.input_limit,
+            generation,
+            observer_input: [0.0; MAX_OBSERVER_INPUTS],
+            observer_output: [0.0; MAX_OBSERVER_OUTPUTS],
+            error: [0.0; MAX_OUTPUTS],
+        }
+    }
+
+    /// Computes u(k) into `out` (all but the receive/publish stamps).
+    pub fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
+        let (ny, nu) = (self.n_outputs, self.n_inputs);
+        let n_in = ny + nu;
+        self.observer_input[..ny].copy_from_slice(&m.y[..ny]);
+        self.observer_input[ny..n_in].copy_from_slice(&m.u_applied[..nu]);
+        for i in 0..n_in {
+            let row = &estimate.direct[i * MAX_OBSERVER_INPUTS..i * MAX_OBSERVER_INPUTS + n_in];
+            let direct: f64 = row
+                .iter()
+                .zip(&self.observer_input[..n_in])
+                .map(|(d, w)| d * w)
+                .sum();
+            self.observer_output[i] = estimate.free[i] + direct;
+        }
+        let t_now = m.seq as f64 * self.ts;
+        let t_applied = (m.seq + self.loop_delay_samples as u64) as f64 * self.ts;
+        let r_now = self.reference.sample(t_now);
+        let r_applied = self.reference.sample(t_applied);
+        for i in 0..ny {
+            let y_comp = m.y[i] - self.observer_output[i];
+            out.r[i] = r_now[0];
+            self.error[i] = r_now[0] - y_comp;
+            out.e_meas[i] = self.error[i];
+        }
+        let u_fb: &[f64] = match &mut self.feedback {
+            Some(filter) => filter.step(&self.error[..ny]),
+            None => &[0.0; MAX_INPUTS][..nu],
+        };
+        let mut command_flags = 0;
+        if estimate.seq != m.seq {
+            command_flags |= flags::STALE_ESTIMATE;
+        }
+        for i in 0..nu {
+            let gains = &self.feedforward[i];
+            let u_ff: f64 = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
+            let u_d = self.observer_output[ny + i];
+            let total = u_fb[i] + u_ff + u_d;
+            let limited = total.clamp(-self.input_limit, self.input_limit);
+            if limited != total {
+                command_flags |= flags::CLAMPED;
+            }
+            out.u_fb[i] = u_fb[i];
+            out.u_ff[i] = u_ff;
+            out.u_d[i] = u_d;
+            out.u[i] = limited;
+        }
+        out.seq = m.seq;
+        out.tick_ns = m.tick_ns;
+        out.measurement_published_ns = m.published_ns;
+        out.estimate_seq = estimate.seq;
+        out.estimate_published_ns = estimate.published_ns;
+        out.flags = command_flags | (m.flags & flags::LOCKSTEP);
+        out.generation = self.generation;
+        out.n_inputs = nu as u32;
+        out.n_outputs = ny as u32;
+    }
+}

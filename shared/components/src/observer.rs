@@ -1,0 +1,125 @@
+//! The observer process's work: one step of the observer block per measurement.
+//!
+//! Processing y(k), u_a(k) moves the block to s(k+1) and yields the estimate
+//! for tick k+1: its free response C s(k+1) and its direct gain D. The
+//! controller adds D·[y(k+1); u_a(k+1)] itself when y(k+1) arrives, so the
+//! observer is never on the critical path between y(k+1) and u(k+1).
+
+use flexloop_control::lti::LtiRunner;
+use flexloop_protocol::{
+    Estimate, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES, Measurement,
+};
+use flexloop_scenario::ObserverBlock;
+use nalgebra::{DMatrix, DVector, DVectorView};
+
+pub struct ObserverCore {
+    block: LtiRunner,
+    estimate_map: DMatrix<f64>,
+    x_hat: DVector<f64>,
+    n_outputs: usize,
+    n_inputs: usize,
+    input: [f64; MAX_OBSERVER_INPUTS],
+    /// Direct gain laid out as the message wants it, computed once.
+    direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
+    next_seq: u64,
+}
+
+/// Why an observer block does not fit the protocol.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ObserverSizeError(pub String);
+
+impl std::fmt::Display for ObserverSizeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ObserverSizeError {}
+
+impl ObserverCore {
+    pub fn new(
+        block: &ObserverBlock,
+        n_outputs: usize,
+        n_inputs: usize,
+    ) -> Result<Self, ObserverSizeError> {
+        let sys = &block.system;
+        if sys.inputs() != n_outputs + n_inputs || sys.outputs() != n_outputs + n_inputs {
+            return Err(ObserverSizeError(format!(
+                "observer block has {} inputs and {} outputs, the loop needs {} of each",
+                sys.inputs(),
+                sys.outputs(),
+                n_outputs + n_inputs
+            )));
+        }
+        if sys.inputs() > MAX_OBSERVER_INPUTS || block.estimate_map.nrows() > MAX_STATES {
+            return Err(ObserverSizeError(format!(
+                "observer too large for the protocol ({} signals, {} states; at most {} and {})",
+                sys.inputs(),
+                block.estimate_map.nrows(),
+                MAX_OBSERVER_INPUTS,
+                MAX_STATES
+            )));
+        }
+        if block.estimate_map.ncols() != sys.states() {
+            return Err(ObserverSizeError(format!(
+                "estimate map has {} columns, the block {} states",
+                block.estimate_map.ncols(),
+                sys.states()
+            )));
+        }
+        let mut direct = [0.0; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS];
+        for i in 0..sys.outputs() {
+            for j in 0..sys.inputs() {
+                direct[i * MAX_OBSERVER_INPUTS + j] = sys.d[(i, j)];
+            }
+        }
+        Ok(Self {
+            x_hat: DVector::zeros(block.estimate_map.nrows()),
+            estimate_map: block.estimate_map.clone(),
+            block: LtiRunner::new(sys.clone()),
+            n_outputs,
+            n_inputs,
+            input: [0.0; MAX_OBSERVER_INPUTS],
+            direct,
+            next_seq: 0,
+        })
+    }
+
+    /// The estimate for tick 0, before any measurement (initial state).
+    pub fn initial(&mut self, out: &mut Estimate) {
+        self.fill(0, out);
+    }
+
+    /// Processes measurement k and fills the estimate for tick k+1 (all but
+    /// the timestamps, which the caller sets).
+    pub fn step(&mut self, m: &Measurement, out: &mut Estimate) {
+        let (ny, nu) = (self.n_outputs, self.n_inputs);
+        self.input[..ny].copy_from_slice(&m.y[..ny]);
+        self.input[ny..ny + nu].copy_from_slice(&m.u_applied[..nu]);
+        self.block.advance(&self.input[..ny + nu]);
+        self.fill(m.seq + 1, out);
+        out.source_tick_ns = m.tick_ns;
+        out.source_published_ns = m.published_ns;
+    }
+
+    /// Sequence the next estimate will carry.
+    pub fn next_seq(&self) -> u64 {
+        self.next_seq
+    }
+
+    fn fill(&mut self, seq: u64, out: &mut Estimate) {
+        let n_out = self.n_outputs + self.n_inputs;
+        out.seq = seq;
+        out.n_outputs = self.n_outputs as u32;
+        out.n_inputs = self.n_inputs as u32;
+        out.n_states = self.x_hat.len() as u32;
+        let free = self.block.free_output();
+        out.free[..n_out].copy_from_slice(&free[..n_out]);
+        out.direct = self.direct;
+        let n = self.block.state().len();
+        let s = DVectorView::from_slice(self.block.state(), n);
+        self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
+        out.x_hat[..self.x_hat.len()].copy_from_slice(self.x_hat.as_slice());
+        self.next_seq = seq + 1;
+    }
+}

@@ -1,0 +1,208 @@
+//! The plant emulator: the model, the held input and the tick bookkeeping.
+//!
+//! Timing convention (one sample of loop delay): at tick k the plant applies
+//! u_c(k−1), the command computed from y(k−1), over [t_k, t_k+1), publishes
+//! y(k), then advances its model to x(k+1). A command that is not there by
+//! its tick is a miss: the plant holds its last input.
+
+use crate::noise::Gaussian;
+use flexloop_control::lti::LtiRunner;
+use flexloop_protocol::{Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
+use flexloop_scenario::LoopDesign;
+
+/// What the plant did with one command it received.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommandVerdict {
+    /// The command for this tick, on time: it will be applied.
+    Accepted,
+    /// The right sequence, published after the tick it was due for.
+    Late,
+    /// An older sequence than the one due (it arrived after its tick passed).
+    Stale,
+    /// From an instance that is not the active one.
+    WrongGeneration,
+    /// Non-finite values: rejected, the plant holds its input.
+    NonFinite,
+    /// For a tick the plant has not reached (cannot happen in a healthy loop).
+    Early,
+}
+
+/// Counters the plant reports in every measurement.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PlantCounters {
+    pub ticks: u64,
+    pub misses: u64,
+    pub late_commands: u64,
+    pub stalled_ticks: u64,
+    pub stall_misses: u64,
+    pub wrong_generation: u64,
+    pub non_finite: u64,
+    pub clamped: u64,
+}
+
+pub struct PlantCore {
+    model: LtiRunner,
+    n_outputs: usize,
+    n_inputs: usize,
+    input_limit: f64,
+    force_sigma: f64,
+    sensor_sigma: f64,
+    noise: Gaussian,
+    generation: u32,
+    /// Input applied over the current interval.
+    held: [f64; MAX_INPUTS],
+    /// The on-time command for the next tick, once accepted.
+    next: Option<(u64, [f64; MAX_INPUTS])>,
+    /// [u; w] as the model's input vector.
+    model_input: [f64; 2 * MAX_INPUTS],
+    y_true: [f64; MAX_OUTPUTS],
+    previous_tick_stalled: bool,
+    applied_seq: u64,
+    pub counters: PlantCounters,
+}
+
+impl PlantCore {
+    pub fn new(design: &LoopDesign) -> Self {
+        Self {
+            model: LtiRunner::new(design.plant.clone()),
+            n_outputs: design.n_outputs,
+            n_inputs: design.n_inputs,
+            input_limit: design.input_limit,
+            force_sigma: design.force_noise,
+            sensor_sigma: design.sensor_noise,
+            noise: Gaussian::new(design.seed),
+            generation: 0,
+            held: [0.0; MAX_INPUTS],
+            next: None,
+            model_input: [0.0; 2 * MAX_INPUTS],
+            y_true: [0.0; MAX_OUTPUTS],
+            previous_tick_stalled: false,
+            applied_seq: NO_SEQ,
+            counters: PlantCounters::default(),
+        }
+    }
+
+    /// The generation of controller whose commands are accepted.
+    pub fn set_generation(&mut self, generation: u32) {
+        self.generation = generation;
+    }
+
+    /// Judges a command received before tick `k`, whose scheduled time is
+    /// `tick_ns`. In lockstep mode pass `tick_ns = u64::MAX` (nothing is late).
+    pub fn offer(&mut self, cmd: &Command, k: u64, tick_ns: u64) -> CommandVerdict {
+        let due = k.wrapping_sub(1);
+        let verdict = if cmd.generation != self.generation {
+            self.counters.wrong_generation += 1;
+            CommandVerdict::WrongGeneration
+        } else if k == 0 || cmd.seq < due {
+            self.counters.late_commands += 1;
+            CommandVerdict::Stale
+        } else if cmd.seq > due {
+            CommandVerdict::Early
+        } else if cmd.published_ns > tick_ns {
+            self.counters.late_commands += 1;
+            CommandVerdict::Late
+        } else if cmd.u[..self.n_inputs].iter().any(|v| !v.is_finite()) {
+            self.counters.non_finite += 1;
+            CommandVerdict::NonFinite
+        } else {
+            let mut u = [0.0; MAX_INPUTS];
+            for (dst, src) in u.iter_mut().zip(&cmd.u[..self.n_inputs]) {
+                let clamped = src.clamp(-self.input_limit, self.input_limit);
+                if clamped != *src {
+                    self.counters.clamped += 1;
+                }
+                *dst = clamped;
+            }
+            self.next = Some((cmd.seq, u));
+            CommandVerdict::Accepted
+        };
+        verdict
+    }
+
+    /// Whether the command due for tick `k` has been accepted.
+    pub fn has_command_for(&self, k: u64) -> bool {
+        matches!(self.next, Some((seq, _)) if seq.wrapping_add(1) == k)
+    }
+
+    /// Tick k: settles the input for [t_k, t_k+1), computes y(k) and fills `out`
+    /// (all but `published_ns`, which the caller stamps at send time).
+    pub fn tick(
+        &mut self,
+        k: u64,
+        tick_ns: u64,
+        woke_ns: u64,
+        stalled: bool,
+        out: &mut Measurement,
+    ) {
+        let mut tick_flags = 0;
+        match self.next.take() {
+            Some((seq, u)) if seq.wrapping_add(1) == k => {
+                self.held = u;
+                self.applied_seq = seq;
+            }
+            _ if k == 0 => {}
+            _ => {
+                // Hold the last input; a miss on a tick after a stall is the
+                // machine's fault, not the loop's.
+                if self.previous_tick_stalled {
+                    self.counters.stall_misses += 1;
+                } else {
+                    self.counters.misses += 1;
+                }
+                tick_flags |= flags::HELD_INPUT;
+            }
+        }
+        if stalled {
+            self.counters.stalled_ticks += 1;
+            tick_flags |= flags::STALLED_TICK;
+        }
+        self.previous_tick_stalled = stalled;
+        self.counters.ticks += 1;
+
+        let y = self.model.output(&self.model_input);
+        self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
+
+        out.seq = k;
+        out.tick_ns = tick_ns;
+        out.woke_ns = woke_ns;
+        out.command_seq = self.applied_seq;
+        out.misses = self.counters.misses;
+        out.late_commands = self.counters.late_commands;
+        out.stalled_ticks = self.counters.stalled_ticks;
+        out.stall_misses = self.counters.stall_misses;
+        out.flags = tick_flags;
+        out.generation = self.generation;
+        out.n_outputs = self.n_outputs as u32;
+        out.n_inputs = self.n_inputs as u32;
+        for i in 0..self.n_outputs {
+            let d = if self.sensor_sigma > 0.0 {
+                self.sensor_sigma * self.noise.sample()
+            } else {
+                0.0
+            };
+            out.y_true[i] = self.y_true[i];
+            out.y[i] = self.y_true[i] + d;
+        }
+        out.u_applied[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
+    }
+
+    /// x(k+1) = A x(k) + B [u_a(k); w(k)]: off the critical path, after publishing.
+    pub fn advance(&mut self) {
+        let n = self.n_inputs;
+        self.model_input[..n].copy_from_slice(&self.held[..n]);
+        for i in 0..n {
+            self.model_input[n + i] = if self.force_sigma > 0.0 {
+                self.force_sigma * self.noise.sample()
+            } else {
+                0.0
+            };
+        }
+        self.model.advance(&self.model_input);
+    }
+
+    /// The input that will be applied over the current interval.
+    pub fn held_input(&self) -> &[f64] {
+        &self.held[..self.n_inputs]
+    }
+}

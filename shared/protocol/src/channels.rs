@@ -1,0 +1,96 @@
+//! Service names and QoS of every channel, in one place.
+//!
+//! iceoryx2 checks QoS on open: every process must ask for the same settings,
+//! so nobody else spells them out.
+
+/// A pub-sub service paired with an event service of the same name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Channel {
+    pub name: &'static str,
+    pub qos: ChannelQos,
+}
+
+/// Settings fixed at service creation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChannelQos {
+    /// Active, shadow and standby instances, one rogue or dead slot to spare.
+    pub max_publishers: usize,
+    pub max_subscribers: usize,
+    pub max_nodes: usize,
+    /// Samples kept for late joiners (a shadow instance gets the latest at once).
+    pub history_size: usize,
+    /// Upper bound of any subscriber's queue: the logger's, which polls.
+    pub subscriber_max_buffer_size: usize,
+    /// Loop subscribers: deep enough to process every sample in order.
+    pub loop_buffer_size: usize,
+    /// Logger subscribers: 200 ms at 10 kHz between two logger polls.
+    pub logger_buffer_size: usize,
+}
+
+const LOOP_QOS: ChannelQos = ChannelQos {
+    max_publishers: 4,
+    max_subscribers: 6,
+    max_nodes: 12,
+    history_size: 1,
+    subscriber_max_buffer_size: 2048,
+    loop_buffer_size: 16,
+    logger_buffer_size: 2048,
+};
+
+/// y(k) from the plant.
+pub const MEASUREMENT: Channel = Channel {
+    name: "flexloop/measurement",
+    qos: LOOP_QOS,
+};
+/// Observer output for the next tick.
+pub const ESTIMATE: Channel = Channel {
+    name: "flexloop/estimate",
+    qos: LOOP_QOS,
+};
+/// u_c(k) from the controller.
+pub const COMMAND: Channel = Channel {
+    name: "flexloop/command",
+    qos: LOOP_QOS,
+};
+/// Periodic counters and percentiles (logger) for `flexloop status`.
+pub const TELEMETRY: Channel = Channel {
+    name: "flexloop/telemetry",
+    qos: ChannelQos {
+        max_publishers: 4,
+        max_subscribers: 8,
+        max_nodes: 16,
+        history_size: 1,
+        subscriber_max_buffer_size: 16,
+        loop_buffer_size: 4,
+        logger_buffer_size: 16,
+    },
+};
+
+/// Every channel, for tools that list or clean them.
+pub const ALL: [Channel; 4] = [MEASUREMENT, ESTIMATE, COMMAND, TELEMETRY];
+
+/// Event ids on the event service paired with each channel.
+pub mod events {
+    /// A new sample was published.
+    pub const SAMPLE: usize = 1;
+    /// A notifier's node died (sent by iceoryx2 when it cleans a dead node).
+    pub const PUBLISHER_DEAD: usize = 15;
+    pub const MAX_EVENT_ID: usize = 15;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_unique_and_queues_fit() {
+        for (i, a) in ALL.iter().enumerate() {
+            for b in &ALL[i + 1..] {
+                assert_ne!(a.name, b.name);
+            }
+            assert!(a.qos.loop_buffer_size <= a.qos.subscriber_max_buffer_size);
+            assert!(a.qos.logger_buffer_size <= a.qos.subscriber_max_buffer_size);
+            assert!(a.qos.max_publishers >= 2, "a swap needs two publishers");
+        }
+    }
+}

@@ -1,0 +1,18 @@
+//! flexloop-protocol: the samples the loop exchanges and where they travel.
+//!
+//! - [`messages`]: fixed-size `#[repr(C)]` messages (measurement, estimate,
+//!   command, telemetry), sized for MIMO models so that nothing is ever
+//!   reallocated.
+//! - [`channels`]: every service name and every QoS setting, in one place, so
+//!   that all processes open the services with identical settings.
+//! - [`time`]: the monotonic nanosecond clock all timestamps use.
+
+pub mod channels;
+pub mod messages;
+pub mod time;
+
+pub use channels::{Channel, ChannelQos};
+pub use messages::{
+    Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
+    MAX_STATES, Measurement, NO_SEQ, Telemetry, flags,
+};

@@ -1,0 +1,17 @@
+//! flexloop-scenario: what a run is, read from a TOML file and checked before
+//! any process starts.
+//!
+//! - [`schema`]: the file format, field by field (unknown fields are refused).
+//! - [`error`]: errors that name the file, the field and the reason.
+//! - [`design`]: turns a validated scenario into the loop's discrete blocks
+//!   (plant, observer block, feedback, reference), identically in every process.
+//! - [`reference`]: set-point profiles evaluated per sample without allocating.
+
+pub mod design;
+pub mod error;
+pub mod reference;
+pub mod schema;
+
+pub use design::{LoopDesign, ObserverBlock};
+pub use error::ScenarioError;
+pub use schema::{Mode, Overrides, Scenario};

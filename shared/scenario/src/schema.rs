@@ -1,0 +1,413 @@
+//! The scenario file format.
+//!
+//! Every table refuses unknown fields, so a typo is an error rather than a
+//! silently ignored setting. Defaults are the values a control engineer would
+//! pick for the model at hand; `scenarios/README.md` documents each field.
+
+use crate::ScenarioError;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// How the plant paces the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// Absolute 100 µs (1/rate) clock; late commands are dropped and counted.
+    Realtime,
+    /// The plant waits for u(k) before advancing: deterministic, bit-reproducible.
+    Lockstep,
+}
+
+impl Mode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::Realtime => "realtime",
+            Mode::Lockstep => "lockstep",
+        }
+    }
+
+    pub fn parse(text: &str) -> Option<Self> {
+        match text {
+            "realtime" => Some(Mode::Realtime),
+            "lockstep" => Some(Mode::Lockstep),
+            _ => None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    #[serde(rename = "loop")]
+    pub timing: LoopSection,
+    pub plant: PlantSection,
+    pub observer: ObserverSection,
+    #[serde(default)]
+    pub controller: ControllerSection,
+    #[serde(default)]
+    pub reference: ReferenceSection,
+    #[serde(default)]
+    pub realtime: RealtimeSection,
+    #[serde(default)]
+    pub logger: LoggerSection,
+    /// The file it was read from (not part of the format).
+    #[serde(skip)]
+    pub source: PathBuf,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoopSection {
+    #[serde(default = "default_rate")]
+    pub rate_hz: f64,
+    #[serde(default = "default_mode")]
+    pub mode: Mode,
+    /// Seconds of loop time; 0 runs until stopped.
+    #[serde(default = "default_duration")]
+    pub duration_s: f64,
+}
+
+fn default_rate() -> f64 {
+    10_000.0
+}
+fn default_mode() -> Mode {
+    Mode::Realtime
+}
+fn default_duration() -> f64 {
+    10.0
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantSection {
+    /// Built-in model: `double-integrator`.
+    pub model: String,
+    #[serde(default = "one")]
+    pub mass_kg: f64,
+    /// |u| limit in N; commands beyond it are clamped and counted.
+    #[serde(default = "default_limit")]
+    pub input_limit: f64,
+    /// Seed of the disturbance generator (runs are reproducible).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// σ of the force disturbance w in N (0: off).
+    #[serde(default)]
+    pub force_noise: f64,
+    /// σ of the sensor noise d in m (0: off).
+    #[serde(default)]
+    pub sensor_noise: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn default_limit() -> f64 {
+    1_000.0
+}
+fn default_seed() -> u64 {
+    1
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObserverSection {
+    /// `state-feedback`: predictor observer with state feedback u = -L x̂(k+1|k)
+    /// (the lecture's double integrator).
+    pub design: String,
+    /// Observer poles: continuous natural frequency and damping, mapped by e^{sT}.
+    #[serde(default = "default_observer_hz")]
+    pub observer_bandwidth_hz: f64,
+    #[serde(default = "default_damping")]
+    pub observer_damping: f64,
+    /// State-feedback poles, likewise.
+    #[serde(default = "default_feedback_hz")]
+    pub feedback_bandwidth_hz: f64,
+    #[serde(default = "default_damping")]
+    pub feedback_damping: f64,
+}
+
+fn default_observer_hz() -> f64 {
+    200.0
+}
+fn default_feedback_hz() -> f64 {
+    20.0
+}
+fn default_damping() -> f64 {
+    0.7
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// Extra samples of loop delay to emulate (0: the one sample the loop has).
+    #[serde(default)]
+    pub extra_delay_samples: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSection {
+    /// `hold` (r = 0), `step` or `sine`.
+    #[serde(default = "default_shape")]
+    pub shape: String,
+    /// Step height or sine amplitude in m.
+    #[serde(default)]
+    pub amplitude: f64,
+    #[serde(default = "default_frequency")]
+    pub frequency_hz: f64,
+    /// Time of the step in s.
+    #[serde(default)]
+    pub start_s: f64,
+}
+
+impl Default for ReferenceSection {
+    fn default() -> Self {
+        Self {
+            shape: default_shape(),
+            amplitude: 0.0,
+            frequency_hz: default_frequency(),
+            start_s: 0.0,
+        }
+    }
+}
+
+fn default_shape() -> String {
+    "hold".into()
+}
+fn default_frequency() -> f64 {
+    1.0
+}
+
+/// Scheduling of one process.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProcessRealtime {
+    /// SCHED_FIFO priority 1..=99; absent: SCHED_OTHER.
+    pub priority: Option<u8>,
+    pub cpu: Option<usize>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RealtimeSection {
+    #[serde(default = "yes")]
+    pub lock_memory: bool,
+    #[serde(default = "default_slack")]
+    pub timer_slack_ns: u64,
+    #[serde(default = "yes")]
+    pub hold_cpu_dma_latency: bool,
+    #[serde(default)]
+    pub plant: ProcessRealtime,
+    #[serde(default)]
+    pub observer: ProcessRealtime,
+    #[serde(default)]
+    pub controller: ProcessRealtime,
+    #[serde(default)]
+    pub logger: ProcessRealtime,
+}
+
+fn yes() -> bool {
+    true
+}
+fn default_slack() -> u64 {
+    1
+}
+
+impl Default for RealtimeSection {
+    fn default() -> Self {
+        Self {
+            lock_memory: true,
+            timer_slack_ns: default_slack(),
+            hold_cpu_dma_latency: true,
+            plant: ProcessRealtime::default(),
+            observer: ProcessRealtime::default(),
+            controller: ProcessRealtime::default(),
+            logger: ProcessRealtime::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoggerSection {
+    #[serde(default = "yes")]
+    pub enabled: bool,
+}
+
+impl Default for LoggerSection {
+    fn default() -> Self {
+        Self { enabled: true }
+    }
+}
+
+/// Command-line settings that take precedence over the file.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Overrides {
+    pub rate_hz: Option<f64>,
+    pub duration_s: Option<f64>,
+    pub mode: Option<Mode>,
+    /// Drop all SCHED_FIFO priorities (e.g. in tests on a shared machine).
+    pub no_realtime: bool,
+}
+
+impl Scenario {
+    /// Reads, parses, applies `overrides` and validates `path`.
+    pub fn load(path: &Path, overrides: &Overrides) -> Result<Self, ScenarioError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ScenarioError::new(path, None, format!("cannot read: {e}")))?;
+        let mut scenario = Self::parse(path, &text)?;
+        scenario.apply(overrides);
+        scenario.validate()?;
+        Ok(scenario)
+    }
+
+    /// Parses `text` as if read from `path` (no validation).
+    pub fn parse(path: &Path, text: &str) -> Result<Self, ScenarioError> {
+        let mut scenario: Scenario = toml::from_str(text).map_err(|e| {
+            let (line, col) = e
+                .span()
+                .map(|span| line_col(text, span.start))
+                .unwrap_or((0, 0));
+            let field = field_in_message(e.message());
+            ScenarioError::new(
+                path,
+                field.as_deref(),
+                format!("{} (line {line}, column {col})", e.message().trim()),
+            )
+        })?;
+        scenario.source = path.to_path_buf();
+        Ok(scenario)
+    }
+
+    pub fn apply(&mut self, overrides: &Overrides) {
+        if let Some(rate) = overrides.rate_hz {
+            self.timing.rate_hz = rate;
+        }
+        if let Some(duration) = overrides.duration_s {
+            self.timing.duration_s = duration;
+        }
+        if let Some(mode) = overrides.mode {
+            self.timing.mode = mode;
+        }
+        if overrides.no_realtime {
+            for p in [
+                &mut self.realtime.plant,
+                &mut self.realtime.observer,
+                &mut self.realtime.controller,
+                &mut self.realtime.logger,
+            ] {
+                p.priority = None;
+            }
+            self.realtime.hold_cpu_dma_latency = false;
+            self.realtime.lock_memory = false;
+        }
+    }
+
+    fn err(&self, field: &str, reason: impl Into<String>) -> ScenarioError {
+        ScenarioError::new(&self.source, Some(field), reason)
+    }
+
+    /// Checks ranges and consistency; the design step checks the maths.
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        let positive = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(self.err(field, format!("must be a positive finite number, got {v}")))
+            }
+        };
+        let non_negative = |field: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(self.err(field, format!("must be zero or positive, got {v}")))
+            }
+        };
+        positive("loop.rate_hz", self.timing.rate_hz)?;
+        if self.timing.rate_hz > 100_000.0 {
+            return Err(self.err("loop.rate_hz", "above 100 kHz the tick grid is below 10 µs"));
+        }
+        non_negative("loop.duration_s", self.timing.duration_s)?;
+        positive("plant.mass_kg", self.plant.mass_kg)?;
+        positive("plant.input_limit", self.plant.input_limit)?;
+        non_negative("plant.force_noise", self.plant.force_noise)?;
+        non_negative("plant.sensor_noise", self.plant.sensor_noise)?;
+        positive(
+            "observer.observer_bandwidth_hz",
+            self.observer.observer_bandwidth_hz,
+        )?;
+        positive(
+            "observer.feedback_bandwidth_hz",
+            self.observer.feedback_bandwidth_hz,
+        )?;
+        positive("observer.observer_damping", self.observer.observer_damping)?;
+        positive("observer.feedback_damping", self.observer.feedback_damping)?;
+        let nyquist = self.timing.rate_hz / 2.0;
+        for (field, hz) in [
+            (
+                "observer.observer_bandwidth_hz",
+                self.observer.observer_bandwidth_hz,
+            ),
+            (
+                "observer.feedback_bandwidth_hz",
+                self.observer.feedback_bandwidth_hz,
+            ),
+        ] {
+            if hz >= nyquist {
+                return Err(self.err(
+                    field,
+                    format!("{hz} Hz is not below the Nyquist frequency {nyquist} Hz"),
+                ));
+            }
+        }
+        if self.controller.extra_delay_samples > 1 {
+            return Err(self.err("controller.extra_delay_samples", "must be 0 or 1"));
+        }
+        non_negative("reference.amplitude", self.reference.amplitude.abs())?;
+        positive("reference.frequency_hz", self.reference.frequency_hz)?;
+        non_negative("reference.start_s", self.reference.start_s)?;
+        for (field, p) in [
+            ("realtime.plant.priority", &self.realtime.plant),
+            ("realtime.observer.priority", &self.realtime.observer),
+            ("realtime.controller.priority", &self.realtime.controller),
+            ("realtime.logger.priority", &self.realtime.logger),
+        ] {
+            if let Some(prio) = p.priority
+                && !(1..=99).contains(&prio)
+            {
+                return Err(self.err(
+                    field,
+                    format!("SCHED_FIFO priority must be 1..=99, got {prio}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        (1e9 / self.timing.rate_hz).round() as u64
+    }
+
+    /// Ticks to run; `None` runs until stopped.
+    pub fn ticks(&self) -> Option<u64> {
+        (self.timing.duration_s > 0.0)
+            .then(|| (self.timing.duration_s * self.timing.rate_hz).round() as u64)
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.len() - before.rfind('\n').map(|i| i + 1).unwrap_or(0) + 1;
+    (line, col)
+}
+
+/// Pulls the field name out of serde's "unknown field `x`" / "missing field `x`".
+fn field_in_message(message: &str) -> Option<String> {
+    let start = message.find('`')? + 1;
+    let end = start + message[start..].find('`')?;
+    Some(message[start..end].to_string())
+}

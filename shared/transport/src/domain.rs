@@ -1,0 +1,103 @@
+//! One run's iceoryx2 domain: its prefix, its nodes, its cleanup.
+
+use crate::TransportError;
+use iceoryx2::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// The iceoryx2 configuration of one run, isolated by its prefix.
+#[derive(Debug, Clone)]
+pub struct Domain {
+    config: Config,
+    prefix: String,
+}
+
+impl Domain {
+    /// A domain whose shared-memory and file names all start with `prefix`.
+    pub fn new(prefix: &str) -> Result<Self, TransportError> {
+        // Quiet iceoryx2's own info/warn lines ("no config file loaded") unless
+        // the user asks for them with IOX2_LOG_LEVEL.
+        set_log_level_from_env_or(LogLevel::Error);
+        let mut config = Config::default();
+        config.global.prefix = prefix
+            .try_into()
+            .map_err(|e| TransportError::new(prefix, "use as iceoryx2 prefix", e))?;
+        Ok(Self {
+            config,
+            prefix: prefix.to_string(),
+        })
+    }
+
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// A node named `name`. Signal handling stays with the process (flexloop
+    /// installs its own handler), so iceoryx2 does not swallow SIGINT.
+    pub fn node(&self, name: &str) -> Result<Node<ipc::Service>, TransportError> {
+        let node_name: NodeName = name
+            .try_into()
+            .map_err(|e| TransportError::new(name, "use as node name", e))?;
+        NodeBuilder::new()
+            .name(&node_name)
+            .config(&self.config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| TransportError::new(name, "create node", e))
+    }
+}
+
+/// Removes what dead processes of this domain left behind; returns how many
+/// dead nodes were cleaned. Call it from the supervisor, never from a loop.
+pub fn cleanup_dead_nodes(domain: &Domain) -> Result<usize, TransportError> {
+    let mut cleaned = 0usize;
+    Node::<ipc::Service>::list(domain.config(), |state| {
+        if let NodeState::Dead(dead) = state
+            && dead.try_remove_stale_resources().is_ok()
+        {
+            cleaned += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| TransportError::new(domain.prefix(), "list nodes", e))?;
+    Ok(cleaned)
+}
+
+/// Files of this domain still present in shared memory and under iceoryx2's
+/// root path: empty after a clean shutdown of every process of the run.
+pub fn leftover_files(domain: &Domain) -> Vec<PathBuf> {
+    leftover_files_for_prefix(domain.prefix())
+}
+
+/// Same as [`leftover_files`], by prefix only (for tests and `flexloop down`).
+pub fn leftover_files_for_prefix(prefix: &str) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    collect_prefixed(Path::new("/dev/shm"), prefix, &mut found, 0);
+    collect_prefixed(Path::new("/tmp/iceoryx2"), prefix, &mut found, 0);
+    found
+}
+
+fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: usize) {
+    // Bounded depth: iceoryx2's tree is three levels deep.
+    if depth > 4 {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let named = entry.file_name().to_string_lossy().starts_with(prefix);
+        if path.is_dir() {
+            if named {
+                found.push(path.clone());
+            }
+            collect_prefixed(&path, prefix, found, depth + 1);
+        } else if named {
+            found.push(path);
+        }
+    }
+}

@@ -1,0 +1,15 @@
+//! flexloop-transport: the loop's channels on iceoryx2.
+//!
+//! A [`Domain`] isolates one run (its own iceoryx2 prefix). On it, an
+//! [`Outlet`] is a publisher paired with a notifier, an [`Inlet`] a
+//! subscriber paired with a listener whose file descriptor a loop can `ppoll`
+//! with a precise timeout. All services are opened with the QoS of
+//! [`flexloop_protocol::channels`], so that every process agrees.
+
+mod domain;
+mod error;
+mod ports;
+
+pub use domain::{Domain, cleanup_dead_nodes, leftover_files, leftover_files_for_prefix};
+pub use error::TransportError;
+pub use ports::{Inlet, Outlet};

@@ -1,0 +1,181 @@
+//! Outlets (publisher + notifier) and inlets (subscriber + listener).
+
+use crate::TransportError;
+use flexloop_protocol::channels::{Channel, events};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use std::fmt::Debug;
+use std::os::fd::RawFd;
+
+type PubSubFactory<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+type EventFactory = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+
+fn open_pubsub<T>(
+    node: &Node<ipc::Service>,
+    channel: &Channel,
+) -> Result<PubSubFactory<T>, TransportError>
+where
+    T: Debug + ZeroCopySend + 'static,
+{
+    let name: ServiceName = channel
+        .name
+        .try_into()
+        .map_err(|e| TransportError::new(channel.name, "use as service name", e))?;
+    let q = &channel.qos;
+    node.service_builder(&name)
+        .publish_subscribe::<T>()
+        .max_publishers(q.max_publishers)
+        .max_subscribers(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .history_size(q.history_size)
+        .subscriber_max_buffer_size(q.subscriber_max_buffer_size)
+        .subscriber_max_borrowed_samples(2)
+        // A slow reader loses its oldest samples; a publisher never blocks.
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(|e| TransportError::new(channel.name, "open publish-subscribe service", e))
+}
+
+fn open_event(
+    node: &Node<ipc::Service>,
+    channel: &Channel,
+) -> Result<EventFactory, TransportError> {
+    let name: ServiceName = channel
+        .name
+        .try_into()
+        .map_err(|e| TransportError::new(channel.name, "use as service name", e))?;
+    let q = &channel.qos;
+    node.service_builder(&name)
+        .event()
+        .max_notifiers(q.max_publishers)
+        .max_listeners(q.max_subscribers)
+        .max_nodes(q.max_nodes)
+        .event_id_max_value(events::MAX_EVENT_ID)
+        .notifier_dead_event(EventId::new(events::PUBLISHER_DEAD))
+        .open_or_create()
+        .map_err(|e| TransportError::new(channel.name, "open event service", e))
+}
+
+/// Publishes samples of `T` on a channel and wakes its listeners.
+pub struct Outlet<T: Debug + ZeroCopySend + 'static> {
+    channel: &'static str,
+    service: PubSubFactory<T>,
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<T: Debug + Default + ZeroCopySend + 'static> Outlet<T> {
+    pub fn open(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+    ) -> Result<Self, TransportError> {
+        let service = open_pubsub::<T>(node, channel)?;
+        let publisher = service
+            .publisher_builder()
+            .max_loaned_samples(2)
+            .create()
+            .map_err(|e| TransportError::new(channel.name, "create publisher", e))?;
+        let notifier = open_event(node, channel)?
+            .notifier_builder()
+            .default_event_id(EventId::new(events::SAMPLE))
+            .create()
+            .map_err(|e| TransportError::new(channel.name, "create notifier", e))?;
+        Ok(Self {
+            channel: channel.name,
+            service,
+            publisher,
+            notifier,
+        })
+    }
+
+    /// Loans a sample in shared memory, lets `fill` write it in place, sends it.
+    /// Returns how many subscribers it reached.
+    pub fn publish(&self, fill: impl FnOnce(&mut T)) -> Result<usize, TransportError> {
+        let mut sample = self
+            .publisher
+            .loan()
+            .map_err(|e| TransportError::new(self.channel, "loan", e))?;
+        fill(sample.payload_mut());
+        sample
+            .send()
+            .map_err(|e| TransportError::new(self.channel, "send", e))
+    }
+
+    /// Wakes every listener of the channel.
+    pub fn notify(&self) -> Result<usize, TransportError> {
+        self.notifier
+            .notify()
+            .map_err(|e| TransportError::new(self.channel, "notify", e))
+    }
+
+    /// Subscribers currently connected (for start-up synchronisation).
+    pub fn subscribers(&self) -> usize {
+        self.service.dynamic_config().number_of_subscribers()
+    }
+}
+
+/// Receives samples of `T` from a channel; its listener's fd signals arrivals.
+pub struct Inlet<T: Debug + ZeroCopySend + 'static> {
+    channel: &'static str,
+    service: PubSubFactory<T>,
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
+    /// `buffer_size` samples are queued before the oldest is overwritten.
+    pub fn open(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+        buffer_size: usize,
+    ) -> Result<Self, TransportError> {
+        let service = open_pubsub::<T>(node, channel)?;
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(buffer_size)
+            .create()
+            .map_err(|e| TransportError::new(channel.name, "create subscriber", e))?;
+        let listener = open_event(node, channel)?
+            .listener_builder()
+            .create()
+            .map_err(|e| TransportError::new(channel.name, "create listener", e))?;
+        Ok(Self {
+            channel: channel.name,
+            service,
+            subscriber,
+            listener,
+        })
+    }
+
+    /// The listener's descriptor, readable when a notification is pending.
+    pub fn fd(&self) -> RawFd {
+        // SAFETY: the descriptor stays owned by the listener; we only poll it.
+        unsafe { self.listener.file_descriptor().native_handle() }
+    }
+
+    /// Consumes pending notifications so the fd is quiet again and the
+    /// notifier's socket never fills.
+    pub fn clear_events(&self) -> Result<(), TransportError> {
+        self.listener
+            .try_wait(|_| {})
+            .map(|_| ())
+            .map_err(|e| TransportError::new(self.channel, "read events", e))
+    }
+
+    /// The next queued sample, oldest first.
+    pub fn receive(&self) -> Result<Option<Sample<ipc::Service, T, ()>>, TransportError> {
+        self.subscriber
+            .receive()
+            .map_err(|e| TransportError::new(self.channel, "receive", e))
+    }
+
+    /// Publishers currently connected.
+    pub fn publishers(&self) -> usize {
+        self.service.dynamic_config().number_of_publishers()
+    }
+}
