@@ -1,1 +1,307 @@
-fn main() {}
+//! flexloop: starts, drives and measures the loop's processes.
+//!
+//! `flexloop up [SCENARIO]`, `flexloop down`, `flexloop status`,
+//! `flexloop bench [--duration S] [--rate HZ]`. See README.md.
+
+mod bench;
+mod probes;
+mod registry;
+mod supervisor;
+
+use flexloop_runtime::shutdown;
+use flexloop_scenario::{Mode, Overrides, Scenario};
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+const USAGE: &str = "usage:
+  flexloop up [SCENARIO] [--duration S] [--rate HZ] [--mode realtime|lockstep] [--run-dir DIR] [--no-realtime]
+      start the loop's processes (default scenario: scenarios/default.toml) until the
+      scenario's duration ends, Ctrl-C or `flexloop down`
+  flexloop down [--prefix P]          stop running loops
+  flexloop status [--prefix P]        live counters and latency percentiles of a running loop
+  flexloop bench [SCENARIO] [--duration S (10)] [--rate HZ (10000)] [--no-realtime] [--no-probes] [--run-dir DIR]
+      run the loop, measure this machine's floors, print the latency table and a verdict";
+
+fn main() {
+    let args: Vec<OsString> = std::env::args_os().skip(1).collect();
+    let code = match run(args) {
+        Ok(code) => code,
+        Err(message) => {
+            eprintln!("flexloop: {message}");
+            2
+        }
+    };
+    std::process::exit(code);
+}
+
+fn run(args: Vec<OsString>) -> Result<i32, String> {
+    let Some((command, rest)) = args.split_first() else {
+        println!("{USAGE}");
+        return Ok(2);
+    };
+    shutdown::install().map_err(|e| format!("cannot install signal handlers: {e}"))?;
+    let rest = rest.to_vec();
+    match command.to_str() {
+        Some("up") => up(LoopArgs::parse(rest, false)?),
+        Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),
+        Some("down") => down(prefix_arg(rest)?),
+        Some("status") => status(prefix_arg(rest)?),
+        Some("help") | Some("--help") | Some("-h") => {
+            println!("{USAGE}");
+            Ok(0)
+        }
+        _ => Err(format!("unknown command {command:?}\n{USAGE}")),
+    }
+}
+
+/// Arguments shared by `up` and `bench`.
+#[derive(Debug, Clone)]
+pub struct LoopArgs {
+    pub scenario: PathBuf,
+    pub overrides: Overrides,
+    pub run_dir: Option<PathBuf>,
+    pub probes: bool,
+}
+
+impl LoopArgs {
+    fn parse(args: Vec<OsString>, bench: bool) -> Result<Self, String> {
+        use lexopt::prelude::*;
+        let mut parser = lexopt::Parser::from_args(args);
+        let mut scenario = None;
+        let mut overrides = Overrides::default();
+        let mut run_dir = None;
+        let mut probes = true;
+        if bench {
+            overrides.duration_s = Some(10.0);
+            overrides.rate_hz = Some(10_000.0);
+            overrides.mode = Some(Mode::Realtime);
+        }
+        let number = |p: &mut lexopt::Parser, flag: &str| -> Result<f64, String> {
+            let v = p.value().map_err(|e| e.to_string())?;
+            v.to_str()
+                .and_then(|s| s.parse::<f64>().ok())
+                .ok_or_else(|| format!("{flag} needs a number, got {v:?}"))
+        };
+        while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+            match arg {
+                Value(v) if scenario.is_none() => scenario = Some(PathBuf::from(v)),
+                Long("duration") => overrides.duration_s = Some(number(&mut parser, "--duration")?),
+                Long("rate") => overrides.rate_hz = Some(number(&mut parser, "--rate")?),
+                Long("mode") => {
+                    let v = parser.value().map_err(|e| e.to_string())?;
+                    let text = v.to_string_lossy();
+                    overrides.mode =
+                        Some(Mode::parse(&text).ok_or_else(|| format!("unknown mode `{text}`"))?);
+                }
+                Long("run-dir") => {
+                    run_dir = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?))
+                }
+                Long("no-realtime") => overrides.no_realtime = true,
+                Long("no-probes") if bench => probes = false,
+                other => return Err(format!("{}\n{USAGE}", other.unexpected())),
+            }
+        }
+        Ok(Self {
+            scenario: resolve_scenario(scenario)?,
+            overrides,
+            run_dir,
+            probes,
+        })
+    }
+
+    /// Everything `flexloop-*` processes get besides scenario, prefix and run dir.
+    pub fn process_overrides(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let Some(r) = self.overrides.rate_hz {
+            out.extend(["--rate".into(), r.to_string()]);
+        }
+        if let Some(d) = self.overrides.duration_s {
+            out.extend(["--duration".into(), d.to_string()]);
+        }
+        if let Some(m) = self.overrides.mode {
+            out.extend(["--mode".into(), m.as_str().to_string()]);
+        }
+        if self.overrides.no_realtime {
+            out.push("--no-realtime".into());
+        }
+        out
+    }
+}
+
+/// A scenario given by path, or by name from the scenarios directory.
+fn resolve_scenario(given: Option<PathBuf>) -> Result<PathBuf, String> {
+    let dirs = scenario_dirs();
+    let Some(given) = given else {
+        return dirs
+            .iter()
+            .map(|d| d.join("default.toml"))
+            .find(|p| p.is_file())
+            .ok_or_else(|| "no scenario given and no scenarios/default.toml found".to_string());
+    };
+    if given.is_file() || given.components().count() > 1 {
+        return Ok(given);
+    }
+    let named = given.with_extension("toml");
+    Ok(dirs
+        .iter()
+        .map(|d| d.join(&named))
+        .find(|p| p.is_file())
+        .unwrap_or(given))
+}
+
+fn scenario_dirs() -> Vec<PathBuf> {
+    let mut dirs = vec![PathBuf::from("scenarios")];
+    if let Ok(exe) = std::env::current_exe()
+        && let Some(repo) = exe.parent().and_then(Path::parent).and_then(Path::parent)
+    {
+        dirs.push(repo.join("scenarios"));
+    }
+    dirs
+}
+
+fn prefix_arg(args: Vec<OsString>) -> Result<Option<String>, String> {
+    use lexopt::prelude::*;
+    let mut parser = lexopt::Parser::from_args(args);
+    let mut prefix = None;
+    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+        match arg {
+            Long("prefix") => {
+                prefix = Some(
+                    parser
+                        .value()
+                        .map_err(|e| e.to_string())?
+                        .to_string_lossy()
+                        .into_owned(),
+                )
+            }
+            other => return Err(other.unexpected().to_string()),
+        }
+    }
+    Ok(prefix)
+}
+
+/// A started loop: its prefix, run directory and the validated scenario.
+pub struct Prepared {
+    pub scenario: Scenario,
+    pub plan: supervisor::LaunchPlan,
+}
+
+/// Validates the scenario and designs it before anything starts, then makes
+/// the run directory.
+pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
+    let scenario = Scenario::load(&args.scenario, &args.overrides).map_err(|e| e.to_string())?;
+    flexloop_scenario::LoopDesign::from_scenario(&scenario).map_err(|e| e.to_string())?;
+    let run_dir = match &args.run_dir {
+        Some(d) => d.clone(),
+        None => {
+            let stamp = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs())
+                .unwrap_or(0);
+            PathBuf::from("runs").join(format!("{stamp}-{}-{}", scenario.name, std::process::id()))
+        }
+    };
+    std::fs::create_dir_all(&run_dir)
+        .map_err(|e| format!("run directory {}: {e}", run_dir.display()))?;
+    let probe = run_dir.join(".writable");
+    std::fs::write(&probe, b"")
+        .map_err(|e| format!("run directory {}: not writable: {e}", run_dir.display()))?;
+    let _ = std::fs::remove_file(probe);
+    let prefix = format!("flx{}_", std::process::id());
+    Ok(Prepared {
+        plan: supervisor::LaunchPlan {
+            scenario: args.scenario.clone(),
+            prefix,
+            run_dir,
+            overrides: args.process_overrides(),
+            with_logger: scenario.logger.enabled,
+        },
+        scenario,
+    })
+}
+
+fn up(args: LoopArgs) -> Result<i32, String> {
+    let prepared = prepare(&args)?;
+    let entry = registry::Entry {
+        prefix: prepared.plan.prefix.clone(),
+        supervisor_pid: std::process::id() as i32,
+        run_dir: prepared.plan.run_dir.clone(),
+        scenario: prepared.scenario.name.clone(),
+    };
+    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
+    eprintln!(
+        "flexloop: {} at {} Hz ({}), run directory {}; Ctrl-C or `flexloop down` stops it",
+        prepared.scenario.name,
+        prepared.scenario.timing.rate_hz,
+        prepared.scenario.timing.mode.as_str(),
+        prepared.plan.run_dir.display()
+    );
+    let result = run_supervised(prepared);
+    registry::unregister(&entry.prefix);
+    result.map(|_| 0)
+}
+
+/// Starts and supervises until the end; returns the run directory.
+pub fn run_supervised(
+    prepared: Prepared,
+) -> Result<(supervisor::RunningLoop, supervisor::Outcome), String> {
+    let limit = prepared
+        .scenario
+        .ticks()
+        .map(|_| Duration::from_secs_f64(prepared.scenario.timing.duration_s * 3.0 + 30.0));
+    let mut running = supervisor::start(prepared.plan)?;
+    let outcome = running.supervise(limit, |_| {});
+    match outcome {
+        supervisor::Outcome::ChildFailed(role, code) => Err(format!(
+            "flexloop-{} failed (exit {code}); all processes stopped\n{}",
+            role.name(),
+            running.failure_report()
+        )),
+        supervisor::Outcome::TimedOut => Err(format!(
+            "the run did not end in time; all processes stopped\n{}",
+            running.failure_report()
+        )),
+        _ => Ok((running, outcome)),
+    }
+}
+
+fn down(prefix: Option<String>) -> Result<i32, String> {
+    let loops: Vec<_> = registry::list()
+        .into_iter()
+        .filter(|e| prefix.as_ref().is_none_or(|p| &e.prefix == p))
+        .collect();
+    if loops.is_empty() {
+        println!("flexloop: no loop running");
+        return Ok(0);
+    }
+    let mut code = 0;
+    for entry in loops {
+        if registry::stop(&entry, Duration::from_secs(15)) {
+            println!(
+                "flexloop: stopped {} ({})",
+                entry.scenario,
+                entry.run_dir.display()
+            );
+        } else {
+            eprintln!("flexloop: supervisor {} did not stop", entry.supervisor_pid);
+            code = 1;
+        }
+    }
+    Ok(code)
+}
+
+fn status(prefix: Option<String>) -> Result<i32, String> {
+    let loops: Vec<_> = registry::list()
+        .into_iter()
+        .filter(|e| prefix.as_ref().is_none_or(|p| &e.prefix == p))
+        .collect();
+    if loops.is_empty() {
+        println!("flexloop: no loop running");
+        return Ok(1);
+    }
+    for entry in loops {
+        bench::print_status(&entry)?;
+    }
+    Ok(0)
+}

@@ -1,1 +1,9 @@
+//! Integration tests: the real processes, started by the real `flexloop`.
+//!
+//! Every test gets its own run directory; every `flexloop` supervisor derives
+//! its iceoryx2 prefix from its own pid, so tests run in parallel without
+//! seeing each other. No test asserts a timing threshold.
 
+mod bad_input;
+mod loop_processes;
+mod util;

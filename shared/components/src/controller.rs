@@ -85,6 +85,7 @@ impl ControllerCore {
         if estimate.seq != m.seq {
             command_flags |= flags::STALE_ESTIMATE;
         }
+        #[allow(clippy::needless_range_loop)] // four arrays indexed in step
         for i in 0..nu {
             let gains = &self.feedforward[i];
             let u_ff: f64 = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();

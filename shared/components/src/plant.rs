@@ -91,7 +91,7 @@ impl PlantCore {
     /// `tick_ns`. In lockstep mode pass `tick_ns = u64::MAX` (nothing is late).
     pub fn offer(&mut self, cmd: &Command, k: u64, tick_ns: u64) -> CommandVerdict {
         let due = k.wrapping_sub(1);
-        let verdict = if cmd.generation != self.generation {
+        if cmd.generation != self.generation {
             self.counters.wrong_generation += 1;
             CommandVerdict::WrongGeneration
         } else if k == 0 || cmd.seq < due {
@@ -116,8 +116,7 @@ impl PlantCore {
             }
             self.next = Some((cmd.seq, u));
             CommandVerdict::Accepted
-        };
-        verdict
+        }
     }
 
     /// Whether the command due for tick `k` has been accepted.

@@ -3,5 +3,29 @@
 //! Design-time code (model building, discretisation, observer and controller
 //! design) may allocate. The per-sample types ([`lti::LtiRunner`]) are sized in
 //! their constructors and allocate nothing in their `step` methods.
+//!
+//! Typical thesis set-up at 10 kHz (control.md §10.1):
+//! * plant: [`models::thesis_plant_discrete`] (8 modes, exact ZOH);
+//! * observer: [`observer_block::thesis_observer_block`] (Kalman predictor on
+//!   the reduced model with MC and/or AD), layout in [`observer_block`];
+//! * controller: [`pid::thesis_pid`] (Tustin PID + low-pass, input e_meas);
+//! * set-point and feedforward: [`setpoint::Setpoint`], [`feedforward`].
 
 pub mod lti;
+
+pub mod closed_loop;
+pub mod continuous;
+pub mod damping;
+pub mod dare;
+pub mod design_error;
+pub mod discretise;
+pub mod feedforward;
+pub mod freq;
+pub mod kalman;
+pub mod lecture;
+pub mod linalg;
+pub mod modal;
+pub mod models;
+pub mod observer_block;
+pub mod pid;
+pub mod setpoint;

@@ -163,7 +163,7 @@ fn double_integrator(
         ("observer.observer_bandwidth_hz", a_err),
     ] {
         let radius = spectral_radius(&matrix);
-        if !(radius < 1.0) {
+        if radius.is_nan() || radius >= 1.0 {
             return Err(ScenarioError::new(
                 &s.source,
                 Some(field),

@@ -124,7 +124,8 @@ pub struct Inlet<T: Debug + ZeroCopySend + 'static> {
     channel: &'static str,
     service: PubSubFactory<T>,
     subscriber: Subscriber<ipc::Service, T, ()>,
-    listener: Listener<ipc::Service>,
+    /// Absent for a polling reader (the logger): notifiers then never wake it.
+    listener: Option<Listener<ipc::Service>>,
 }
 
 impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
@@ -134,16 +135,40 @@ impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
         channel: &'static Channel,
         buffer_size: usize,
     ) -> Result<Self, TransportError> {
+        Self::open_with(node, channel, buffer_size, true)
+    }
+
+    /// An inlet without a listener, for a reader that polls on its own clock.
+    pub fn open_polling(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+        buffer_size: usize,
+    ) -> Result<Self, TransportError> {
+        Self::open_with(node, channel, buffer_size, false)
+    }
+
+    fn open_with(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+        buffer_size: usize,
+        with_listener: bool,
+    ) -> Result<Self, TransportError> {
         let service = open_pubsub::<T>(node, channel)?;
         let subscriber = service
             .subscriber_builder()
             .buffer_size(buffer_size)
             .create()
             .map_err(|e| TransportError::new(channel.name, "create subscriber", e))?;
-        let listener = open_event(node, channel)?
-            .listener_builder()
-            .create()
-            .map_err(|e| TransportError::new(channel.name, "create listener", e))?;
+        let listener = if with_listener {
+            Some(
+                open_event(node, channel)?
+                    .listener_builder()
+                    .create()
+                    .map_err(|e| TransportError::new(channel.name, "create listener", e))?,
+            )
+        } else {
+            None
+        };
         Ok(Self {
             channel: channel.name,
             service,
@@ -152,19 +177,26 @@ impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
         })
     }
 
-    /// The listener's descriptor, readable when a notification is pending.
+    /// The listener's descriptor, readable when a notification is pending
+    /// (-1 for a polling inlet, which `ppoll` ignores).
     pub fn fd(&self) -> RawFd {
-        // SAFETY: the descriptor stays owned by the listener; we only poll it.
-        unsafe { self.listener.file_descriptor().native_handle() }
+        match &self.listener {
+            // SAFETY: the descriptor stays owned by the listener; we only poll it.
+            Some(listener) => unsafe { listener.file_descriptor().native_handle() },
+            None => -1,
+        }
     }
 
     /// Consumes pending notifications so the fd is quiet again and the
     /// notifier's socket never fills.
     pub fn clear_events(&self) -> Result<(), TransportError> {
-        self.listener
-            .try_wait(|_| {})
-            .map(|_| ())
-            .map_err(|e| TransportError::new(self.channel, "read events", e))
+        match &self.listener {
+            Some(listener) => listener
+                .try_wait(|_| {})
+                .map(|_| ())
+                .map_err(|e| TransportError::new(self.channel, "read events", e)),
+            None => Ok(()),
+        }
     }
 
     /// The next queued sample, oldest first.

@@ -1,0 +1,242 @@
+//! `flexloop bench`: the loop's latency table, its verdict, and the
+//! machine's own floors measured in the same run.
+
+use crate::{LoopArgs, prepare, probes, registry, run_supervised};
+use flexloop_node::Role;
+use flexloop_node::args::realtime_settings;
+use flexloop_protocol::Telemetry;
+use flexloop_protocol::channels::TELEMETRY;
+use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
+use flexloop_transport::{Domain, Inlet};
+use serde_json::{Value, json};
+use std::time::{Duration, Instant};
+
+pub fn bench(args: LoopArgs) -> Result<i32, String> {
+    let prepared = prepare(&args)?;
+    let scenario = prepared.scenario.clone();
+    let run_dir = prepared.plan.run_dir.clone();
+    let prefix = prepared.plan.prefix.clone();
+    let period_ns = scenario.period_ns();
+    eprintln!(
+        "flexloop bench: {} for {} s at {} Hz, run directory {}",
+        scenario.name,
+        scenario.timing.duration_s,
+        scenario.timing.rate_hz,
+        run_dir.display()
+    );
+    let started = Instant::now();
+    let (running, _) = run_supervised(prepared)?;
+    eprintln!(
+        "flexloop bench: loop ran {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let summary_path = run_dir.join(flexloop_node::logger::SUMMARY_FILE);
+    let summary: Value = serde_json::from_str(
+        &std::fs::read_to_string(&summary_path)
+            .map_err(|e| format!("{}: {e}", summary_path.display()))?,
+    )
+    .map_err(|e| format!("{}: {e}", summary_path.display()))?;
+
+    let samples = (scenario.timing.rate_hz * 2.0) as u64;
+    let (timer, pingpong) = if args.probes {
+        eprintln!(
+            "flexloop bench: measuring the wake-up floor and an iceoryx2 ping-pong (2 s each)"
+        );
+        let plant_rt = realtime_settings(&scenario, Role::Plant);
+        let controller_rt = realtime_settings(&scenario, Role::Controller);
+        let timer = probes::timer_probe(&plant_rt, period_ns, samples);
+        let pp = probes::event_ping_pong(
+            &format!("{prefix}probe_"),
+            &plant_rt,
+            &controller_rt,
+            period_ns,
+            samples,
+        )?;
+        (Some(timer), Some(pp))
+    } else {
+        (None, None)
+    };
+
+    let ticks = summary["ticks"].as_u64().unwrap_or(0);
+    let misses = summary["counters"]["misses"].as_u64().unwrap_or(0);
+    let stalls = summary["counters"]["stalled_ticks"].as_u64().unwrap_or(0);
+    let stall_misses = summary["counters"]["stall_misses"].as_u64().unwrap_or(0);
+    let late = summary["counters"]["late_commands"].as_u64().unwrap_or(0);
+    let over = summary["latency"]["tick_to_command"]["over_one_period"]
+        .as_u64()
+        .unwrap_or(0);
+    let gaps: u64 = ["measurement", "estimate", "command"]
+        .iter()
+        .map(|k| summary["gaps"][k].as_u64().unwrap_or(0))
+        .sum();
+
+    println!();
+    println!(
+        "{:<24}{:>10}{:>10}{:>10}{:>10}{:>10}{:>10}{:>10}   (µs)",
+        "histogram",
+        "count",
+        QUANTILE_LABELS[0],
+        QUANTILE_LABELS[1],
+        QUANTILE_LABELS[2],
+        QUANTILE_LABELS[3],
+        QUANTILE_LABELS[4],
+        QUANTILE_LABELS[5]
+    );
+    let row = |name: &str, v: &Value| {
+        let us = |k: &str| v[format!("{k}_ns")].as_u64().unwrap_or(0) as f64 / 1e3;
+        println!(
+            "{:<24}{:>10}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}",
+            name,
+            v["count"].as_u64().unwrap_or(0),
+            us("p50"),
+            us("p90"),
+            us("p99"),
+            us("p99.9"),
+            us("p99.99"),
+            us("max")
+        );
+    };
+    for metric in Metric::ALL {
+        row(metric.name(), &summary["latency"][metric.name()]);
+    }
+    let probe_json = |h: &Option<flexloop_runtime::latency::LatencyHistogram>| {
+        h.as_ref().map(|h| {
+            let p = h.percentiles();
+            let mut m = serde_json::Map::new();
+            m.insert("count".into(), json!(p.count));
+            for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
+                m.insert(format!("{label}_ns"), json!(value));
+            }
+            Value::Object(m)
+        })
+    };
+    let timer_json = probe_json(&timer);
+    let pp_json = probe_json(&pingpong);
+    if let Some(t) = &timer_json {
+        row("probe: timer wake-up", t);
+    }
+    if let Some(p) = &pp_json {
+        row("probe: iox2 ping-pong", p);
+    }
+
+    println!();
+    println!(
+        "ticks {ticks}, loop misses {misses}, late commands {late}, stalled ticks {stalls} (misses after stalls {stall_misses}), log gaps {gaps}"
+    );
+    let mut cpu = serde_json::Map::new();
+    let wall_ns = started.elapsed().as_nanos().max(1) as f64;
+    let cpu_line: Vec<String> = running
+        .children
+        .iter()
+        .map(|c| {
+            let ns = c.exit.map_or(0, |e| e.cpu_ns);
+            cpu.insert(c.role.name().into(), json!(ns));
+            format!("{} {:.1} %", c.role.name(), 100.0 * ns as f64 / wall_ns)
+        })
+        .collect();
+    println!(
+        "CPU (share of one core over the run): {}",
+        cpu_line.join(", ")
+    );
+    let p50 = |v: &Value| v["p50_ns"].as_u64().unwrap_or(0) as f64;
+    let rt = &summary["latency"]["round_trip"];
+    let hop = &summary["latency"]["plant_to_controller"];
+    if let (Some(t), Some(p)) = (&timer_json, &pp_json) {
+        println!(
+            "ratios at p50: round trip / timer wake-up {:.2}, plant->controller hop / one-way ping-pong {:.2}",
+            p50(rt) / p50(t).max(1.0),
+            p50(hop) / (p50(p) / 2.0).max(1.0)
+        );
+    }
+    let fits = misses == 0 && over == 0;
+    let rate = if ticks > 0 {
+        (misses as f64) / ticks as f64
+    } else {
+        0.0
+    };
+    println!(
+        "verdict: {} — u(k) available before tick k+1 in {} of {} ticks; {} loop misses ({:.4} %), {} commands later than one period after their tick",
+        if fits {
+            "the round trip fits one sample period"
+        } else if rate < 1e-4 {
+            "fits one sample period except rare misses (< 1 in 10 000)"
+        } else {
+            "does NOT fit one sample period"
+        },
+        ticks.saturating_sub(misses + stall_misses),
+        ticks,
+        misses,
+        100.0 * rate,
+        over
+    );
+    let bench_json = json!({
+        "summary": summary,
+        "probes": { "timer_wakeup": timer_json, "iceoryx2_event_ping_pong": pp_json },
+        "cpu_ns": Value::Object(cpu),
+        "wall_ns": wall_ns,
+    });
+    let path = run_dir.join("bench.json");
+    flexloop_node::summary::write_json_atomically(&path, &bench_json)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    println!(
+        "histograms: {}, summary: {}",
+        run_dir.join(flexloop_node::logger::HISTOGRAM_LOG).display(),
+        path.display()
+    );
+    Ok(0)
+}
+
+/// Prints the newest telemetry of a running loop (waits up to 3 s for it).
+pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
+    let domain = Domain::new(&entry.prefix).map_err(|e| e.to_string())?;
+    let node = domain.node("status").map_err(|e| e.to_string())?;
+    let inlet = Inlet::<Telemetry>::open_polling(&node, &TELEMETRY, TELEMETRY.qos.loop_buffer_size)
+        .map_err(|e| e.to_string())?;
+    let since = Instant::now();
+    let mut first: Option<Telemetry> = None;
+    let mut last: Option<Telemetry> = None;
+    while since.elapsed() < Duration::from_secs(3) {
+        while let Some(t) = inlet.receive().map_err(|e| e.to_string())? {
+            if first.is_none() {
+                first = Some(*t);
+            }
+            last = Some(*t);
+        }
+        if let (Some(a), Some(b)) = (first, last)
+            && b.published_ns > a.published_ns
+        {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    println!(
+        "loop {} ({}), run directory {}",
+        entry.scenario,
+        entry.prefix,
+        entry.run_dir.display()
+    );
+    let Some(t) = last else {
+        println!("  no telemetry yet (the logger publishes once a second)");
+        return Ok(());
+    };
+    if let Some(a) = first.filter(|a| t.published_ns > a.published_ns) {
+        let rate =
+            (t.samples - a.samples) as f64 / ((t.published_ns - a.published_ns) as f64 / 1e9);
+        println!("  rate {rate:.0} samples/s");
+    }
+    println!(
+        "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, log gaps {}",
+        t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.gaps
+    );
+    let fmt = |v: [u64; 6]| {
+        QUANTILE_LABELS
+            .iter()
+            .zip(v)
+            .map(|(l, ns)| format!("{l} {:.1}", ns as f64 / 1e3))
+            .collect::<Vec<_>>()
+            .join("  ")
+    };
+    println!("  round trip µs:    {}", fmt(t.round_trip));
+    println!("  tick lateness µs: {}", fmt(t.tick_lateness));
+    Ok(())
+}

@@ -1,0 +1,119 @@
+//! The machine's own floors, measured in the same run as the loop:
+//! a cyclictest-like timer probe and a raw iceoryx2 event ping-pong, both
+//! under the plant's priority and CPU.
+
+use flexloop_protocol::channels::events;
+use flexloop_runtime::clock::{TickGrid, sleep_until};
+use flexloop_runtime::latency::LatencyHistogram;
+use flexloop_runtime::monotonic_ns;
+use flexloop_runtime::realtime::{self, RealtimeSettings};
+use flexloop_runtime::wait::{Readiness, wait_readable};
+use iceoryx2::prelude::*;
+use std::time::Duration;
+
+/// Lateness of absolute wake-ups on the tick grid.
+pub fn timer_probe(settings: &RealtimeSettings, period_ns: u64, samples: u64) -> LatencyHistogram {
+    let settings = settings.clone();
+    std::thread::spawn(move || {
+        let _rt = realtime::apply("bench-probe", &settings);
+        let grid = TickGrid::starting_in(period_ns, 1_000_000);
+        let mut h = LatencyHistogram::new();
+        for k in 0..samples {
+            let t = grid.tick_ns(k);
+            sleep_until(t);
+            h.record_span(t, monotonic_ns());
+        }
+        h
+    })
+    .join()
+    .unwrap_or_default()
+}
+
+/// Round trip of one iceoryx2 event each way between two threads, paced on
+/// the tick grid: two process wake-ups, the floor of an event-driven hop.
+pub fn event_ping_pong(
+    prefix: &str,
+    ping: &RealtimeSettings,
+    pong: &RealtimeSettings,
+    period_ns: u64,
+    samples: u64,
+) -> Result<LatencyHistogram, String> {
+    let domain = flexloop_transport::Domain::new(prefix).map_err(|e| e.to_string())?;
+    let open = |node: &Node<ipc::Service>, name: &str| {
+        let service_name: ServiceName = name.try_into().map_err(|e| format!("{e:?}"))?;
+        node.service_builder(&service_name)
+            .event()
+            .open_or_create()
+            .map_err(|e| format!("{e:?}"))
+    };
+    let pong_settings = pong.clone();
+    let pong_domain = domain.clone();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stop_pong = stop.clone();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let pong_thread = std::thread::spawn(move || -> Result<(), String> {
+        let node = pong_domain.node("pong").map_err(|e| e.to_string())?;
+        let listener = open(&node, "probe/ping")?
+            .listener_builder()
+            .create()
+            .map_err(|e| format!("{e:?}"))?;
+        let notifier = open(&node, "probe/pong")?
+            .notifier_builder()
+            .default_event_id(EventId::new(events::SAMPLE))
+            .create()
+            .map_err(|e| format!("{e:?}"))?;
+        let _rt = realtime::apply("bench-pong", &pong_settings);
+        let _ = ready_tx.send(());
+        // SAFETY: the fd stays owned by the listener.
+        let fd = unsafe { listener.file_descriptor().native_handle() };
+        while !stop_pong.load(std::sync::atomic::Ordering::Relaxed) {
+            if let Ok(Readiness::Ready(_)) = wait_readable(&[fd], 50_000_000) {
+                let _ = listener.try_wait(|_| {});
+                let _ = notifier.notify();
+            }
+        }
+        Ok(())
+    });
+    let node = domain.node("ping").map_err(|e| e.to_string())?;
+    let listener = open(&node, "probe/pong")?
+        .listener_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    let notifier = open(&node, "probe/ping")?
+        .notifier_builder()
+        .default_event_id(EventId::new(events::SAMPLE))
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    let _ = ready_rx.recv_timeout(Duration::from_secs(5));
+    let result = std::thread::scope(|_| {
+        let _rt = realtime::apply("bench-ping", ping);
+        // SAFETY: the fd stays owned by the listener.
+        let fd = unsafe { listener.file_descriptor().native_handle() };
+        let grid = TickGrid::starting_in(period_ns, 1_000_000);
+        let mut h = LatencyHistogram::new();
+        for k in 0..samples {
+            sleep_until(grid.tick_ns(k));
+            let sent = monotonic_ns();
+            if notifier.notify().is_err() {
+                continue;
+            }
+            // Bounded: a lost pong costs at most one period of waiting.
+            if let Ok(Readiness::Ready(_)) = wait_readable(&[fd], period_ns * 10) {
+                let _ = listener.try_wait(|_| {});
+                h.record_span(sent, monotonic_ns());
+            }
+        }
+        h
+    });
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = pong_thread.join();
+    drop((listener, notifier, node));
+    for path in flexloop_transport::leftover_files_for_prefix(prefix) {
+        let _ = if path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+    }
+    Ok(result)
+}

@@ -1,0 +1,87 @@
+//! Running loops, as files under /tmp/flexloop/loops, so that `flexloop down`
+//! and `flexloop status` find the loop a `flexloop up` started elsewhere.
+
+use std::path::PathBuf;
+
+const DIR: &str = "/tmp/flexloop/loops";
+
+#[derive(Debug, Clone)]
+pub struct Entry {
+    pub prefix: String,
+    pub supervisor_pid: i32,
+    pub run_dir: PathBuf,
+    pub scenario: String,
+}
+
+fn path(prefix: &str) -> PathBuf {
+    PathBuf::from(DIR).join(format!("{prefix}.json"))
+}
+
+pub fn register(entry: &Entry) -> std::io::Result<()> {
+    std::fs::create_dir_all(DIR)?;
+    let json = serde_json::json!({
+        "prefix": entry.prefix,
+        "supervisor_pid": entry.supervisor_pid,
+        "run_dir": entry.run_dir.display().to_string(),
+        "scenario": entry.scenario,
+    });
+    std::fs::write(path(&entry.prefix), json.to_string())
+}
+
+pub fn unregister(prefix: &str) {
+    let _ = std::fs::remove_file(path(prefix));
+}
+
+/// Alive and not a zombie (an exited supervisor whose parent has not reaped
+/// it yet has stopped all the same).
+fn alive(pid: i32) -> bool {
+    // SAFETY: signal 0 only checks that the process exists.
+    if pid <= 0 || unsafe { libc::kill(pid, 0) } != 0 {
+        return false;
+    }
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let state = stat
+        .rsplit_once(") ")
+        .and_then(|(_, rest)| rest.chars().next());
+    state != Some('Z')
+}
+
+/// Loops whose supervisor is alive; stale entries are removed.
+pub fn list() -> Vec<Entry> {
+    let Ok(dir) = std::fs::read_dir(DIR) else {
+        return Vec::new();
+    };
+    let mut entries = Vec::new();
+    for file in dir.flatten() {
+        let Ok(text) = std::fs::read_to_string(file.path()) else {
+            continue;
+        };
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+            continue;
+        };
+        let entry = Entry {
+            prefix: v["prefix"].as_str().unwrap_or_default().to_string(),
+            supervisor_pid: v["supervisor_pid"].as_i64().unwrap_or(0) as i32,
+            run_dir: PathBuf::from(v["run_dir"].as_str().unwrap_or_default()),
+            scenario: v["scenario"].as_str().unwrap_or_default().to_string(),
+        };
+        if alive(entry.supervisor_pid) {
+            entries.push(entry);
+        } else {
+            let _ = std::fs::remove_file(file.path());
+        }
+    }
+    entries.sort_by(|a, b| a.prefix.cmp(&b.prefix));
+    entries
+}
+
+/// Asks a loop's supervisor to stop and waits (bounded) until it is gone.
+pub fn stop(entry: &Entry, wait: std::time::Duration) -> bool {
+    // SAFETY: the pid is the supervisor's, checked alive just before.
+    unsafe { libc::kill(entry.supervisor_pid, libc::SIGTERM) };
+    let since = std::time::Instant::now();
+    while alive(entry.supervisor_pid) && since.elapsed() < wait {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    !alive(entry.supervisor_pid)
+}

@@ -1,0 +1,272 @@
+//! Starting, watching and stopping the loop's processes.
+//!
+//! Children run in their own process groups (a terminal's Ctrl-C reaches only
+//! the supervisor, which then stops them in order: the plant first, so the
+//! others see the end of the run and drain) and die with the supervisor
+//! (PR_SET_PDEATHSIG), so no process is orphaned.
+
+use flexloop_node::Role;
+use flexloop_runtime::shutdown;
+use flexloop_transport::{Domain, cleanup_dead_nodes, leftover_files_for_prefix};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// What to start.
+#[derive(Debug, Clone)]
+pub struct LaunchPlan {
+    pub scenario: PathBuf,
+    pub prefix: String,
+    pub run_dir: PathBuf,
+    /// Overrides passed to every process (`--rate`, `--mode`, ...).
+    pub overrides: Vec<String>,
+    pub with_logger: bool,
+}
+
+/// One started process.
+#[derive(Debug)]
+pub struct ChildProcess {
+    pub role: Role,
+    pub pid: i32,
+    pub exit: Option<ExitInfo>,
+}
+
+/// How a child ended and what CPU it used.
+#[derive(Debug, Clone, Copy)]
+pub struct ExitInfo {
+    /// Exit code, or `128 + signal` if killed by a signal.
+    pub code: i32,
+    pub cpu_ns: u64,
+}
+
+pub struct RunningLoop {
+    pub plan: LaunchPlan,
+    pub children: Vec<ChildProcess>,
+    pub started: Instant,
+}
+
+fn binary(role: Role) -> std::io::Result<PathBuf> {
+    let exe = std::env::current_exe()?;
+    let dir = exe.parent().unwrap_or(Path::new("."));
+    Ok(dir.join(format!("flexloop-{}", role.name())))
+}
+
+/// Starts the processes; on any failure, stops those already started.
+pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
+    let mut running = RunningLoop {
+        plan: plan.clone(),
+        children: Vec::new(),
+        started: Instant::now(),
+    };
+    let roles: &[Role] = if plan.with_logger {
+        &[Role::Logger, Role::Observer, Role::Controller, Role::Plant]
+    } else {
+        &[Role::Observer, Role::Controller, Role::Plant]
+    };
+    for &role in roles {
+        match spawn(&plan, role) {
+            Ok(pid) => running.children.push(ChildProcess {
+                role,
+                pid,
+                exit: None,
+            }),
+            Err(e) => {
+                running.stop();
+                running.cleanup();
+                return Err(format!("cannot start flexloop-{}: {e}", role.name()));
+            }
+        }
+    }
+    Ok(running)
+}
+
+fn spawn(plan: &LaunchPlan, role: Role) -> std::io::Result<i32> {
+    let stderr = std::fs::File::create(plan.run_dir.join(format!("{}.stderr", role.name())))?;
+    let mut cmd = Command::new(binary(role)?);
+    cmd.arg("--scenario")
+        .arg(&plan.scenario)
+        .arg("--prefix")
+        .arg(&plan.prefix)
+        .arg("--run-dir")
+        .arg(&plan.run_dir)
+        .args(&plan.overrides)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(stderr)
+        .process_group(0);
+    // SAFETY: prctl is async-signal-safe and touches no Rust state.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let child = cmd.spawn()?;
+    // Reaped by pid with wait4 (for its CPU time), not through `Child`.
+    Ok(child.id() as i32)
+}
+
+impl RunningLoop {
+    /// Reaps children that ended; returns true if any ended this call.
+    pub fn reap(&mut self) -> bool {
+        let mut any = false;
+        for child in self.children.iter_mut().filter(|c| c.exit.is_none()) {
+            let mut status = 0;
+            // SAFETY: zeroed rusage is valid; wait4 only writes it.
+            let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+            let rc = unsafe { libc::wait4(child.pid, &mut status, libc::WNOHANG, &mut usage) };
+            if rc == child.pid {
+                let code = if libc::WIFEXITED(status) {
+                    libc::WEXITSTATUS(status)
+                } else {
+                    128 + libc::WTERMSIG(status)
+                };
+                let cpu_ns = flexloop_runtime::usage::timeval_ns(usage.ru_utime)
+                    + flexloop_runtime::usage::timeval_ns(usage.ru_stime);
+                child.exit = Some(ExitInfo { code, cpu_ns });
+                any = true;
+            } else if rc < 0 {
+                // Not our child any more (cannot happen): record it as gone.
+                child.exit = Some(ExitInfo {
+                    code: -1,
+                    cpu_ns: 0,
+                });
+                any = true;
+            }
+        }
+        any
+    }
+
+    pub fn alive(&self) -> usize {
+        self.children.iter().filter(|c| c.exit.is_none()).count()
+    }
+
+    pub fn child(&self, role: Role) -> Option<&ChildProcess> {
+        self.children.iter().find(|c| c.role == role)
+    }
+
+    /// Watches until the run ends by itself, a child fails, `limit` passes or
+    /// a termination signal arrives; then stops everything. `tick` is called
+    /// every 100 ms (progress display).
+    pub fn supervise(
+        &mut self,
+        limit: Option<Duration>,
+        mut tick: impl FnMut(&RunningLoop),
+    ) -> Outcome {
+        let mut outcome = Outcome::Completed;
+        let mut last_tick = Instant::now();
+        loop {
+            self.reap();
+            if shutdown::requested() {
+                outcome = Outcome::Interrupted;
+                break;
+            }
+            if let Some(failed) = self
+                .children
+                .iter()
+                .find(|c| c.exit.is_some_and(|e| e.code != 0))
+            {
+                outcome = Outcome::ChildFailed(failed.role, failed.exit.map_or(-1, |e| e.code));
+                break;
+            }
+            if self.child(Role::Plant).is_some_and(|p| p.exit.is_some()) {
+                break;
+            }
+            if limit.is_some_and(|l| self.started.elapsed() > l) {
+                outcome = Outcome::TimedOut;
+                break;
+            }
+            if last_tick.elapsed() >= Duration::from_millis(100) {
+                tick(self);
+                last_tick = Instant::now();
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.stop();
+        self.cleanup();
+        outcome
+    }
+
+    /// Stops the plant, lets the others drain, then terminates stragglers.
+    pub fn stop(&mut self) {
+        self.signal_role(Role::Plant, libc::SIGTERM);
+        self.wait_all_for(Duration::from_secs(3));
+        for child in self.children.iter().filter(|c| c.exit.is_none()) {
+            // SAFETY: a pid we started and have not reaped, so not reused.
+            unsafe { libc::kill(child.pid, libc::SIGTERM) };
+        }
+        self.wait_all_for(Duration::from_secs(3));
+        for child in self.children.iter().filter(|c| c.exit.is_none()) {
+            unsafe { libc::kill(child.pid, libc::SIGKILL) };
+        }
+        self.wait_all_for(Duration::from_secs(3));
+    }
+
+    fn signal_role(&self, role: Role, signal: i32) {
+        if let Some(c) = self.child(role).filter(|c| c.exit.is_none()) {
+            // SAFETY: a pid we started and have not reaped.
+            unsafe { libc::kill(c.pid, signal) };
+        }
+    }
+
+    fn wait_all_for(&mut self, limit: Duration) {
+        let since = Instant::now();
+        while self.alive() > 0 && since.elapsed() < limit {
+            self.reap();
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Removes what the run left in shared memory (dead nodes' resources and
+    /// the per-prefix management file), once no process of the run is alive.
+    pub fn cleanup(&mut self) {
+        if self.alive() > 0 {
+            return;
+        }
+        if let Ok(domain) = Domain::new(&self.plan.prefix) {
+            let _ = cleanup_dead_nodes(&domain);
+        }
+        for path in leftover_files_for_prefix(&self.plan.prefix) {
+            if path.is_dir() {
+                let _ = std::fs::remove_dir_all(&path);
+            } else {
+                let _ = std::fs::remove_file(&path);
+            }
+        }
+    }
+
+    /// The last lines each failed child wrote to stderr.
+    pub fn failure_report(&self) -> String {
+        let mut out = String::new();
+        for c in &self.children {
+            let path = self.plan.run_dir.join(format!("{}.stderr", c.role.name()));
+            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            let code = c.exit.map_or("running".to_string(), |e| e.code.to_string());
+            if !text.trim().is_empty() || c.exit.is_some_and(|e| e.code != 0) {
+                out.push_str(&format!("  {} (exit {code}):\n", c.role.name()));
+                for line in text
+                    .lines()
+                    .rev()
+                    .take(5)
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .rev()
+                {
+                    out.push_str(&format!("    {line}\n"));
+                }
+            }
+        }
+        out
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    Completed,
+    Interrupted,
+    TimedOut,
+    ChildFailed(Role, i32),
+}

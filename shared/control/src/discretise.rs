@@ -1,0 +1,252 @@
+//! Continuous → discrete conversion: exact zero-order hold for plants and
+//! observer models (control.md §3, (2.20)), Tustin with optional pre-warping
+//! for controllers and filters, and pure sample delays.
+
+use crate::continuous::ContinuousStateSpace;
+use crate::linalg::{LinalgError, expm, solve};
+use crate::lti::{DiscreteStateSpace, StateSpaceError};
+use nalgebra::DMatrix;
+use std::fmt;
+
+/// Why a discretisation failed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DiscretiseError {
+    /// Sample period (or pre-warp frequency) not positive and finite.
+    InvalidPeriod(f64),
+    /// Pre-warp frequency at or above Nyquist, where tan() blows up.
+    PrewarpAboveNyquist(f64),
+    /// The matrix exponential or the Tustin inverse failed.
+    Linalg(LinalgError),
+    /// The result is not a valid state space.
+    StateSpace(StateSpaceError),
+}
+
+impl fmt::Display for DiscretiseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::InvalidPeriod(t) => write!(f, "sample period {t} is not positive and finite"),
+            Self::PrewarpAboveNyquist(w) => {
+                write!(f, "pre-warp frequency {w} rad/s is at or above Nyquist")
+            }
+            Self::Linalg(e) => write!(f, "discretisation: {e}"),
+            Self::StateSpace(e) => write!(f, "discretisation: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for DiscretiseError {}
+
+impl From<LinalgError> for DiscretiseError {
+    fn from(e: LinalgError) -> Self {
+        Self::Linalg(e)
+    }
+}
+impl From<StateSpaceError> for DiscretiseError {
+    fn from(e: StateSpaceError) -> Self {
+        Self::StateSpace(e)
+    }
+}
+
+fn check_ts(ts: f64) -> Result<(), DiscretiseError> {
+    if ts.is_finite() && ts > 0.0 {
+        Ok(())
+    } else {
+        Err(DiscretiseError::InvalidPeriod(ts))
+    }
+}
+
+/// Exact ZOH: A_d = e^{A Ts}, B_d = ∫₀^Ts e^{Aτ}dτ B from the exponential of
+/// the augmented matrix [[A, B], [0, 0]] Ts, so a singular A (rigid modes) is
+/// fine. C and D (e.g. T_DC) are unchanged (Theorem 2.4.1).
+pub fn zoh(sys: &ContinuousStateSpace, ts: f64) -> Result<DiscreteStateSpace, DiscretiseError> {
+    check_ts(ts)?;
+    let (n, m) = (sys.states(), sys.inputs());
+    let mut aug = DMatrix::zeros(n + m, n + m);
+    aug.view_mut((0, 0), (n, n)).copy_from(&(&sys.a * ts));
+    aug.view_mut((0, n), (n, m)).copy_from(&(&sys.b * ts));
+    let e = expm(&aug)?;
+    let ad = e.view((0, 0), (n, n)).into_owned();
+    let bd = e.view((0, n), (n, m)).into_owned();
+    Ok(DiscreteStateSpace::new(
+        ad,
+        bd,
+        sys.c.clone(),
+        sys.d.clone(),
+        ts,
+    )?)
+}
+
+/// Tustin (bilinear) transform s = c (z − 1)/(z + 1), with c = 2/Ts, or with
+/// pre-warping c = ω₀ / tan(ω₀ Ts / 2) so that the response at ω₀ is exact
+/// (used for the per-mode band-pass filters).
+pub fn tustin(
+    sys: &ContinuousStateSpace,
+    ts: f64,
+    prewarp: Option<f64>,
+) -> Result<DiscreteStateSpace, DiscretiseError> {
+    check_ts(ts)?;
+    let c = match prewarp {
+        None => 2.0 / ts,
+        Some(w) => {
+            if !(w.is_finite() && w > 0.0) {
+                return Err(DiscretiseError::InvalidPeriod(w));
+            }
+            if w * ts / 2.0 >= std::f64::consts::FRAC_PI_2 {
+                return Err(DiscretiseError::PrewarpAboveNyquist(w));
+            }
+            w / (w * ts / 2.0).tan()
+        }
+    };
+    let alpha = 1.0 / c;
+    let n = sys.states();
+    let id = DMatrix::<f64>::identity(n, n);
+    let m = &id - &sys.a * alpha;
+    let minv = solve(&m, &id, "I - A/c (pole at s = c)")?;
+    let ad = &minv * (&id + &sys.a * alpha);
+    let k = (2.0 * alpha).sqrt();
+    let bd = &minv * &sys.b * k;
+    let cd = &sys.c * &minv * k;
+    let dd = &sys.d + &sys.c * &minv * &sys.b * alpha;
+    Ok(DiscreteStateSpace::new(ad, bd, cd, dd, ts)?)
+}
+
+/// A delay of `samples` samples on `signals` channels: y(k) = u(k − samples).
+pub fn delay(
+    signals: usize,
+    samples: usize,
+    ts: f64,
+) -> Result<DiscreteStateSpace, DiscretiseError> {
+    check_ts(ts)?;
+    let n = signals * samples;
+    if samples == 0 {
+        return Ok(DiscreteStateSpace::gain(
+            DMatrix::identity(signals, signals),
+            ts,
+        )?);
+    }
+    // Shift register: state block j holds u(k − 1 − j).
+    let mut a = DMatrix::zeros(n, n);
+    for j in 1..samples {
+        a.view_mut((j * signals, (j - 1) * signals), (signals, signals))
+            .fill_with_identity();
+    }
+    let mut b = DMatrix::zeros(n, signals);
+    b.view_mut((0, 0), (signals, signals)).fill_with_identity();
+    let mut c = DMatrix::zeros(signals, n);
+    c.view_mut((0, (samples - 1) * signals), (signals, signals))
+        .fill_with_identity();
+    Ok(DiscreteStateSpace::new(
+        a,
+        b,
+        c,
+        DMatrix::zeros(signals, signals),
+        ts,
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::freq::{freq_response_continuous, freq_response_discrete};
+    use crate::lti::LtiRunner;
+    use crate::models::{TS_10KHZ, thesis_chain_modal, thesis_plant};
+
+    #[test]
+    fn zoh_matches_closed_form_per_mode() {
+        let m = thesis_chain_modal().unwrap();
+        let ts = TS_10KHZ;
+        let d = zoh(&m.state_space(), ts).unwrap();
+        // Rigid mode: [[1, Ts], [0, 1]], B = φ_a [Ts²/2; Ts].
+        assert!((d.a[(0, 1)] - ts).abs() < 1e-18);
+        assert!((d.b[(0, 0)] - m.phi_a[(0, 0)] * ts * ts / 2.0).abs() < 1e-20);
+        for i in 1..8 {
+            let (w, z) = (m.omega[i], m.zeta[i]);
+            let wd = w * (1.0 - z * z).sqrt();
+            let e = (-z * w * ts).exp();
+            let (s, c) = (wd * ts).sin_cos();
+            let r = z / (1.0 - z * z).sqrt();
+            // (2.31)
+            let want = [
+                e * (c + r * s),
+                e * s / wd,
+                -e * w / (1.0 - z * z).sqrt() * s,
+                e * (c - r * s),
+            ];
+            let blk = d.a.view((2 * i, 2 * i), (2, 2));
+            let got = [blk[(0, 0)], blk[(0, 1)], blk[(1, 0)], blk[(1, 1)]];
+            for (g, w_) in got.iter().zip(want) {
+                assert!(
+                    (g - w_).abs() <= 1e-12 * w_.abs().max(1e-9),
+                    "mode {i}: {g} vs {w_}"
+                );
+            }
+            // Exact B = A⁻¹ (A_d − I) [0; φ_a] for a non-singular mode block.
+            let a_c = DMatrix::from_row_slice(2, 2, &[0.0, 1.0, -w * w, -2.0 * z * w]);
+            let ad = DMatrix::from_row_slice(2, 2, &want);
+            let rhs = (ad - DMatrix::identity(2, 2))
+                * DMatrix::from_column_slice(2, 1, &[0.0, m.phi_a[(i, 0)]]);
+            let bd = a_c.lu().solve(&rhs).unwrap();
+            for r in 0..2 {
+                let g = d.b[(2 * i + r, 0)];
+                assert!(
+                    (g - bd[(r, 0)]).abs() <= 1e-10 * bd[(r, 0)].abs(),
+                    "mode {i} B row {r}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn t_dc_is_unchanged_by_discretisation() {
+        // Discretise the discarded modes 4–6 of y5 and take their DC gain
+        // C_d (I − A_d)⁻¹ B_d: it must equal T_DC (Theorem 2.4.1).
+        let p = thesis_plant(5).unwrap();
+        let disc = p.select_modes(&[4, 5, 6]).unwrap();
+        let d = zoh(&disc.state_space(), TS_10KHZ).unwrap();
+        let n = d.states();
+        let dc = &d.c * (DMatrix::identity(n, n) - &d.a).lu().solve(&d.b).unwrap();
+        let t_dc = p.compliance(&[4, 5, 6]).unwrap();
+        assert!(
+            (dc[(0, 0)] - t_dc[(0, 0)]).abs() < 1e-9 * t_dc[(0, 0)].abs(),
+            "{dc} vs {t_dc}"
+        );
+        assert!((t_dc[(0, 0)] + 3.28e-10).abs() < 0.006e-10);
+        // And the reduced model keeps T_DC as its D matrix.
+        let red = crate::models::thesis_reduced(5).unwrap();
+        let rd = zoh(&red.state_space(), TS_10KHZ).unwrap();
+        assert_eq!(rd.d, red.t_dc);
+    }
+
+    #[test]
+    fn tustin_matches_continuous_at_prewarp_frequency() {
+        // Band-pass (ω/Q) s / (s² + (ω/Q) s + ω²) at 1396 Hz, Q = 2.
+        let w = 2.0 * std::f64::consts::PI * 1396.06;
+        let q = 2.0;
+        let bp = ContinuousStateSpace::from_transfer_function(&[w / q, 0.0], &[1.0, w / q, w * w])
+            .unwrap();
+        let d = tustin(&bp, TS_10KHZ, Some(w)).unwrap();
+        let h = freq_response_discrete(&d, w).unwrap()[(0, 0)];
+        assert!((h.re - 1.0).abs() < 1e-9 && h.im.abs() < 1e-9, "{h}");
+        // Without pre-warping, low frequencies still match closely.
+        let d2 = tustin(&bp, TS_10KHZ, None).unwrap();
+        let wl = 2.0 * std::f64::consts::PI * 50.0;
+        let hd = freq_response_discrete(&d2, wl).unwrap()[(0, 0)];
+        let hc = freq_response_continuous(&bp, wl).unwrap()[(0, 0)];
+        assert!((hd - hc).norm() < 1e-3 * hc.norm());
+        assert!(matches!(
+            tustin(&bp, TS_10KHZ, Some(4e4)),
+            Err(DiscretiseError::PrewarpAboveNyquist(_))
+        ));
+        assert!(zoh(&bp, 0.0).is_err());
+    }
+
+    #[test]
+    fn delay_shifts_samples() {
+        let mut r = LtiRunner::new(delay(1, 2, 1.0).unwrap());
+        let out: Vec<f64> = [1.0, 2.0, 3.0, 4.0]
+            .iter()
+            .map(|u| r.step(&[*u])[0])
+            .collect();
+        assert_eq!(out, vec![0.0, 0.0, 1.0, 2.0]);
+    }
+}

@@ -1,0 +1,87 @@
+//! flexloop-node: each loop process's life around its per-sample component:
+//! arguments, ports, real-time set-up, the loop itself, and a clean exit.
+//!
+//! The service binaries under `services/` are thin mains over [`run`].
+
+pub mod args;
+pub mod controller;
+pub mod logger;
+pub mod observer;
+pub mod plant;
+pub mod summary;
+
+use std::fmt;
+
+pub use args::{Role, ServiceArgs};
+
+/// Why a loop process stopped with an error.
+#[derive(Debug)]
+pub enum NodeError {
+    Usage(String),
+    Scenario(flexloop_scenario::ScenarioError),
+    Transport(flexloop_transport::TransportError),
+    Io {
+        path: String,
+        error: std::io::Error,
+    },
+    /// Another process did not show up or went silent.
+    Peer(String),
+}
+
+impl fmt::Display for NodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NodeError::Usage(m) => write!(f, "usage: {m}"),
+            NodeError::Scenario(e) => e.fmt(f),
+            NodeError::Transport(e) => e.fmt(f),
+            NodeError::Io { path, error } => write!(f, "{path}: {error}"),
+            NodeError::Peer(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for NodeError {}
+
+impl From<flexloop_scenario::ScenarioError> for NodeError {
+    fn from(e: flexloop_scenario::ScenarioError) -> Self {
+        NodeError::Scenario(e)
+    }
+}
+
+impl From<flexloop_transport::TransportError> for NodeError {
+    fn from(e: flexloop_transport::TransportError) -> Self {
+        NodeError::Transport(e)
+    }
+}
+
+/// Runs the process for `role` with the command line `args` (without argv[0]);
+/// returns the exit code. Used by every service main.
+pub fn main_for(role: Role) -> i32 {
+    let args = match ServiceArgs::parse(role, std::env::args_os().skip(1)) {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("flexloop-{}: {e}", role.name());
+            return 2;
+        }
+    };
+    if let Err(e) = flexloop_runtime::shutdown::install() {
+        eprintln!(
+            "flexloop-{}: cannot install signal handlers: {e}",
+            role.name()
+        );
+        return 1;
+    }
+    let result = match role {
+        Role::Plant => plant::run(&args),
+        Role::Observer => observer::run(&args),
+        Role::Controller => controller::run(&args),
+        Role::Logger => logger::run(&args),
+    };
+    match result {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("flexloop-{}: {e}", role.name());
+            1
+        }
+    }
+}

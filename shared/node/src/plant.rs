@@ -1,0 +1,124 @@
+//! The plant process: owns the clock, applies commands, publishes y(k).
+
+use crate::NodeError;
+use crate::args::{Role, ServiceArgs, realtime_settings};
+use flexloop_components::PlantCore;
+use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
+use flexloop_protocol::{Command, Measurement, flags};
+use flexloop_runtime::clock::{TickGrid, sleep_until};
+use flexloop_runtime::wait::wait_readable;
+use flexloop_runtime::{monotonic_ns, realtime, shutdown};
+use flexloop_scenario::Mode;
+use flexloop_transport::{Domain, Inlet, Outlet};
+use std::time::Duration;
+
+/// How long the plant waits for its peers to connect at start-up.
+const PEER_TIMEOUT: Duration = Duration::from_secs(20);
+/// In lockstep, how long a command may take before the controller counts as silent.
+const LOCKSTEP_SILENCE: Duration = Duration::from_secs(5);
+
+pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
+    let (scenario, design) = args.load()?;
+    let domain = Domain::new(&args.prefix)?;
+    let node = domain.node("plant")?;
+    let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
+    let commands = Inlet::<Command>::open(&node, &COMMAND, COMMAND.qos.loop_buffer_size)?;
+
+    // Observer and controller (and the logger) must be listening before tick 0,
+    // or the first samples would be lost.
+    let expected_readers = 2 + usize::from(scenario.logger.enabled);
+    let since = std::time::Instant::now();
+    while measurements.subscribers() < expected_readers || commands.publishers() < 1 {
+        if shutdown::requested() {
+            return Ok(());
+        }
+        if since.elapsed() > PEER_TIMEOUT {
+            return Err(NodeError::Peer(format!(
+                "peers did not connect within {PEER_TIMEOUT:?} ({} of {expected_readers} readers, {} command publishers)",
+                measurements.subscribers(),
+                commands.publishers()
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+
+    let _rt = realtime::apply(
+        Role::Plant.name(),
+        &realtime_settings(&scenario, Role::Plant),
+    );
+    let mut core = PlantCore::new(&design);
+    core.set_generation(args.generation);
+    let lockstep = scenario.timing.mode == Mode::Lockstep;
+    let period_ns = scenario.period_ns();
+    let stall_threshold_ns = period_ns / 2;
+    let last_tick = scenario.ticks().map(|n| n.saturating_sub(1));
+    let grid = TickGrid::starting_in(period_ns, 2_000_000);
+
+    let mut k: u64 = 0;
+    loop {
+        let stopping = shutdown::requested();
+        let (tick_ns, woke_ns) = if lockstep {
+            if k > 0 && !stopping {
+                wait_for_command(&commands, &mut core, k)?;
+            }
+            let now = monotonic_ns();
+            (now, now)
+        } else {
+            let tick_ns = grid.tick_ns(k);
+            sleep_until(tick_ns);
+            let woke_ns = monotonic_ns();
+            while let Some(cmd) = commands.receive()? {
+                core.offer(&cmd, k, tick_ns);
+            }
+            (tick_ns, woke_ns)
+        };
+        let stalled = woke_ns.saturating_sub(tick_ns) > stall_threshold_ns;
+        let last = stopping || Some(k) == last_tick;
+        measurements.publish(|m| {
+            core.tick(k, tick_ns, woke_ns, stalled, m);
+            if last {
+                m.flags |= flags::END_OF_RUN;
+            }
+            if lockstep {
+                m.flags |= flags::LOCKSTEP;
+            }
+            m.published_ns = monotonic_ns();
+        })?;
+        measurements.notify()?;
+        core.advance();
+        if last {
+            break;
+        }
+        k += 1;
+    }
+    let c = core.counters;
+    eprintln!(
+        "flexloop-plant: {} ticks, {} misses, {} late commands, {} stalled ticks ({} misses after stalls)",
+        c.ticks, c.misses, c.late_commands, c.stalled_ticks, c.stall_misses
+    );
+    Ok(())
+}
+
+/// Lockstep: block until the command for tick `k` arrived (or shutdown).
+fn wait_for_command(
+    commands: &Inlet<Command>,
+    core: &mut PlantCore,
+    k: u64,
+) -> Result<(), NodeError> {
+    let since = std::time::Instant::now();
+    loop {
+        commands.clear_events()?;
+        while let Some(cmd) = commands.receive()? {
+            core.offer(&cmd, k, u64::MAX);
+        }
+        if core.has_command_for(k) || shutdown::requested() {
+            return Ok(());
+        }
+        if since.elapsed() > LOCKSTEP_SILENCE {
+            return Err(NodeError::Peer(format!(
+                "lockstep: no command for tick {k} within {LOCKSTEP_SILENCE:?}: controller silent"
+            )));
+        }
+        wait_readable(&[commands.fd()], 100_000_000).map_err(|e| NodeError::Peer(e.to_string()))?;
+    }
+}

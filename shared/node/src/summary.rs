@@ -1,0 +1,73 @@
+//! The run summary the logger writes (`summary.json`) and `flexloop` reads.
+
+use flexloop_components::Recorder;
+use flexloop_runtime::latency::{LoopLatencies, Metric, QUANTILE_LABELS};
+use serde_json::{Value, json};
+use std::io::Write;
+
+/// Percentiles of every metric, plus how many samples exceeded `budget_ns`.
+pub fn latencies_json(latencies: &LoopLatencies, budget_ns: u64) -> Value {
+    let mut map = serde_json::Map::new();
+    for metric in Metric::ALL {
+        let h = latencies.get(metric);
+        let p = h.percentiles();
+        let mut entry = serde_json::Map::new();
+        entry.insert("count".into(), json!(p.count));
+        for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
+            entry.insert(format!("{label}_ns"), json!(value));
+        }
+        entry.insert("over_one_period".into(), json!(h.count_above(budget_ns)));
+        map.insert(metric.name().into(), Value::Object(entry));
+    }
+    Value::Object(map)
+}
+
+/// The whole summary of a run, from the logger's recorder.
+pub fn run_summary<W: Write>(
+    recorder: &Recorder<W>,
+    scenario: &flexloop_scenario::Scenario,
+    period_ns: u64,
+    logger_cpu_ns: u64,
+) -> Value {
+    let m = recorder.last_measurement.unwrap_or_default();
+    json!({
+        "scenario": scenario.name,
+        "scenario_file": scenario.source.display().to_string(),
+        "mode": scenario.timing.mode.as_str(),
+        "rate_hz": scenario.timing.rate_hz,
+        "period_ns": period_ns,
+        "ticks": recorder.measurements.samples,
+        "last_seq": m.seq,
+        "counters": {
+            "misses": m.misses,
+            "late_commands": m.late_commands,
+            "stalled_ticks": m.stalled_ticks,
+            "stall_misses": m.stall_misses,
+        },
+        "samples": {
+            "measurement": recorder.measurements.samples,
+            "estimate": recorder.estimates.samples,
+            "command": recorder.commands.samples,
+        },
+        "gaps": {
+            "measurement": recorder.measurements.gaps,
+            "estimate": recorder.estimates.gaps,
+            "command": recorder.commands.gaps,
+        },
+        "logger_cpu_ns": logger_cpu_ns,
+        "latency": latencies_json(&recorder.latencies, period_ns),
+    })
+}
+
+/// Writes `value` to `path` atomically (temporary file, then rename), so that
+/// a reader never sees a half-written summary.
+pub fn write_json_atomically(path: &std::path::Path, value: &Value) -> std::io::Result<()> {
+    let tmp = path.with_extension("json.tmp");
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(serde_json::to_string_pretty(value)?.as_bytes())?;
+        f.write_all(b"\n")?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)
+}
