@@ -267,10 +267,7 @@ pub fn run_supervised(
 }
 
 fn down(prefix: Option<String>) -> Result<i32, String> {
-    let loops: Vec<_> = registry::list()
-        .into_iter()
-        .filter(|e| prefix.as_ref().is_none_or(|p| &e.prefix == p))
-        .collect();
+    let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");
         return Ok(0);
@@ -292,10 +289,7 @@ fn down(prefix: Option<String>) -> Result<i32, String> {
 }
 
 fn status(prefix: Option<String>) -> Result<i32, String> {
-    let loops: Vec<_> = registry::list()
-        .into_iter()
-        .filter(|e| prefix.as_ref().is_none_or(|p| &e.prefix == p))
-        .collect();
+    let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");
         return Ok(1);

@@ -108,12 +108,6 @@ pub fn event_ping_pong(
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let _ = pong_thread.join();
     drop((listener, notifier, node));
-    for path in flexloop_transport::leftover_files_for_prefix(prefix) {
-        let _ = if path.is_dir() {
-            std::fs::remove_dir_all(&path)
-        } else {
-            std::fs::remove_file(&path)
-        };
-    }
+    flexloop_transport::remove_leftovers(prefix);
     Ok(result)
 }

@@ -75,6 +75,14 @@ pub fn list() -> Vec<Entry> {
     entries
 }
 
+/// Running loops with `prefix`, or all of them.
+pub fn matching(prefix: Option<&str>) -> Vec<Entry> {
+    list()
+        .into_iter()
+        .filter(|e| prefix.is_none_or(|p| e.prefix == p))
+        .collect()
+}
+
 /// Asks a loop's supervisor to stop and waits (bounded) until it is gone.
 pub fn stop(entry: &Entry, wait: std::time::Duration) -> bool {
     // SAFETY: the pid is the supervisor's, checked alive just before.

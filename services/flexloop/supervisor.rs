@@ -7,7 +7,7 @@
 
 use flexloop_node::Role;
 use flexloop_runtime::shutdown;
-use flexloop_transport::{Domain, cleanup_dead_nodes, leftover_files_for_prefix};
+use flexloop_transport::{Domain, cleanup_dead_nodes};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -229,13 +229,7 @@ impl RunningLoop {
         if let Ok(domain) = Domain::new(&self.plan.prefix) {
             let _ = cleanup_dead_nodes(&domain);
         }
-        for path in leftover_files_for_prefix(&self.plan.prefix) {
-            if path.is_dir() {
-                let _ = std::fs::remove_dir_all(&path);
-            } else {
-                let _ = std::fs::remove_file(&path);
-            }
-        }
+        flexloop_transport::remove_leftovers(&self.plan.prefix);
     }
 
     /// The last lines each failed child wrote to stderr.

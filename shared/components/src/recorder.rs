@@ -5,7 +5,7 @@
 //! the `#[repr(C)]` message bytes. Records are fixed per kind, so a reader
 //! recognises a torn last record (after a crash) and stops before it.
 
-use flexloop_protocol::{Command, Estimate, Measurement, NO_SEQ};
+use flexloop_protocol::{Command, Estimate, Measurement};
 use flexloop_runtime::latency::LoopLatencies;
 use std::fs::File;
 use std::io::{self, BufWriter, Read, Write};
@@ -231,14 +231,6 @@ fn decode<T: Copy + Default>(payload: &[u8]) -> Option<T> {
         );
     }
     Some(value)
-}
-
-/// Sequence value of "nothing yet" in summaries.
-pub const fn seq_or_none(seq: Option<u64>) -> u64 {
-    match seq {
-        Some(s) => s,
-        None => NO_SEQ,
-    }
 }
 
 #[cfg(test)]

@@ -80,6 +80,18 @@ pub fn leftover_files_for_prefix(prefix: &str) -> Vec<PathBuf> {
     found
 }
 
+/// Deletes every file of `prefix` (see [`leftover_files_for_prefix`]). Only
+/// for when no process of that prefix is alive any more.
+pub fn remove_leftovers(prefix: &str) {
+    for path in leftover_files_for_prefix(prefix) {
+        let _ = if path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+    }
+}
+
 fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: usize) {
     // Bounded depth: iceoryx2's tree is three levels deep.
     if depth > 4 {

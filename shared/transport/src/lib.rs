@@ -10,6 +10,8 @@ mod domain;
 mod error;
 mod ports;
 
-pub use domain::{Domain, cleanup_dead_nodes, leftover_files, leftover_files_for_prefix};
+pub use domain::{
+    Domain, cleanup_dead_nodes, leftover_files, leftover_files_for_prefix, remove_leftovers,
+};
 pub use error::TransportError;
 pub use ports::{Inlet, Outlet};
