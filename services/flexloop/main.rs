@@ -1,11 +1,13 @@
 //! flexloop: starts, drives and measures the loop's processes.
 //!
-//! `flexloop up [SCENARIO]`, `flexloop down`, `flexloop status`,
-//! `flexloop bench [--duration S] [--rate HZ]`. See README.md.
+//! `flexloop up [SCENARIO]`, `flexloop run SCENARIO`, `flexloop down`,
+//! `flexloop status`, `flexloop bench [--duration S] [--rate HZ]`,
+//! `flexloop tune-ff RUN`. See README.md.
 
 mod bench;
 mod probes;
 mod registry;
+mod run;
 mod supervisor;
 
 use flexloop_runtime::shutdown;
@@ -18,6 +20,12 @@ const USAGE: &str = "usage:
   flexloop up [SCENARIO] [--duration S] [--rate HZ] [--mode realtime|lockstep] [--run-dir DIR] [--no-realtime]
       start the loop's processes (default scenario: scenarios/default.toml) until the
       scenario's duration ends, Ctrl-C or `flexloop down`
+  flexloop run [SCENARIO] [--mode realtime|lockstep] [--rate HZ] [--duration S] [--run-dir DIR] [--no-realtime]
+      run the scenario's trajectory, then print its control metrics (tracking, effort,
+      innovation, modal damping) beside the timing summary; writes metrics.json
+  flexloop tune-ff RUN_DIR [--into SCENARIO]
+      fit the four feedforward gains from a recorded run by least squares and write
+      them into the scenario file (default: the one the run used)
   flexloop down [--prefix P]          stop running loops
   flexloop status [--prefix P]        live counters and latency percentiles of a running loop
   flexloop bench [SCENARIO] [--duration S (10)] [--rate HZ (10000)] [--no-realtime] [--no-probes] [--run-dir DIR]
@@ -45,6 +53,8 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
     match command.to_str() {
         Some("up") => up(LoopArgs::parse(rest, false)?),
         Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),
+        Some("run") => run::run(LoopArgs::parse(rest, false)?),
+        Some("tune-ff") => run::tune_ff(rest),
         Some("down") => down(prefix_arg(rest)?),
         Some("status") => status(prefix_arg(rest)?),
         Some("help") | Some("--help") | Some("-h") => {
@@ -208,6 +218,13 @@ pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
     std::fs::write(&probe, b"")
         .map_err(|e| format!("run directory {}: not writable: {e}", run_dir.display()))?;
     let _ = std::fs::remove_file(probe);
+    // The scenario as it ran, so that the run can be analysed and refitted later.
+    std::fs::copy(&args.scenario, run_dir.join(run::SCENARIO_COPY)).map_err(|e| {
+        format!(
+            "run directory {}: cannot copy the scenario: {e}",
+            run_dir.display()
+        )
+    })?;
     let prefix = format!("flx{}_", std::process::id());
     Ok(Prepared {
         plan: supervisor::LaunchPlan {

@@ -2,7 +2,8 @@
 //!
 //! u_c(k) = u_fb + u_ff + u_d, where
 //! - ŷ_flex and u_d are the observer block's outputs at tick k: the estimate's
-//!   free response plus its direct gain times [y(k); u_a(k)];
+//!   free response plus its direct gain times [y(k); u_a(k)] (and u_pending(k)
+//!   with an extra sample of loop delay);
 //! - u_fb is the feedback filter on e_meas = r(k) − (y(k) − ŷ_flex(k));
 //! - u_ff is the feedforward for the tick the command will be applied at,
 //!   advanced by the loop delay so that the delay does not cost tracking.
@@ -23,6 +24,8 @@ pub struct ControllerCore {
     loop_delay_samples: u32,
     n_outputs: usize,
     n_inputs: usize,
+    /// Inputs of the observer block: [y; u_a] or [y; u_a; u_pending].
+    n_block_inputs: usize,
     input_limit: f64,
     generation: u32,
     observer_input: [f64; MAX_OBSERVER_INPUTS],
@@ -44,6 +47,7 @@ impl ControllerCore {
             loop_delay_samples: design.loop_delay_samples,
             n_outputs: design.n_outputs,
             n_inputs: design.n_inputs,
+            n_block_inputs: design.observer.system.inputs(),
             input_limit: design.input_limit,
             generation,
             observer_input: [0.0; MAX_OBSERVER_INPUTS],
@@ -55,10 +59,13 @@ impl ControllerCore {
     /// Computes u(k) into `out` (all but the receive/publish stamps).
     pub fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
-        let n_in = ny + nu;
+        let n_in = self.n_block_inputs;
         self.observer_input[..ny].copy_from_slice(&m.y[..ny]);
-        self.observer_input[ny..n_in].copy_from_slice(&m.u_applied[..nu]);
-        for i in 0..n_in {
+        self.observer_input[ny..ny + nu].copy_from_slice(&m.u_applied[..nu]);
+        if n_in > ny + nu {
+            self.observer_input[ny + nu..n_in].copy_from_slice(&m.u_pending[..nu]);
+        }
+        for i in 0..ny + nu {
             let row = &estimate.direct[i * MAX_OBSERVER_INPUTS..i * MAX_OBSERVER_INPUTS + n_in];
             let direct: f64 = row
                 .iter()

@@ -10,16 +10,19 @@
 //!   estimate for tick k+1.
 //! - [`controller`]: finishes the observer's direct term, runs feedback,
 //!   feedforward and limits: u(k).
+//! - [`in_process`]: the whole loop in one process, as lockstep runs it.
 //! - [`recorder`]: the logger's sample file and gap counting.
 //! - [`noise`]: the seeded disturbance generator.
 
 pub mod controller;
+pub mod in_process;
 pub mod noise;
 pub mod observer;
 pub mod plant;
 pub mod recorder;
 
 pub use controller::ControllerCore;
+pub use in_process::InProcessLoop;
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
 pub use recorder::{LogReader, Record, Recorder};

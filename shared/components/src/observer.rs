@@ -9,15 +9,20 @@ use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{
     Estimate, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES, Measurement,
 };
-use flexloop_scenario::ObserverBlock;
+use flexloop_scenario::design::{ObserverBlock, OutputPrediction};
 use nalgebra::{DMatrix, DVector, DVectorView};
 
 pub struct ObserverCore {
     block: LtiRunner,
     estimate_map: DMatrix<f64>,
     x_hat: DVector<f64>,
+    prediction: OutputPrediction,
+    /// ŷ(k|k−1), then the innovation y(k) − ŷ(k|k−1).
+    innovation: DVector<f64>,
     n_outputs: usize,
     n_inputs: usize,
+    /// Inputs of the block: [y; u_a] or, with extra loop delay, [y; u_a; u_pending].
+    n_block_inputs: usize,
     input: [f64; MAX_OBSERVER_INPUTS],
     /// Direct gain laid out as the message wants it, computed once.
     direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
@@ -39,22 +44,28 @@ impl std::error::Error for ObserverSizeError {}
 impl ObserverCore {
     pub fn new(
         block: &ObserverBlock,
+        prediction: &OutputPrediction,
         n_outputs: usize,
         n_inputs: usize,
     ) -> Result<Self, ObserverSizeError> {
         let sys = &block.system;
-        if sys.inputs() != n_outputs + n_inputs || sys.outputs() != n_outputs + n_inputs {
+        let n_block_inputs = n_outputs + n_inputs * (1 + block.extra_delay_samples);
+        if sys.inputs() != n_block_inputs || sys.outputs() != n_outputs + n_inputs {
             return Err(ObserverSizeError(format!(
-                "observer block has {} inputs and {} outputs, the loop needs {} of each",
+                "observer block has {} inputs and {} outputs, the loop needs {} and {}",
                 sys.inputs(),
                 sys.outputs(),
+                n_block_inputs,
                 n_outputs + n_inputs
             )));
         }
-        if sys.inputs() > MAX_OBSERVER_INPUTS || block.estimate_map.nrows() > MAX_STATES {
+        if n_block_inputs > MAX_OBSERVER_INPUTS
+            || sys.outputs() > MAX_OBSERVER_OUTPUTS
+            || block.estimate_map.nrows() > MAX_STATES
+        {
             return Err(ObserverSizeError(format!(
                 "observer too large for the protocol ({} signals, {} states; at most {} and {})",
-                sys.inputs(),
+                n_block_inputs,
                 block.estimate_map.nrows(),
                 MAX_OBSERVER_INPUTS,
                 MAX_STATES
@@ -67,6 +78,16 @@ impl ObserverCore {
                 sys.states()
             )));
         }
+        let n_est = block.estimate_map.nrows();
+        if prediction.c.shape() != (n_outputs, n_est)
+            || prediction.d.shape() != (n_outputs, n_inputs)
+        {
+            return Err(ObserverSizeError(format!(
+                "output prediction is {:?} and {:?}, the loop needs ({n_outputs}, {n_est}) and ({n_outputs}, {n_inputs})",
+                prediction.c.shape(),
+                prediction.d.shape()
+            )));
+        }
         let mut direct = [0.0; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS];
         for i in 0..sys.outputs() {
             for j in 0..sys.inputs() {
@@ -74,11 +95,14 @@ impl ObserverCore {
             }
         }
         Ok(Self {
-            x_hat: DVector::zeros(block.estimate_map.nrows()),
+            x_hat: DVector::zeros(n_est),
+            prediction: prediction.clone(),
+            innovation: DVector::zeros(n_outputs),
             estimate_map: block.estimate_map.clone(),
             block: LtiRunner::new(sys.clone()),
             n_outputs,
             n_inputs,
+            n_block_inputs,
             input: [0.0; MAX_OBSERVER_INPUTS],
             direct,
             next_seq: 0,
@@ -96,8 +120,21 @@ impl ObserverCore {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
         self.input[..ny].copy_from_slice(&m.y[..ny]);
         self.input[ny..ny + nu].copy_from_slice(&m.u_applied[..nu]);
-        self.block.advance(&self.input[..ny + nu]);
+        if self.n_block_inputs > ny + nu {
+            self.input[ny + nu..ny + 2 * nu].copy_from_slice(&m.u_pending[..nu]);
+        }
+        // Innovation of y(k) against x̂(k|k−1), which `x_hat` holds from the last fill.
+        let u_applied = DVectorView::from_slice(&m.u_applied[..nu], nu);
+        self.innovation
+            .gemv(1.0, &self.prediction.c, &self.x_hat, 0.0);
+        self.innovation
+            .gemv(1.0, &self.prediction.d, &u_applied, 1.0);
+        for i in 0..ny {
+            self.innovation[i] = m.y[i] - self.innovation[i];
+        }
+        self.block.advance(&self.input[..self.n_block_inputs]);
         self.fill(m.seq + 1, out);
+        out.innovation[..ny].copy_from_slice(self.innovation.as_slice());
         out.source_tick_ns = m.tick_ns;
         out.source_published_ns = m.published_ns;
     }

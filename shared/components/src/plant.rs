@@ -4,6 +4,10 @@
 //! u_c(k−1), the command computed from y(k−1), over [t_k, t_k+1), publishes
 //! y(k), then advances its model to x(k+1). A command that is not there by
 //! its tick is a miss: the plant holds its last input.
+//!
+//! With an extra sample of loop delay (a scenario setting, to show what a
+//! slower pipeline costs), an on-time command waits one more tick in a delay
+//! line; the deadline for the command stays one sample.
 
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
@@ -47,6 +51,11 @@ pub struct PlantCore {
     input_limit: f64,
     force_sigma: f64,
     sensor_sigma: f64,
+    reference_sigma: f64,
+    extra_delay: bool,
+    /// With extra delay: the input for [t_k+1, t_k+2), already accepted.
+    pending: [f64; MAX_INPUTS],
+    pending_seq: u64,
     noise: Gaussian,
     generation: u32,
     /// Input applied over the current interval.
@@ -70,6 +79,10 @@ impl PlantCore {
             input_limit: design.input_limit,
             force_sigma: design.force_noise,
             sensor_sigma: design.sensor_noise,
+            reference_sigma: design.reference_noise,
+            extra_delay: design.loop_delay_samples > 1,
+            pending: [0.0; MAX_INPUTS],
+            pending_seq: NO_SEQ,
             noise: Gaussian::new(design.seed),
             generation: 0,
             held: [0.0; MAX_INPUTS],
@@ -135,22 +148,42 @@ impl PlantCore {
         out: &mut Measurement,
     ) {
         let mut tick_flags = 0;
-        match self.next.take() {
+        // The value entering the delay line this tick: the on-time command, or
+        // on a miss the last value that entered it (hold).
+        let mut arriving_seq = if self.extra_delay {
+            self.pending_seq
+        } else {
+            self.applied_seq
+        };
+        let arriving = match self.next.take() {
             Some((seq, u)) if seq.wrapping_add(1) == k => {
-                self.held = u;
-                self.applied_seq = seq;
+                arriving_seq = seq;
+                u
             }
-            _ if k == 0 => {}
+            _ if k == 0 => [0.0; MAX_INPUTS],
             _ => {
-                // Hold the last input; a miss on a tick after a stall is the
-                // machine's fault, not the loop's.
+                // A miss on a tick after a stall is the machine's fault, not the loop's.
                 if self.previous_tick_stalled {
                     self.counters.stall_misses += 1;
                 } else {
                     self.counters.misses += 1;
                 }
                 tick_flags |= flags::HELD_INPUT;
+                if self.extra_delay {
+                    self.pending
+                } else {
+                    self.held
+                }
             }
+        };
+        if self.extra_delay {
+            self.held = self.pending;
+            self.applied_seq = self.pending_seq;
+            self.pending = arriving;
+            self.pending_seq = arriving_seq;
+        } else {
+            self.held = arriving;
+            self.applied_seq = arriving_seq;
         }
         if stalled {
             self.counters.stalled_ticks += 1;
@@ -180,10 +213,18 @@ impl PlantCore {
             } else {
                 0.0
             };
+            let v = if self.reference_sigma > 0.0 {
+                self.reference_sigma * self.noise.sample()
+            } else {
+                0.0
+            };
             out.y_true[i] = self.y_true[i];
-            out.y[i] = self.y_true[i] + d;
+            out.y[i] = self.y_true[i] - v + d;
         }
         out.u_applied[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
+        if self.extra_delay {
+            out.u_pending[..self.n_inputs].copy_from_slice(&self.pending[..self.n_inputs]);
+        }
     }
 
     /// x(k+1) = A x(k) + B [u_a(k); w(k)]: off the critical path, after publishing.

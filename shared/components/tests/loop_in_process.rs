@@ -46,7 +46,8 @@ struct Loop {
 
 impl Loop {
     fn new(d: &LoopDesign) -> Self {
-        let mut observer = ObserverCore::new(&d.observer, d.n_outputs, d.n_inputs).unwrap();
+        let mut observer =
+            ObserverCore::new(&d.observer, &d.output_prediction, d.n_outputs, d.n_inputs).unwrap();
         let mut estimate = Estimate::default();
         observer.initial(&mut estimate);
         Self {

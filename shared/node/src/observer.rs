@@ -12,8 +12,13 @@ use flexloop_transport::{Domain, Inlet, Outlet};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
-    let mut core = ObserverCore::new(&design.observer, design.n_outputs, design.n_inputs)
-        .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
+    let mut core = ObserverCore::new(
+        &design.observer,
+        &design.output_prediction,
+        design.n_outputs,
+        design.n_inputs,
+    )
+    .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
     let measurements =

@@ -35,6 +35,7 @@ pub fn run_summary<W: Write>(
         "scenario_file": scenario.source.display().to_string(),
         "mode": scenario.timing.mode.as_str(),
         "rate_hz": scenario.timing.rate_hz,
+        "duration_s": scenario.timing.duration_s,
         "period_ns": period_ns,
         "ticks": recorder.measurements.samples,
         "last_seq": m.seq,

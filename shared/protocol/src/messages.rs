@@ -24,8 +24,9 @@ pub const MAX_INPUTS: usize = 8;
 pub const MAX_STATES: usize = 64;
 /// Observer block outputs: [ŷ_flex; u_d].
 pub const MAX_OBSERVER_OUTPUTS: usize = MAX_OUTPUTS + MAX_INPUTS;
-/// Observer block inputs: [y; u_a].
-pub const MAX_OBSERVER_INPUTS: usize = MAX_OUTPUTS + MAX_INPUTS;
+/// Observer block inputs: [y; u_a; u_pending] (u_pending only with an extra
+/// sample of loop delay).
+pub const MAX_OBSERVER_INPUTS: usize = MAX_OUTPUTS + 2 * MAX_INPUTS;
 
 /// Sequence number meaning "none".
 pub const NO_SEQ: u64 = u64::MAX;
@@ -49,7 +50,7 @@ pub mod flags {
 /// y(k) from the plant, published at tick k.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Measurement.v1")]
+#[type_name("flexloop.Measurement.v2")]
 pub struct Measurement {
     pub seq: u64,
     /// Scheduled time of tick k (CLOCK_MONOTONIC ns).
@@ -79,16 +80,20 @@ pub struct Measurement {
     pub y_true: [f64; MAX_OUTPUTS],
     /// The input the plant applies over [t_k, t_k+1).
     pub u_applied: [f64; MAX_INPUTS],
+    /// The input already accepted for [t_k+1, t_k+2): with an extra sample
+    /// of loop delay the observer needs it to predict two samples ahead.
+    /// Zero without extra delay.
+    pub u_pending: [f64; MAX_INPUTS],
 }
 
 /// The observer's contribution for tick `seq`, computed from measurement `seq - 1`.
 ///
-/// At tick k the observer block outputs are `free + direct · [y(k); u_a(k)]`
+/// At tick k the observer block outputs are `free + direct · [y(k); u_a(k); u_pending(k)]`
 /// (rows: ŷ_flex then u_d). `free` is known one tick ahead; `direct` is the
 /// block's feedthrough, constant for a steady-state observer.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Estimate.v1")]
+#[type_name("flexloop.Estimate.v2")]
 pub struct Estimate {
     /// The tick this estimate is for (k).
     pub seq: u64,
@@ -109,10 +114,12 @@ pub struct Estimate {
     /// Free response of [ŷ_flex; u_d] at tick `seq`: C_o s(k).
     pub free: [f64; MAX_OBSERVER_OUTPUTS],
     /// Row-major `direct[i * MAX_OBSERVER_INPUTS + j]`: feedthrough from input j
-    /// ([y; u_a]) to output i ([ŷ_flex; u_d]).
+    /// ([y; u_a; u_pending]) to output i ([ŷ_flex; u_d]).
     pub direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
     /// x̂(k|k-1), for the logger and for a hand-over to another observer.
     pub x_hat: [f64; MAX_STATES],
+    /// Innovation of measurement k-1: y(k-1) − ŷ(k-1|k-2).
+    pub innovation: [f64; MAX_OUTPUTS],
 }
 
 /// u_c(k), computed from y(k), to be held over [t_k+1, t_k+2).
@@ -200,13 +207,13 @@ mod tests {
         // (and bump the type name version).
         assert_eq!(
             core::mem::size_of::<Measurement>(),
-            9 * 8 + 4 * 4 + 3 * 8 * 8
+            9 * 8 + 4 * 4 + 4 * 8 * 8
         );
         assert_eq!(core::mem::align_of::<Measurement>(), 8);
         assert_eq!(core::mem::size_of::<Command>(), 7 * 8 + 4 * 4 + 6 * 8 * 8);
         assert_eq!(
             core::mem::size_of::<Estimate>(),
-            5 * 8 + 6 * 4 + 8 * (16 + 16 * 16 + MAX_STATES)
+            5 * 8 + 6 * 4 + 8 * (16 + 16 * 24 + MAX_STATES + 8)
         );
     }
 

@@ -3,6 +3,10 @@
 //! Evaluated once per sample by the controller, so [`Reference::sample`] is
 //! closed-form and allocation-free.
 
+use flexloop_control::setpoint::Setpoint;
+
+const SWITCH_NUDGE_S: f64 = 1e-12;
+
 /// r, ṙ, r̈, r⃛ and the snap, in that order.
 pub type Derivatives = [f64; 5];
 
@@ -18,6 +22,15 @@ pub enum Reference {
         amplitude: f64,
         omega: f64,
         start_s: f64,
+    },
+    /// The thesis' snap-limited scan (Table 3.6), shifted to start at
+    /// `start_s`; with `repeat_s` > 0 it scans back and forth (a meander),
+    /// one scan every `repeat_s` seconds.
+    Scan {
+        /// Boxed: the profile's segment table would make every variant large.
+        setpoint: Box<Setpoint>,
+        start_s: f64,
+        repeat_s: f64,
     },
 }
 
@@ -51,8 +64,75 @@ impl Reference {
                     a * omega.powi(4) * s,
                 ]
             }
+            Reference::Scan {
+                ref setpoint,
+                start_s,
+                repeat_s,
+            } => {
+                // Ticks fall exactly on the profile's switching times (every
+                // 5 ms); 1 ps forward makes each one resolve to the segment that
+                // starts there, whatever the rounding of t (a tick on the wrong
+                // side costs one sample of a 13 N snap feedforward step).
+                let (index, local) = scan_index(t - start_s + SWITCH_NUDGE_S, repeat_s);
+                let p = setpoint.evaluate(local);
+                if index % 2 == 0 {
+                    [p.r, p.v, p.a, p.j, p.s]
+                } else {
+                    // Back: from the end position to the start.
+                    let end = setpoint.evaluate(setpoint.duration()).r;
+                    [end - p.r, -p.v, -p.a, -p.j, -p.s]
+                }
+            }
         }
     }
+
+    /// The windows over which tracking is judged, up to `until_s`: the scan
+    /// phase of each scan (control.md §8). Empty for other shapes.
+    pub fn scan_windows(&self, until_s: f64) -> Vec<(f64, f64)> {
+        match self {
+            Reference::Scan {
+                setpoint,
+                start_s,
+                repeat_s,
+            } => {
+                let (a, b) = setpoint.scan_window();
+                let mut windows = Vec::new();
+                let mut offset = *start_s;
+                while offset + b <= until_s + 1e-12 {
+                    windows.push((offset + a, offset + b));
+                    if *repeat_s <= 0.0 {
+                        break;
+                    }
+                    offset += repeat_s;
+                }
+                windows
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// When the motion is over (None: it never ends).
+    pub fn end_s(&self) -> Option<f64> {
+        match self {
+            Reference::Hold => Some(0.0),
+            Reference::Step { start_s, .. } => Some(*start_s),
+            Reference::Sine { .. } => None,
+            Reference::Scan {
+                setpoint,
+                start_s,
+                repeat_s,
+            } => (*repeat_s <= 0.0).then(|| start_s + setpoint.duration()),
+        }
+    }
+}
+
+/// Which scan a time falls in, and the time within it.
+fn scan_index(t: f64, repeat_s: f64) -> (u64, f64) {
+    if repeat_s <= 0.0 || t < 0.0 {
+        return (0, t);
+    }
+    let index = (t / repeat_s).floor();
+    (index as u64, t - index * repeat_s)
 }
 
 #[cfg(test)]
@@ -73,6 +153,26 @@ mod tests {
             let exact = r.sample(t)[i + 1];
             assert!((numeric - exact).abs() < 1e-4 * exact.abs().max(1.0), "{i}");
         }
+    }
+
+    #[test]
+    fn meander_scans_back_and_forth_continuously() {
+        let setpoint =
+            Setpoint::new(&flexloop_control::setpoint::SetpointParams::thesis()).unwrap();
+        let r = Reference::Scan {
+            setpoint: Box::new(setpoint),
+            start_s: 0.01,
+            repeat_s: 0.25,
+        };
+        let end = r.sample(0.01 + 0.2)[0];
+        assert!((end - 0.17).abs() < 1e-9, "{end}");
+        // Back at the start after the second scan, and continuous at the turn.
+        assert!(r.sample(0.01 + 0.25 + 0.2)[0].abs() < 1e-9);
+        let before = r.sample(0.01 + 0.25 - 1e-6);
+        let after = r.sample(0.01 + 0.25 + 1e-6);
+        assert!((before[0] - after[0]).abs() < 1e-9);
+        assert!(after[1] <= 0.0);
+        assert_eq!(r.scan_windows(0.6), vec![(0.05, 0.18), (0.3, 0.43)],);
     }
 
     #[test]

@@ -83,10 +83,14 @@ fn default_duration() -> f64 {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlantSection {
-    /// Built-in model: `double-integrator`.
+    /// Built-in model: `double-integrator` or `thesis-chain`.
     pub model: String,
+    /// Mass of the double integrator.
     #[serde(default = "one")]
     pub mass_kg: f64,
+    /// Thesis chain: the measured mass y1..y7 (control.md §1.3; y5 in the thesis runs).
+    #[serde(default = "default_output")]
+    pub output: usize,
     /// |u| limit in N; commands beyond it are clamped and counted.
     #[serde(default = "default_limit")]
     pub input_limit: f64,
@@ -99,8 +103,14 @@ pub struct PlantSection {
     /// σ of the sensor noise d in m (0: off).
     #[serde(default)]
     pub sensor_noise: f64,
+    /// σ of the sensor reference noise v in m (0: off); y_meas = y − v + d.
+    #[serde(default)]
+    pub reference_noise: f64,
 }
 
+fn default_output() -> usize {
+    5
+}
 fn one() -> f64 {
     1.0
 }
@@ -115,7 +125,9 @@ fn default_seed() -> u64 {
 #[serde(deny_unknown_fields)]
 pub struct ObserverSection {
     /// `state-feedback`: predictor observer with state feedback u = -L x̂(k+1|k)
-    /// (the lecture's double integrator).
+    /// (the lecture's double integrator). `kalman`: steady-state Kalman
+    /// predictor on the reduced modal model with T_DC, driving MC and AD.
+    /// `none`: no observer (the thesis' original loop).
     pub design: String,
     /// Observer poles: continuous natural frequency and damping, mapped by e^{sT}.
     #[serde(default = "default_observer_hz")]
@@ -127,8 +139,29 @@ pub struct ObserverSection {
     pub feedback_bandwidth_hz: f64,
     #[serde(default = "default_damping")]
     pub feedback_damping: f64,
+    /// Measurement compensation: the controller sees y − ŷ_flex.
+    #[serde(default)]
+    pub mc: bool,
+    /// Active damping: u_d from the estimated modal velocities.
+    #[serde(default)]
+    pub ad: bool,
+    /// Noise-model weight Q_ν (U = B_t) when MC is on; absent: 10³ with AD,
+    /// 0.03 without (control.md §10.1); 0: no noise model.
+    pub q_nu: Option<f64>,
+    /// Increase of modal damping AD aims for on each retained flexible mode.
+    #[serde(default = "default_damping_increase")]
+    pub damping_increase: f64,
+    /// Q of the per-mode band-pass filters of AD; 0: no band-pass.
+    #[serde(default = "default_bandpass_q")]
+    pub bandpass_q: f64,
 }
 
+fn default_damping_increase() -> f64 {
+    0.035
+}
+fn default_bandpass_q() -> f64 {
+    2.0
+}
 fn default_observer_hz() -> f64 {
     200.0
 }
@@ -139,18 +172,64 @@ fn default_damping() -> f64 {
     0.7
 }
 
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControllerSection {
+    /// Feedback on e_meas: `pid` (PID + low-pass, Table 3.3 tuning) or `none`.
+    #[serde(default = "default_feedback")]
+    pub feedback: String,
+    /// The PID's single tuning parameter f_bw in Hz (crossover ≈ 1.05 f_bw).
+    #[serde(default = "default_pid_bandwidth")]
+    pub bandwidth_hz: f64,
+    /// Notch frequencies in Hz (control.md §6), empty: none.
+    #[serde(default)]
+    pub notches_hz: Vec<f64>,
     /// Extra samples of loop delay to emulate (0: the one sample the loop has).
     #[serde(default)]
     pub extra_delay_samples: u32,
+    /// Four-gain feedforward on the set-point derivatives; absent: the model's
+    /// mass on the acceleration.
+    pub feedforward: Option<FeedforwardSection>,
+}
+
+impl Default for ControllerSection {
+    fn default() -> Self {
+        Self {
+            feedback: default_feedback(),
+            bandwidth_hz: default_pid_bandwidth(),
+            notches_hz: Vec::new(),
+            extra_delay_samples: 0,
+            feedforward: None,
+        }
+    }
+}
+
+fn default_feedback() -> String {
+    "none".into()
+}
+fn default_pid_bandwidth() -> f64 {
+    35.5
+}
+
+/// u_ff = snap·r⁗ + jerk·r⃛ + acc·r̈ + vel·ṙ (control.md (A.1)).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeedforwardSection {
+    #[serde(default)]
+    pub snap: f64,
+    #[serde(default)]
+    pub jerk: f64,
+    #[serde(default)]
+    pub acc: f64,
+    #[serde(default)]
+    pub vel: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReferenceSection {
-    /// `hold` (r = 0), `step` or `sine`.
+    /// `hold` (r = 0), `step`, `sine` or `scan` (the thesis' snap-limited
+    /// scan of Table 3.6, starting at `start_s`).
     #[serde(default = "default_shape")]
     pub shape: String,
     /// Step height or sine amplitude in m.
@@ -158,7 +237,12 @@ pub struct ReferenceSection {
     pub amplitude: f64,
     #[serde(default = "default_frequency")]
     pub frequency_hz: f64,
-    /// Time of the step in s.
+    /// Scan only: start a scan every so many seconds, alternately back and
+    /// forth (0: one scan).
+    #[serde(default)]
+    pub repeat_s: f64,
+    /// Time the step, sine or scan starts in s (a scan needs at least one
+    /// sample of rest first: its feedforward is issued ahead of the motion).
     #[serde(default)]
     pub start_s: f64,
 }
@@ -169,6 +253,7 @@ impl Default for ReferenceSection {
             shape: default_shape(),
             amplitude: 0.0,
             frequency_hz: default_frequency(),
+            repeat_s: 0.0,
             start_s: 0.0,
         }
     }
@@ -335,6 +420,34 @@ impl Scenario {
         positive("plant.input_limit", self.plant.input_limit)?;
         non_negative("plant.force_noise", self.plant.force_noise)?;
         non_negative("plant.sensor_noise", self.plant.sensor_noise)?;
+        non_negative("plant.reference_noise", self.plant.reference_noise)?;
+        if !(1..=7).contains(&self.plant.output) {
+            return Err(self.err(
+                "plant.output",
+                format!("the chain has outputs 1..=7, got {}", self.plant.output),
+            ));
+        }
+        if let Some(q) = self.observer.q_nu {
+            non_negative("observer.q_nu", q)?;
+        }
+        non_negative("observer.damping_increase", self.observer.damping_increase)?;
+        non_negative("observer.bandpass_q", self.observer.bandpass_q)?;
+        positive("controller.bandwidth_hz", self.controller.bandwidth_hz)?;
+        for (i, hz) in self.controller.notches_hz.iter().enumerate() {
+            positive(&format!("controller.notches_hz[{i}]"), *hz)?;
+        }
+        if let Some(ff) = &self.controller.feedforward {
+            for (field, v) in [
+                ("controller.feedforward.snap", ff.snap),
+                ("controller.feedforward.jerk", ff.jerk),
+                ("controller.feedforward.acc", ff.acc),
+                ("controller.feedforward.vel", ff.vel),
+            ] {
+                if !v.is_finite() {
+                    return Err(self.err(field, format!("must be finite, got {v}")));
+                }
+            }
+        }
         positive(
             "observer.observer_bandwidth_hz",
             self.observer.observer_bandwidth_hz,
@@ -346,6 +459,11 @@ impl Scenario {
         positive("observer.observer_damping", self.observer.observer_damping)?;
         positive("observer.feedback_damping", self.observer.feedback_damping)?;
         let nyquist = self.timing.rate_hz / 2.0;
+        let notches = self
+            .controller
+            .notches_hz
+            .iter()
+            .map(|hz| ("controller.notches_hz", *hz));
         for (field, hz) in [
             (
                 "observer.observer_bandwidth_hz",
@@ -355,7 +473,11 @@ impl Scenario {
                 "observer.feedback_bandwidth_hz",
                 self.observer.feedback_bandwidth_hz,
             ),
-        ] {
+            ("controller.bandwidth_hz", self.controller.bandwidth_hz),
+        ]
+        .into_iter()
+        .chain(notches)
+        {
             if hz >= nyquist {
                 return Err(self.err(
                     field,
@@ -369,6 +491,7 @@ impl Scenario {
         non_negative("reference.amplitude", self.reference.amplitude.abs())?;
         positive("reference.frequency_hz", self.reference.frequency_hz)?;
         non_negative("reference.start_s", self.reference.start_s)?;
+        non_negative("reference.repeat_s", self.reference.repeat_s)?;
         for (field, p) in [
             ("realtime.plant.priority", &self.realtime.plant),
             ("realtime.observer.priority", &self.realtime.observer),

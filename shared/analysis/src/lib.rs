@@ -1,0 +1,19 @@
+//! flexloop-analysis: what a run did, in control terms.
+//!
+//! - [`trace`]: a run as columns per tick, from a recorded log or from the
+//!   in-process loop, aligned by sequence number.
+//! - [`metrics`]: tracking error over the scan windows (rms, peak, MA, MSD),
+//!   control effort and its parts, innovation statistics.
+//! - [`modal_damping`]: the damping the loop achieves on each flexible mode,
+//!   from the closed-loop model and identified from the run's ring-down.
+//! - [`feedforward_fit`]: least-squares feedforward gains from a recorded run.
+//!
+//! Offline code: it allocates freely and never runs inside the loop.
+
+pub mod feedforward_fit;
+pub mod metrics;
+pub mod modal_damping;
+pub mod trace;
+
+pub use metrics::{ControlMetrics, MetricsOptions};
+pub use trace::RunTrace;

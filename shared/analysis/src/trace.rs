@@ -1,0 +1,148 @@
+//! A run as columns per tick (first output and first input: the SISO loops
+//! the thesis studies), aligned by sequence number.
+//!
+//! Row k holds y(k) as the plant published it, u(k) as the controller
+//! computed it from y(k), and the estimate the controller used at tick k
+//! (x̂(k|k−1)). A tick whose messages are missing from a log is left out and
+//! counted, never filled in.
+
+use flexloop_components::{InProcessLoop, LogReader};
+use flexloop_protocol::{Command, Estimate, Measurement, flags};
+use std::collections::BTreeMap;
+
+/// One tick of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TickRow {
+    pub seq: u64,
+    /// Set-point r(k).
+    pub r: f64,
+    /// True output y(k) (no sensor noise).
+    pub y_true: f64,
+    /// Measured output.
+    pub y: f64,
+    /// Input applied over [t_k, t_k+1).
+    pub u_applied: f64,
+    /// Command computed from y(k), and its parts.
+    pub u: f64,
+    pub u_fb: f64,
+    pub u_ff: f64,
+    pub u_d: f64,
+    pub e_meas: f64,
+    /// Innovation of y(k) (from the estimate for tick k+1; NaN where unknown).
+    pub innovation: f64,
+    /// The plant held its input at this tick (command missing).
+    pub held: bool,
+    /// The controller used an older estimate than the one due.
+    pub stale_estimate: bool,
+}
+
+impl TickRow {
+    /// e_true(k) = r(k) − y(k): the error the machine actually makes.
+    pub fn e_true(&self) -> f64 {
+        self.r - self.y_true
+    }
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunTrace {
+    /// Sample period in s; tick k is at t = k·ts.
+    pub ts: f64,
+    pub rows: Vec<TickRow>,
+    /// x̂(k|k−1) per row, `n_states` values each.
+    pub x_hat: Vec<f64>,
+    pub n_states: usize,
+    /// Ticks with a measurement but no command or estimate in the log.
+    pub incomplete_ticks: u64,
+    /// The plant's own counters at the end of the run.
+    pub misses: u64,
+    pub stalled_ticks: u64,
+    pub stall_misses: u64,
+    pub late_commands: u64,
+}
+
+impl RunTrace {
+    pub fn new(ts: f64) -> Self {
+        Self {
+            ts,
+            ..Self::default()
+        }
+    }
+
+    pub fn time(&self, row: &TickRow) -> f64 {
+        row.seq as f64 * self.ts
+    }
+
+    /// x̂ of row `i`.
+    pub fn x_hat(&self, i: usize) -> &[f64] {
+        &self.x_hat[i * self.n_states..(i + 1) * self.n_states]
+    }
+
+    /// Appends the messages of one tick.
+    pub fn push(&mut self, m: &Measurement, c: &Command, used: &Estimate, next: Option<&Estimate>) {
+        let n = used.n_states as usize;
+        if self.rows.is_empty() {
+            self.n_states = n;
+        }
+        self.rows.push(TickRow {
+            seq: m.seq,
+            r: c.r[0],
+            y_true: m.y_true[0],
+            y: m.y[0],
+            u_applied: m.u_applied[0],
+            u: c.u[0],
+            u_fb: c.u_fb[0],
+            u_ff: c.u_ff[0],
+            u_d: c.u_d[0],
+            e_meas: c.e_meas[0],
+            innovation: next.map_or(f64::NAN, |e| e.innovation[0]),
+            held: m.flags & flags::HELD_INPUT != 0,
+            stale_estimate: c.flags & flags::STALE_ESTIMATE != 0,
+        });
+        let width = self.n_states.min(used.x_hat.len());
+        self.x_hat.extend_from_slice(&used.x_hat[..width]);
+        self.x_hat
+            .extend(std::iter::repeat_n(0.0, self.n_states - width));
+        self.misses = m.misses;
+        self.stalled_ticks = m.stalled_ticks;
+        self.stall_misses = m.stall_misses;
+        self.late_commands = m.late_commands;
+    }
+
+    /// Runs the in-process loop for `ticks` and records it.
+    pub fn simulate(run: &mut InProcessLoop, ts: f64, ticks: u64) -> Self {
+        let mut trace = Self::new(ts);
+        for _ in 0..ticks {
+            run.tick();
+            let (m, c, used, next) = (
+                run.measurement,
+                run.command,
+                run.used_estimate,
+                run.estimate,
+            );
+            trace.push(&m, &c, &used, Some(&next));
+        }
+        trace
+    }
+
+    /// Rebuilds the run from a log: every tick that has its measurement, its
+    /// command and the estimate the command used.
+    pub fn from_log(log: &LogReader, ts: f64) -> Self {
+        let estimates: BTreeMap<u64, &Estimate> = log.estimates().map(|e| (e.seq, e)).collect();
+        let commands: BTreeMap<u64, &Command> = log.commands().map(|c| (c.seq, c)).collect();
+        let mut trace = Self::new(ts);
+        let mut measurements: Vec<&Measurement> = log.measurements().collect();
+        measurements.sort_by_key(|m| m.seq);
+        for m in measurements {
+            let command = commands.get(&m.seq);
+            let used = command.and_then(|c| estimates.get(&c.estimate_seq));
+            match (command, used) {
+                (Some(c), Some(e)) => {
+                    let next = estimates.get(&(m.seq + 1)).copied();
+                    trace.push(m, c, e, next);
+                }
+                _ => trace.incomplete_ticks += 1,
+            }
+        }
+        trace
+    }
+}
