@@ -6,4 +6,5 @@
 
 mod bad_input;
 mod loop_processes;
+mod thesis;
 mod util;

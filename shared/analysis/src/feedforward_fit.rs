@@ -7,6 +7,8 @@
 //! ΔΘ = argmin ‖e_rec + R ΔΘ‖ over the recorded ticks, and Θ = Θ₀ + ΔΘ.
 //! The recorded error carries everything the model does not (noise,
 //! disturbances, timing misses), which is what makes this data-based.
+//! With Appendix A's modified feedforward the gains act on u0 before its
+//! block, and the responses are taken through it.
 
 use crate::trace::RunTrace;
 use flexloop_control::feedforward::{FeedforwardGains, FitError, fit_gains};
@@ -46,12 +48,23 @@ pub fn fit_from_run(design: &LoopDesign, trace: &RunTrace) -> Result<FittedFeedf
     let mut input = vec![0.0; cl.inputs()];
     for (basis, response) in responses.iter_mut().enumerate() {
         let mut run = LtiRunner::new(cl.clone());
+        // With the modified form the gains act on u0, which passes through
+        // Appendix A's block (its reference input is fixed: it does not move).
+        let mut modified = design.modified_feedforward.clone().map(LtiRunner::new);
+        let mut modified_input = vec![0.0; modified.as_ref().map_or(0, |m| m.system().inputs())];
         for (k, out) in response.iter_mut().enumerate() {
             let d = design
                 .reference
                 .sample((k as u64 + delay) as f64 * design.ts);
             // Regressor order [snap, jerk, acc, vel].
-            input[u_ff_index] = [d[4], d[3], d[2], d[1]][basis];
+            let u0 = [d[4], d[3], d[2], d[1]][basis];
+            input[u_ff_index] = match &mut modified {
+                Some(block) => {
+                    modified_input[0] = u0;
+                    block.step(&modified_input)[0]
+                }
+                None => u0,
+            };
             *out = run.step(&input)[e_true_index];
         }
     }

@@ -19,6 +19,10 @@ use flexloop_scenario::reference::{Derivatives, Reference};
 pub struct ControllerCore {
     feedback: Option<LtiRunner>,
     feedforward: [Derivatives; MAX_INPUTS],
+    /// Appendix A's block on [u0; r], or None (u_ff = u0).
+    modified_feedforward: Option<LtiRunner>,
+    /// [u0; r] for the modified block.
+    feedforward_input: [f64; MAX_INPUTS + MAX_OUTPUTS],
     reference: Reference,
     ts: f64,
     loop_delay_samples: u32,
@@ -41,6 +45,8 @@ impl ControllerCore {
         }
         Self {
             feedback: design.feedback.clone().map(LtiRunner::new),
+            modified_feedforward: design.modified_feedforward.clone().map(LtiRunner::new),
+            feedforward_input: [0.0; MAX_INPUTS + MAX_OUTPUTS],
             feedforward,
             reference: design.reference.clone(),
             ts: design.ts,
@@ -92,18 +98,26 @@ impl ControllerCore {
         if estimate.seq != m.seq {
             command_flags |= flags::STALE_ESTIMATE;
         }
-        #[allow(clippy::needless_range_loop)] // four arrays indexed in step
         for i in 0..nu {
             let gains = &self.feedforward[i];
-            let u_ff: f64 = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
+            self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
+        }
+        for i in 0..ny {
+            self.feedforward_input[nu + i] = r_applied[0];
+        }
+        let u_ff: &[f64] = match &mut self.modified_feedforward {
+            Some(block) => block.step(&self.feedforward_input[..nu + ny]),
+            None => &self.feedforward_input[..nu],
+        };
+        for i in 0..nu {
             let u_d = self.observer_output[ny + i];
-            let total = u_fb[i] + u_ff + u_d;
+            let total = u_fb[i] + u_ff[i] + u_d;
             let limited = total.clamp(-self.input_limit, self.input_limit);
             if limited != total {
                 command_flags |= flags::CLAMPED;
             }
             out.u_fb[i] = u_fb[i];
-            out.u_ff[i] = u_ff;
+            out.u_ff[i] = u_ff[i];
             out.u_d[i] = u_d;
             out.u[i] = limited;
         }

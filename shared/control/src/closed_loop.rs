@@ -11,7 +11,12 @@
 //! Closed-loop inputs: [r (n_y); n (n_y); u_ff (n_u); w (n_u)].
 //! Outputs: [e_meas (n_y); y_meas (n_y); e_true = r − y (n_y); u_c (n_u)].
 //! So r → e_meas is S^I, n → y_meas is S^O, and r → e_true is T_{r→e_true}.
+//!
+//! [`assemble_continuous_loop`] builds the same loop in continuous time (no
+//! delay; the observer gets the total input u directly), for the continuous
+//! design checks of control.md §9.
 
+use crate::continuous::ContinuousStateSpace;
 use crate::design_error::DesignError;
 use crate::linalg::{LinalgError, solve};
 use crate::lti::DiscreteStateSpace;
@@ -227,6 +232,54 @@ pub fn assemble_loop(spec: &LoopSpec) -> Result<DiscreteStateSpace, DesignError>
     Ok(DiscreteStateSpace::new(a, bm, cm, dm, ts)?)
 }
 
+/// The loop of the module doc in continuous time: plant P (D may be
+/// non-zero), an optional observer with inputs [y (n_y); u (n_u)] and
+/// outputs [ŷ_flex (n_y); u_d (n_u)] (e.g.
+/// [`crate::observer_block::ContinuousModalObserver::system`]), controller
+/// e_meas → u_fb, and u = u_fb + u_d + u_ff applied without delay. Same
+/// inputs and outputs as [`assemble_loop`]; algebraic loops through direct
+/// feedthroughs are resolved (an error if I − D_loop is singular).
+pub fn assemble_continuous_loop(
+    plant: &ContinuousStateSpace,
+    observer: Option<&ContinuousStateSpace>,
+    controller: &ContinuousStateSpace,
+) -> Result<ContinuousStateSpace, DesignError> {
+    // The interconnection algebra is the same as for a discrete loop without
+    // delay (ẋ instead of x(k+1)), so reuse it on unit-period copies.
+    let unit = |s: &ContinuousStateSpace| {
+        DiscreteStateSpace::new(s.a.clone(), s.b.clone(), s.c.clone(), s.d.clone(), 1.0)
+    };
+    let p = unit(plant)?;
+    let c = unit(controller)?;
+    let block = match observer {
+        Some(o) => {
+            let (ny, nu) = (plant.outputs(), plant.inputs());
+            if o.inputs() != ny + nu || o.outputs() != ny + nu {
+                return Err(DesignError::DimensionMismatch {
+                    what: "continuous observer (outputs x inputs)",
+                    expected: (ny + nu, ny + nu),
+                    found: (o.outputs(), o.inputs()),
+                });
+            }
+            Some(ObserverBlock {
+                system: unit(o)?,
+                estimate_map: DMatrix::zeros(0, o.states()),
+                n_y: ny,
+                n_u: nu,
+                extra_delay_samples: 0,
+            })
+        }
+        None => None,
+    };
+    let cl = assemble_loop(&LoopSpec {
+        plant: &p,
+        observer: block.as_ref(),
+        controller: &c,
+        loop_delay: 0,
+    })?;
+    Ok(ContinuousStateSpace::new(cl.a, cl.b, cl.c, cl.d)?)
+}
+
 /// Closed-loop poles as (frequency [Hz], damping), upper half-plane only.
 pub fn closed_loop_modes(sys: &DiscreteStateSpace) -> Result<Vec<(f64, f64)>, DesignError> {
     let ev = crate::linalg::eigenvalues(&sys.a)?;
@@ -237,5 +290,18 @@ pub fn closed_loop_modes(sys: &DiscreteStateSpace) -> Result<Vec<(f64, f64)>, De
             let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, sys.ts);
             (w / (2.0 * std::f64::consts::PI), zeta)
         })
+        .collect())
+}
+
+/// Continuous closed-loop poles as (frequency [Hz], damping), upper
+/// half-plane only.
+pub fn continuous_closed_loop_modes(
+    sys: &ContinuousStateSpace,
+) -> Result<Vec<(f64, f64)>, DesignError> {
+    let ev = crate::linalg::eigenvalues(&sys.a)?;
+    Ok(ev
+        .iter()
+        .filter(|s| s.im > 0.0)
+        .map(|s| (s.norm() / (2.0 * std::f64::consts::PI), -s.re / s.norm()))
         .collect())
 }

@@ -116,12 +116,8 @@ impl ActiveDamping {
             .collect()
     }
 
-    /// Discrete map from the observer state (n_obs ≥ 2 n_modes; extra states
-    /// such as noise-model states get zero gain) to u_d. Static gains, or per
-    /// damped mode the band-pass (ω/Q)s/(s² + (ω/Q)s + ω²) on η̇̂_i, Tustin
-    /// pre-warped at ω_i so it has unit gain and zero phase there.
-    pub fn to_discrete(&self, n_obs: usize, ts: f64) -> Result<DiscreteStateSpace, DesignError> {
-        let (nu, n) = self.gains.shape();
+    fn check_observer_states(&self, n_obs: usize) -> Result<(), DesignError> {
+        let n = self.gains.ncols();
         if n_obs < 2 * n {
             return Err(DesignError::DimensionMismatch {
                 what: "observer states for the damping gain",
@@ -129,42 +125,99 @@ impl ActiveDamping {
                 found: (n_obs, 1),
             });
         }
+        Ok(())
+    }
+
+    /// The static gain padded to the observer state (n_u × n_obs).
+    fn padded_gain(&self, n_obs: usize) -> DMatrix<f64> {
+        let (nu, n) = self.gains.shape();
         let mut kfull = DMatrix::zeros(nu, n_obs);
         kfull
             .view_mut((0, 0), (nu, 2 * n))
             .copy_from(&self.state_gain());
-        let Some(q) = self.bandpass_q else {
-            return Ok(DiscreteStateSpace::gain(kfull, ts)?);
-        };
-        let modes = self.damped_modes();
-        let mut filters = Vec::new();
-        for &i in &modes {
-            let w = self.omega[i];
-            let bp =
-                ContinuousStateSpace::from_transfer_function(&[w / q, 0.0], &[1.0, w / q, w * w])?;
-            filters.push(tustin(&bp, ts, Some(w))?);
-        }
-        let a_refs: Vec<&DMatrix<f64>> = filters.iter().map(|f| &f.a).collect();
+        kfull
+    }
+
+    /// The continuous band-pass of each damped mode.
+    fn bandpass_filters(&self, q: f64) -> Result<Vec<(usize, ContinuousStateSpace)>, DesignError> {
+        self.damped_modes()
+            .into_iter()
+            .map(|i| {
+                let w = self.omega[i];
+                let bp = ContinuousStateSpace::from_transfer_function(
+                    &[w / q, 0.0],
+                    &[1.0, w / q, w * w],
+                )?;
+                Ok((i, bp))
+            })
+            .collect()
+    }
+
+    /// Stacks per-mode SISO filters (a, b, c, d) on η̇̂_i into one map
+    /// x̂ (n_obs) → u_d.
+    fn stack_filters(&self, n_obs: usize, filters: &[(usize, [&DMatrix<f64>; 4])]) -> Abcd {
+        let nu = self.gains.nrows();
+        let a_refs: Vec<&DMatrix<f64>> = filters.iter().map(|(_, f)| f[0]).collect();
         let a = block_diag(&a_refs);
         let nf = a.nrows();
         let mut b = DMatrix::zeros(nf, n_obs);
         let mut c = DMatrix::zeros(nu, nf);
         let mut d = DMatrix::zeros(nu, n_obs);
         let mut off = 0;
-        for (f, &i) in filters.iter().zip(&modes) {
-            let ns = f.states();
+        for (i, [fa, fb, fc, fd]) in filters {
+            let ns = fa.nrows();
             let vel = 2 * i + 1;
-            b.view_mut((off, vel), (ns, 1)).copy_from(&f.b);
-            let kcol = self.gains.column(i);
-            c.view_mut((0, off), (nu, ns)).copy_from(&(kcol * &f.c));
-            let dcol = kcol * f.d[(0, 0)];
+            b.view_mut((off, vel), (ns, 1)).copy_from(*fb);
+            let kcol = self.gains.column(*i);
+            c.view_mut((0, off), (nu, ns)).copy_from(&(kcol * *fc));
+            let dcol = kcol * fd[(0, 0)];
             let mut dv = d.column_mut(vel);
             dv += dcol;
             off += ns;
         }
+        (a, b, c, d)
+    }
+
+    /// Discrete map from the observer state (n_obs ≥ 2 n_modes; extra states
+    /// such as noise-model states get zero gain) to u_d. Static gains, or per
+    /// damped mode the band-pass (ω/Q)s/(s² + (ω/Q)s + ω²) on η̇̂_i, Tustin
+    /// pre-warped at ω_i so it has unit gain and zero phase there.
+    pub fn to_discrete(&self, n_obs: usize, ts: f64) -> Result<DiscreteStateSpace, DesignError> {
+        self.check_observer_states(n_obs)?;
+        let Some(q) = self.bandpass_q else {
+            return Ok(DiscreteStateSpace::gain(self.padded_gain(n_obs), ts)?);
+        };
+        let mut filters = Vec::new();
+        for (i, bp) in self.bandpass_filters(q)? {
+            filters.push((i, tustin(&bp, ts, Some(self.omega[i]))?));
+        }
+        let refs: Vec<(usize, [&DMatrix<f64>; 4])> = filters
+            .iter()
+            .map(|(i, f)| (*i, [&f.a, &f.b, &f.c, &f.d]))
+            .collect();
+        let (a, b, c, d) = self.stack_filters(n_obs, &refs);
         Ok(DiscreteStateSpace::new(a, b, c, d, ts)?)
     }
+
+    /// Continuous map from the observer state (n_obs ≥ 2 n_modes) to u_d:
+    /// the static gains, or K_i H_BP,i(s) on η̇̂_i per damped mode (3.34),
+    /// for the continuous design checks of control.md §9.
+    pub fn to_continuous(&self, n_obs: usize) -> Result<ContinuousStateSpace, DesignError> {
+        self.check_observer_states(n_obs)?;
+        let Some(q) = self.bandpass_q else {
+            return Ok(ContinuousStateSpace::gain(self.padded_gain(n_obs)));
+        };
+        let filters = self.bandpass_filters(q)?;
+        let refs: Vec<(usize, [&DMatrix<f64>; 4])> = filters
+            .iter()
+            .map(|(i, f)| (*i, [&f.a, &f.b, &f.c, &f.d]))
+            .collect();
+        let (a, b, c, d) = self.stack_filters(n_obs, &refs);
+        Ok(ContinuousStateSpace::new(a, b, c, d)?)
+    }
 }
+
+type Abcd = (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>);
 
 #[cfg(test)]
 mod tests {
@@ -212,6 +265,35 @@ mod tests {
         assert_eq!(auto.gains[(0, 0)], 0.0);
         assert!(ActiveDamping::design(&m, &[0.035; 2], DampingMethod::Automated, None).is_err());
         assert!(ActiveDamping::design(&m, &inc, DampingMethod::Automated, Some(-1.0)).is_err());
+    }
+
+    #[test]
+    fn continuous_gain_matches_the_static_gain_and_the_band_pass() {
+        let m = thesis_reduced(5).unwrap().modal;
+        let stat = ActiveDamping::design(&m, &[0.035; 3], DampingMethod::Automated, None).unwrap();
+        let k = stat.to_continuous(9).unwrap();
+        assert_eq!(k.states(), 0);
+        assert_eq!(k.d.view((0, 0), (1, 8)), stat.state_gain());
+        assert_eq!(k.d[(0, 8)], 0.0);
+        let bp =
+            ActiveDamping::design(&m, &[0.035; 3], DampingMethod::Automated, Some(2.0)).unwrap();
+        let kb = bp.to_continuous(8).unwrap();
+        assert_eq!(kb.states(), 6);
+        for i in 1..4 {
+            let w = m.omega[i];
+            let h = crate::freq::freq_response_continuous(&kb, w).unwrap()[(0, 2 * i + 1)];
+            let want = bp.gains[(0, i)];
+            assert!((h.re - want).abs() < 1e-9 * want.abs() && h.im.abs() < 1e-9 * want.abs());
+            // Q = 2: half-power points at ω(√(1 + 1/16) ± 1/4).
+            let wl = w * ((1.0f64 + 1.0 / 16.0).sqrt() - 0.25);
+            let hl = crate::freq::freq_response_continuous(&kb, wl).unwrap()[(0, 2 * i + 1)];
+            assert!(
+                (hl.norm() / want.abs() - 0.5f64.sqrt()).abs() < 0.02,
+                "{}",
+                hl.norm()
+            );
+        }
+        assert!(bp.to_continuous(7).is_err());
     }
 
     #[test]

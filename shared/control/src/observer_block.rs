@@ -24,12 +24,26 @@
 //! Block state s(k) = [x̂(k|k−1); w(k)] with w the states of K(z); the
 //! estimate is x̂(k|k−1) = `estimate_map` · s(k). The predictor is affine in
 //! (y(k), u_a(k)), so the block's D matrix carries that direct dependence.
+//!
+//! # Continuous counterpart
+//! [`design_continuous_modal_observer`] builds the same observer in
+//! continuous time (CARE Kalman gain, static or band-passed K(s)), as one
+//! [`ContinuousStateSpace`] with inputs [y; u] and outputs [ŷ_flex; u_d]:
+//! the thesis's own setting, used by the continuous bandwidth checks of
+//! control.md §9 ([`crate::freq::ContinuousBandwidthProblem`]).
+//!
+//! # Q_ν
+//! `q_nu` is always the thesis value (a continuous intensity, 0.03 or 10³);
+//! the discrete design converts it to Q_ν Ts² per sample
+//! ([`crate::kalman::NoiseModel::thesis`]).
 
+use crate::continuous::ContinuousStateSpace;
 use crate::damping::{ActiveDamping, DampingMethod};
 use crate::design_error::{DesignError, check_matrix};
 use crate::discretise::zoh;
 use crate::kalman::{
-    KalmanGains, KalmanWeights, NoiseModel, steady_state_kalman, with_noise_model,
+    ContinuousKalmanGains, KalmanGains, KalmanWeights, NoiseModel, steady_state_kalman,
+    steady_state_kalman_continuous, with_noise_model, with_noise_model_continuous,
 };
 use crate::lti::DiscreteStateSpace;
 use crate::modal::ReducedModel;
@@ -159,7 +173,8 @@ pub struct ModalObserverOptions {
     pub mc: bool,
     /// Active damping, or None.
     pub damping: Option<DampingOptions>,
-    /// Noise model U = B_t with Q_ν = q_nu I (thesis 0.03 … 10³), or None.
+    /// Noise model U = B_t with the thesis intensity Q_ν = q_nu I (0.03 …
+    /// 10³, continuous units; converted to q_nu Ts² per sample), or None.
     /// Dropped automatically when MC is off (§4.3: "drop ẑ when only AD").
     pub q_nu: Option<f64>,
     /// Kalman weights, or None for the thesis weights (G = B, Q = σ_w²,
@@ -210,7 +225,8 @@ pub fn design_modal_observer(
     let n_t = base.states();
     let (model, weights) = match (options.mc, options.q_nu) {
         (true, Some(q_nu)) => {
-            with_noise_model(&base, &weights, &NoiseModel::on_inputs(&base, q_nu))?
+            check_q_nu(q_nu)?;
+            with_noise_model(&base, &weights, &NoiseModel::thesis(&base, q_nu))?
         }
         _ => (base, weights),
     };
@@ -241,6 +257,103 @@ pub fn design_modal_observer(
     Ok(ModalObserver {
         block,
         design,
+        kalman,
+        damping,
+    })
+}
+
+fn check_q_nu(q_nu: f64) -> Result<(), DesignError> {
+    if q_nu.is_finite() && q_nu > 0.0 {
+        Ok(())
+    } else {
+        Err(DesignError::InvalidParameter(format!(
+            "noise-model Q_ν {q_nu} must be positive and finite"
+        )))
+    }
+}
+
+/// Options of the continuous-time MC/AD observer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContinuousObserverOptions {
+    /// Measurement compensation on.
+    pub mc: bool,
+    /// Active damping, or None.
+    pub damping: Option<DampingOptions>,
+    /// Noise model U = B_t, intensity Q_ν = q_nu I (only with MC), or None.
+    pub q_nu: Option<f64>,
+    /// Kalman intensities, or None for the thesis values.
+    pub weights: Option<KalmanWeights>,
+}
+
+/// A continuous Kalman observer with its MC and AD outputs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContinuousModalObserver {
+    /// States [x̂; w] (w: band-pass states), inputs [y (n_y); u (n_u)],
+    /// outputs [ŷ_flex = C_f x̂ (n_y); u_d = K(s) x̂ (n_u)], D = 0:
+    /// x̂̇ = (A − L C) x̂ + (B − L D_o) u + L y. `u` is the total plant input.
+    pub system: ContinuousStateSpace,
+    /// Observer model (A, B, C, D_o = T_DC), with noise-model states if any.
+    pub model: ContinuousStateSpace,
+    pub kalman: ContinuousKalmanGains,
+    pub damping: Option<ActiveDamping>,
+}
+
+/// Continuous Kalman observer on a reduced modal model with optional MC,
+/// AD (static (3.31)/(3.32) gains or band-passed) and noise model.
+pub fn design_continuous_modal_observer(
+    reduced: &ReducedModel,
+    options: &ContinuousObserverOptions,
+) -> Result<ContinuousModalObserver, DesignError> {
+    let base = reduced.state_space();
+    let weights = match &options.weights {
+        Some(w) => w.clone(),
+        None => KalmanWeights::thesis_continuous(&base),
+    };
+    let n_t = base.states();
+    let (model, weights) = match (options.mc, options.q_nu) {
+        (true, Some(q_nu)) => {
+            check_q_nu(q_nu)?;
+            with_noise_model_continuous(
+                &base,
+                &weights,
+                &NoiseModel::on_continuous_inputs(&base, q_nu),
+            )?
+        }
+        _ => (base, weights),
+    };
+    let kalman = steady_state_kalman_continuous(&model, &weights)?;
+    let (n_o, ny, nu) = (model.states(), model.outputs(), model.inputs());
+    let mut cf = DMatrix::zeros(ny, n_o);
+    if options.mc {
+        cf.view_mut((0, 0), (ny, n_t))
+            .copy_from(&reduced.flexible_output_matrix());
+    }
+    let (k, damping) = match &options.damping {
+        Some(d) => {
+            let ad = ActiveDamping::design(&reduced.modal, &d.increase, d.method, d.bandpass_q)?;
+            (ad.to_continuous(n_o)?, Some(ad))
+        }
+        None => (ContinuousStateSpace::gain(DMatrix::zeros(nu, n_o)), None),
+    };
+    let l = &kalman.l;
+    let nw = k.states();
+    let mut a = DMatrix::zeros(n_o + nw, n_o + nw);
+    a.view_mut((0, 0), (n_o, n_o))
+        .copy_from(&(&model.a - l * &model.c));
+    a.view_mut((n_o, 0), (nw, n_o)).copy_from(&k.b);
+    a.view_mut((n_o, n_o), (nw, nw)).copy_from(&k.a);
+    let mut b = DMatrix::zeros(n_o + nw, ny + nu);
+    b.view_mut((0, 0), (n_o, ny)).copy_from(l);
+    b.view_mut((0, ny), (n_o, nu))
+        .copy_from(&(&model.b - l * &model.d));
+    let mut c = DMatrix::zeros(ny + nu, n_o + nw);
+    c.view_mut((0, 0), (ny, n_o)).copy_from(&cf);
+    c.view_mut((ny, 0), (nu, n_o)).copy_from(&k.d);
+    c.view_mut((ny, n_o), (nu, nw)).copy_from(&k.c);
+    let system = ContinuousStateSpace::new(a, b, c, DMatrix::zeros(ny + nu, ny + nu))?;
+    Ok(ContinuousModalObserver {
+        system,
+        model,
         kalman,
         damping,
     })
@@ -439,6 +552,56 @@ mod tests {
         // Rigid columns of C_f are zero.
         assert_eq!(cf[(0, 0)], 0.0);
         assert!(compile_observer_block(&obs.design, 2).is_err());
+    }
+
+    #[test]
+    fn continuous_observer_layout_and_integral_action() {
+        use crate::freq::freq_response_continuous;
+        let red = thesis_reduced(5).unwrap();
+        let opts = ContinuousObserverOptions {
+            mc: true,
+            damping: Some(DampingOptions {
+                increase: vec![0.035; 3],
+                method: DampingMethod::Automated,
+                bandpass_q: Some(2.0),
+            }),
+            q_nu: Some(1e3),
+            weights: None,
+        };
+        let obs = design_continuous_modal_observer(&red, &opts).unwrap();
+        // 8 model + 1 noise-model + 6 band-pass states; [y; u] → [ŷ_f; u_d].
+        assert_eq!(obs.system.states(), 15);
+        assert_eq!((obs.system.inputs(), obs.system.outputs()), (2, 2));
+        // Theorem 3.2.4: O_yu → 0 at low frequency (∝ s).
+        let lo = freq_response_continuous(&obs.system, 2.0 * std::f64::consts::PI * 1e-3).unwrap()
+            [(0, 1)]
+            .norm();
+        let lo10 = freq_response_continuous(&obs.system, 2.0 * std::f64::consts::PI * 1e-2)
+            .unwrap()[(0, 1)]
+            .norm();
+        assert!((lo10 / lo - 10.0).abs() < 0.5, "{lo} {lo10}");
+        // Without the noise model O_yu(0) ≠ 0.
+        let plain = design_continuous_modal_observer(
+            &red,
+            &ContinuousObserverOptions {
+                q_nu: None,
+                ..opts.clone()
+            },
+        )
+        .unwrap();
+        let dc = freq_response_continuous(&plain.system, 1e-3).unwrap()[(0, 1)].norm();
+        assert!(dc > 1e3 * lo, "{dc} vs {lo}");
+        // Bad Q_ν is an error, not a panic.
+        for q in [0.0, -1.0, f64::NAN] {
+            let bad = ContinuousObserverOptions {
+                q_nu: Some(q),
+                ..opts.clone()
+            };
+            assert!(design_continuous_modal_observer(&red, &bad).is_err());
+            let mut dopts = ModalObserverOptions::thesis_mc_ad(TS_10KHZ, 3);
+            dopts.q_nu = Some(q);
+            assert!(design_modal_observer(&red, &dopts).is_err());
+        }
     }
 
     #[test]

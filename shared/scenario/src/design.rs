@@ -14,6 +14,7 @@ use flexloop_control::damping::DampingMethod;
 use flexloop_control::discretise::zoh;
 use flexloop_control::lecture::{place, place_observer};
 use flexloop_control::lti::DiscreteStateSpace;
+use flexloop_control::modified_feedforward::modified_feedforward;
 use flexloop_control::observer_block::{
     DampingOptions, ModalObserverOptions, design_modal_observer, state_feedback_observer_block,
 };
@@ -46,8 +47,11 @@ pub struct LoopDesign {
     pub output_prediction: OutputPrediction,
     /// e_meas → u_fb (absent when the observer block closes the loop by state feedback).
     pub feedback: Option<DiscreteStateSpace>,
-    /// u_ff,i = gains_i · derivatives of r_i, evaluated at the tick the command applies.
+    /// u0,i = gains_i · derivatives of r_i, evaluated at the tick the command applies.
     pub feedforward: Vec<Derivatives>,
+    /// Appendix A's modified feedforward, inputs [u0; r] (both at the tick the
+    /// command applies), output u_ff; None: u_ff = u0.
+    pub modified_feedforward: Option<DiscreteStateSpace>,
     pub reference: Reference,
     pub input_limit: f64,
     pub force_noise: f64,
@@ -153,6 +157,28 @@ impl LoopDesign {
             ));
         }
         check_actuator_limit(s, &reference, &feedforward, loop_delay_samples, ts)?;
+        let modified_feedforward = match s.controller.feedforward_form.as_str() {
+            "plain" => None,
+            "modified" => Some(
+                modified_feedforward(
+                    &parts.observer,
+                    feedback.as_ref().unwrap_or(&zero_controller),
+                    loop_delay_samples as usize,
+                )
+                .map_err(|e| {
+                    err(
+                        "controller.feedforward_form",
+                        format!("modified feedforward: {e}"),
+                    )
+                })?,
+            ),
+            other => {
+                return Err(err(
+                    "controller.feedforward_form",
+                    format!("unknown form `{other}` (expected plain or modified)"),
+                ));
+            }
+        };
 
         let b_u = parts.plant_u.b.clone();
         let mut b_plant = DMatrix::zeros(b_u.nrows(), 2 * b_u.ncols());
@@ -179,6 +205,7 @@ impl LoopDesign {
             output_prediction: parts.output_prediction,
             feedback,
             feedforward: vec![feedforward],
+            modified_feedforward,
             reference,
             input_limit: s.plant.input_limit,
             force_noise: s.plant.force_noise,

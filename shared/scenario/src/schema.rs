@@ -190,6 +190,15 @@ pub struct ControllerSection {
     /// Four-gain feedforward on the set-point derivatives; absent: the model's
     /// mass on the acceleration.
     pub feedforward: Option<FeedforwardSection>,
+    /// `plain`: u_ff is the four-gain filter. `modified`: Appendix A's
+    /// u_ff = u0 − û_d − C_fb ŷ_f with a copy of the observer and of the
+    /// feedback driven by the reference, so that MC and AD do not react to it.
+    #[serde(default = "default_feedforward_form")]
+    pub feedforward_form: String,
+}
+
+fn default_feedforward_form() -> String {
+    "plain".into()
 }
 
 impl Default for ControllerSection {
@@ -200,6 +209,7 @@ impl Default for ControllerSection {
             notches_hz: Vec::new(),
             extra_delay_samples: 0,
             feedforward: None,
+            feedforward_form: default_feedforward_form(),
         }
     }
 }
