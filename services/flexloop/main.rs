@@ -5,6 +5,7 @@
 //! `flexloop tune-ff RUN`. See README.md.
 
 mod bench;
+mod design;
 mod probes;
 mod registry;
 mod run;
@@ -26,6 +27,9 @@ const USAGE: &str = "usage:
   flexloop tune-ff RUN_DIR [--into SCENARIO]
       fit the four feedforward gains from a recorded run by least squares and write
       them into the scenario file (default: the one the run used)
+  flexloop design [SCENARIO] [--continuous] [--json]
+      design report of the thesis chain at the scenario's rate and loop delay: modes,
+      observer poles, AD damping, largest f_bw meeting the 6 dB rule per case
   flexloop down [--prefix P]          stop running loops
   flexloop status [--prefix P]        live counters and latency percentiles of a running loop
   flexloop bench [SCENARIO] [--duration S (10)] [--rate HZ (10000)] [--no-realtime] [--no-probes] [--run-dir DIR]
@@ -55,6 +59,7 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),
         Some("run") => run::run(LoopArgs::parse(rest, false)?),
         Some("tune-ff") => run::tune_ff(rest),
+        Some("design") => design::design(rest),
         Some("down") => down(prefix_arg(rest)?),
         Some("status") => status(prefix_arg(rest)?),
         Some("help") | Some("--help") | Some("-h") => {
