@@ -30,12 +30,7 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         "flexloop bench: loop ran {:.1} s",
         started.elapsed().as_secs_f64()
     );
-    let summary_path = run_dir.join(flexloop_node::logger::SUMMARY_FILE);
-    let summary: Value = serde_json::from_str(
-        &std::fs::read_to_string(&summary_path)
-            .map_err(|e| format!("{}: {e}", summary_path.display()))?,
-    )
-    .map_err(|e| format!("{}: {e}", summary_path.display()))?;
+    let summary = flexloop_node::summary::read_summary(&run_dir)?;
 
     let samples = (scenario.timing.rate_hz * 2.0) as u64;
     let (timer, pingpong) = if args.probes {

@@ -8,7 +8,7 @@ use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::LogReader;
-use flexloop_node::logger::{SAMPLES_FILE, SUMMARY_FILE};
+use flexloop_node::logger::SAMPLES_FILE;
 use flexloop_scenario::reference::Reference;
 use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
 use serde_json::{Value, json};
@@ -66,12 +66,7 @@ pub struct RunReport {
 
 impl RunReport {
     pub fn load(run_dir: &Path) -> Result<Self, String> {
-        let summary_path = run_dir.join(SUMMARY_FILE);
-        let summary: Value = std::fs::read_to_string(&summary_path)
-            .map_err(|e| format!("{}: {e}", summary_path.display()))
-            .and_then(|text| {
-                serde_json::from_str(&text).map_err(|e| format!("{}: {e}", summary_path.display()))
-            })?;
+        let summary = flexloop_node::summary::read_summary(run_dir)?;
         let overrides = Overrides {
             rate_hz: summary["rate_hz"].as_f64(),
             mode: summary["mode"].as_str().and_then(Mode::parse),

@@ -10,6 +10,7 @@
 //! With Appendix A's modified feedforward the gains act on u0 before its
 //! block, and the responses are taken through it.
 
+use crate::metrics::SignalStats;
 use crate::trace::RunTrace;
 use flexloop_control::feedforward::{FeedforwardGains, FitError, fit_gains};
 use flexloop_control::lti::LtiRunner;
@@ -84,10 +85,6 @@ pub fn fit_from_run(design: &LoopDesign, trace: &RunTrace) -> Result<FittedFeedf
         .collect();
     let recorded: Vec<f64> = trace.rows.iter().map(|r| r.e_true()).collect();
     let delta = fit_gains(&rows, &recorded)?;
-    let rms = |v: &mut dyn Iterator<Item = f64>| {
-        let (n, s) = v.fold((0usize, 0.0), |(n, s), x| (n + 1, s + x * x));
-        (s / n.max(1) as f64).sqrt()
-    };
     let after = rows.iter().zip(&recorded).map(|(row, e)| {
         e - (row[0] * delta.snap + row[1] * delta.jerk + row[2] * delta.acc + row[3] * delta.vel)
     });
@@ -103,8 +100,8 @@ pub fn fit_from_run(design: &LoopDesign, trace: &RunTrace) -> Result<FittedFeedf
         jerk: gains.jerk,
         acc: gains.acc,
         vel: gains.vel,
-        rms_before: rms(&mut recorded.iter().copied()),
-        rms_after_predicted: rms(&mut after.into_iter()),
+        rms_before: SignalStats::of(recorded.iter().copied()).rms,
+        rms_after_predicted: SignalStats::of(after).rms,
         samples: recorded.len(),
     })
 }

@@ -42,7 +42,8 @@ pub struct SignalStats {
 }
 
 impl SignalStats {
-    fn of(values: impl Iterator<Item = f64>) -> Self {
+    /// Mean, rms and peak of the finite values.
+    pub fn of(values: impl Iterator<Item = f64>) -> Self {
         let (mut n, mut sum, mut sq, mut peak) = (0usize, 0.0, 0.0, 0.0f64);
         for v in values.filter(|v| v.is_finite()) {
             n += 1;

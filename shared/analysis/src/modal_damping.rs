@@ -13,6 +13,7 @@
 
 use crate::trace::RunTrace;
 use flexloop_control::closed_loop::closed_loop_modes;
+use flexloop_control::report::least_damped_near;
 use flexloop_scenario::LoopDesign;
 use serde::Serialize;
 use std::f64::consts::PI;
@@ -22,7 +23,8 @@ pub struct ModeDamping {
     /// Open-loop frequency in Hz.
     pub frequency_hz: f64,
     pub open_loop: f64,
-    /// Least-damped closed-loop pole within 5 % of the mode (None if none).
+    /// Least-damped closed-loop pole within 5 % of the mode, observer error
+    /// poles left out (None if none).
     pub closed_loop_model: Option<f64>,
     /// Identified from the run's ring-down (None when the mode is not
     /// estimated, or did not ring above the numerical floor).
@@ -38,21 +40,13 @@ pub fn modal_damping(
     to_s: f64,
 ) -> Vec<ModeDamping> {
     let closed = closed_loop_modes(&design.closed_loop).unwrap_or_default();
+    let frequencies: Vec<f64> = design.flexible_modes.iter().map(|(f, _)| *f).collect();
+    let closed_loop = least_damped_near(&closed, &frequencies, &design.observer_modes);
     design
         .flexible_modes
         .iter()
-        .map(|&(f, zeta)| {
-            let closed_loop_model = closed
-                .iter()
-                .filter(|(fc, _)| (fc - f).abs() < 0.05 * f)
-                .filter(|(fc, zc)| {
-                    !design
-                        .observer_modes
-                        .iter()
-                        .any(|(fo, zo)| (fc - fo).abs() < 0.2 && (zc - zo).abs() < 1e-3)
-                })
-                .map(|(_, z)| *z)
-                .min_by(f64::total_cmp);
+        .zip(closed_loop)
+        .map(|(&(f, zeta), closed_loop_model)| {
             // The closest other mode (or the rigid body at 0 Hz) sets how long
             // the demodulation window must be to separate them.
             let spacing = design

@@ -113,13 +113,12 @@ impl RunTrace {
         let mut trace = Self::new(ts);
         for _ in 0..ticks {
             run.tick();
-            let (m, c, used, next) = (
-                run.measurement,
-                run.command,
-                run.used_estimate,
-                run.estimate,
+            trace.push(
+                &run.measurement,
+                &run.command,
+                &run.used_estimate,
+                Some(&run.estimate),
             );
-            trace.push(&m, &c, &used, Some(&next));
         }
         trace
     }

@@ -58,7 +58,9 @@ impl InProcessLoop {
         }
         self.plant.tick(k, k, k, false, &mut self.measurement);
         self.plant.advance();
-        self.used_estimate = self.estimate;
+        // Double buffer: the estimate for tick k becomes the used one, and the
+        // observer writes the one for k+1 over the buffer two ticks old.
+        std::mem::swap(&mut self.used_estimate, &mut self.estimate);
         self.controller
             .step(&self.measurement, &self.used_estimate, &mut self.command);
         self.observer.step(&self.measurement, &mut self.estimate);

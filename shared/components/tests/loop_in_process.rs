@@ -2,8 +2,7 @@
 //! plant, observer and controller cores exchanging the real messages.
 
 use assert_no_alloc::{AllocDisabler, assert_no_alloc};
-use flexloop_components::{ControllerCore, ObserverCore, PlantCore};
-use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_components::InProcessLoop;
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use std::path::Path;
 
@@ -34,56 +33,19 @@ fn design(text: &str) -> LoopDesign {
     LoopDesign::from_scenario(&s).unwrap()
 }
 
-struct Loop {
-    plant: PlantCore,
-    observer: ObserverCore,
-    controller: ControllerCore,
-    measurement: Measurement,
-    estimate: Estimate,
-    command: Command,
-    k: u64,
-}
-
-impl Loop {
-    fn new(d: &LoopDesign) -> Self {
-        let mut observer =
-            ObserverCore::new(&d.observer, &d.output_prediction, d.n_outputs, d.n_inputs).unwrap();
-        let mut estimate = Estimate::default();
-        observer.initial(&mut estimate);
-        Self {
-            plant: PlantCore::new(d),
-            observer,
-            controller: ControllerCore::new(d, 0),
-            measurement: Measurement::default(),
-            estimate,
-            command: Command::default(),
-            k: 0,
-        }
-    }
-
-    /// One lockstep tick: returns e_true(k) = r(k) − y_true(k).
-    fn tick(&mut self) -> f64 {
-        let k = self.k;
-        if k > 0 {
-            self.plant.offer(&self.command, k, u64::MAX);
-        }
-        self.plant.tick(k, k, k, false, &mut self.measurement);
-        self.plant.advance();
-        self.controller
-            .step(&self.measurement, &self.estimate, &mut self.command);
-        self.observer.step(&self.measurement, &mut self.estimate);
-        self.k += 1;
-        self.command.r[0] - self.measurement.y_true[0]
-    }
+/// One lockstep tick: returns e_true(k) = r(k) − y_true(k).
+fn tick(l: &mut InProcessLoop) -> f64 {
+    l.tick();
+    l.command.r[0] - l.measurement.y_true[0]
 }
 
 #[test]
 fn lockstep_loop_tracks_a_sine_without_misses() {
     let d = design(LECTURE);
-    let mut l = Loop::new(&d);
+    let mut l = InProcessLoop::new(&d).unwrap();
     let mut worst_after_transient = 0.0f64;
     for k in 0..10_000 {
-        let e = l.tick();
+        let e = tick(&mut l);
         if k > 5_000 {
             worst_after_transient = worst_after_transient.max(e.abs());
         }
@@ -92,7 +54,7 @@ fn lockstep_loop_tracks_a_sine_without_misses() {
     // the 1 mm amplitude (without the advance it is ~1e-2 of it).
     assert!(worst_after_transient < 1e-6, "{worst_after_transient}");
     assert_eq!(l.plant.counters.misses, 0);
-    assert_eq!(l.estimate.seq, l.k);
+    assert_eq!(l.estimate.seq, l.next_tick());
 }
 
 #[test]
@@ -103,8 +65,8 @@ fn a_disturbed_loop_stays_bounded_and_is_reproducible() {
     );
     let d = design(&text);
     let run = |d: &LoopDesign| {
-        let mut l = Loop::new(d);
-        (0..20_000).map(|_| l.tick()).collect::<Vec<f64>>()
+        let mut l = InProcessLoop::new(d).unwrap();
+        (0..20_000).map(|_| tick(&mut l)).collect::<Vec<f64>>()
     };
     let a = run(&d);
     let b = run(&d);
@@ -117,11 +79,11 @@ fn a_disturbed_loop_stays_bounded_and_is_reproducible() {
 #[test]
 fn the_per_sample_path_does_not_allocate() {
     let d = design(LECTURE);
-    let mut l = Loop::new(&d);
-    l.tick(); // warm-up outside the guard is not needed, but keeps the check honest
+    let mut l = InProcessLoop::new(&d).unwrap();
+    tick(&mut l); // warm-up outside the guard is not needed, but keeps the check honest
     assert_no_alloc(|| {
         for _ in 0..1_000 {
-            l.tick();
+            tick(&mut l);
         }
     });
 }

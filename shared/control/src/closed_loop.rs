@@ -282,12 +282,18 @@ pub fn assemble_continuous_loop(
 
 /// Closed-loop poles as (frequency [Hz], damping), upper half-plane only.
 pub fn closed_loop_modes(sys: &DiscreteStateSpace) -> Result<Vec<(f64, f64)>, DesignError> {
-    let ev = crate::linalg::eigenvalues(&sys.a)?;
+    discrete_modes(&sys.a, sys.ts)
+}
+
+/// Poles of a discrete system matrix as continuous-equivalent (frequency
+/// [Hz], damping), upper half-plane only.
+pub fn discrete_modes(a: &DMatrix<f64>, ts: f64) -> Result<Vec<(f64, f64)>, DesignError> {
+    let ev = crate::linalg::eigenvalues(a)?;
     Ok(ev
         .iter()
         .filter(|z| z.im > 0.0)
         .map(|z| {
-            let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, sys.ts);
+            let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, ts);
             (w / (2.0 * std::f64::consts::PI), zeta)
         })
         .collect())

@@ -465,15 +465,9 @@ mod tests {
         .unwrap();
         let modes = closed_loop_modes(&cl).unwrap();
         let f = &obs.design;
-        let obs_poles = crate::linalg::eigenvalues(&(&f.model.a - &f.gain * &f.model.c)).unwrap();
-        let obs_modes: Vec<(f64, f64)> = obs_poles
-            .iter()
-            .filter(|z| z.im > 0.0)
-            .map(|z| {
-                let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, TS_10KHZ);
-                (w / (2.0 * std::f64::consts::PI), zeta)
-            })
-            .collect();
+        let obs_modes =
+            crate::closed_loop::discrete_modes(&(&f.model.a - &f.gain * &f.model.c), TS_10KHZ)
+                .unwrap();
         red.modal.frequencies_hz()[1..]
             .iter()
             .map(|&fm| {

@@ -50,7 +50,7 @@
 
 use crate::closed_loop::{
     LoopSpec, assemble_continuous_loop, assemble_loop, closed_loop_modes,
-    continuous_closed_loop_modes,
+    continuous_closed_loop_modes, discrete_modes,
 };
 use crate::damping::DampingMethod;
 use crate::design_error::DesignError;
@@ -557,14 +557,7 @@ fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck, DesignErr
                 loop_delay,
             })?;
             let d = &o.design;
-            let obs = crate::linalg::eigenvalues(&(&d.model.a - &d.gain * &d.model.c))?
-                .iter()
-                .filter(|z| z.im > 0.0)
-                .map(|z| {
-                    let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, ts);
-                    (w / (2.0 * PI), zeta)
-                })
-                .collect::<Vec<_>>();
+            let obs = discrete_modes(&(&d.model.a - &d.gain * &d.model.c), ts)?;
             (closed_loop_modes(&cl)?, obs)
         }
     };

@@ -60,6 +60,13 @@ pub fn run_summary<W: Write>(
     })
 }
 
+/// Reads a run directory's `summary.json`; the error names the file.
+pub fn read_summary(run_dir: &std::path::Path) -> Result<Value, String> {
+    let path = run_dir.join(crate::logger::SUMMARY_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
 /// Writes `value` to `path` atomically (temporary file, then rename), so that
 /// a reader never sees a half-written summary.
 pub fn write_json_atomically(path: &std::path::Path, value: &Value) -> std::io::Result<()> {

@@ -8,7 +8,7 @@
 use crate::ScenarioError;
 use crate::reference::{Derivatives, Reference};
 use crate::schema::{FeedforwardSection, Scenario};
-use flexloop_control::closed_loop::{LoopSpec, assemble_loop};
+use flexloop_control::closed_loop::{LoopSpec, assemble_loop, discrete_modes};
 use flexloop_control::continuous::ContinuousStateSpace;
 use flexloop_control::damping::DampingMethod;
 use flexloop_control::discretise::zoh;
@@ -329,20 +329,6 @@ fn pole_pair(omega: f64, zeta: f64, ts: f64) -> [Complex<f64>; 2] {
     [z, z2]
 }
 
-fn modes_of(a: &DMatrix<f64>, ts: f64) -> Vec<(f64, f64)> {
-    linalg::eigenvalues(a)
-        .map(|ev| {
-            ev.iter()
-                .filter(|z| z.im > 0.0)
-                .map(|z| {
-                    let (w, zeta) = linalg::discrete_pole_to_continuous(*z, ts);
-                    (w / (2.0 * PI), zeta)
-                })
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
 /// The lecture's double integrator (Årzén, §12.1 of the control reference):
 /// exact ZOH, state feedback by pole placement on x̂(k+1|k), and a predictor
 /// observer extended with a constant input-disturbance estimate (integral
@@ -396,7 +382,7 @@ fn double_integrator(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts,
     let k_w = ke.rows(2, 1).into_owned();
     let block = state_feedback_observer_block(&plant, &l, &k, &k_w, extra_delay)
         .map_err(|e| err("observer", format!("observer block: {e}")))?;
-    let observer_modes = modes_of(&(&ae - &ke * &ce), ts);
+    let observer_modes = discrete_modes(&(&ae - &ke * &ce), ts).unwrap_or_default();
     Ok(Parts {
         output_prediction: OutputPrediction {
             c: ce,
@@ -451,7 +437,8 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
             let designed = design_modal_observer(&reduced, &options)
                 .map_err(|e| err("observer", format!("Kalman observer: {e}")))?;
             let model = &designed.design.model;
-            let modes = modes_of(&(&model.a - &designed.design.gain * &model.c), ts);
+            let modes = discrete_modes(&(&model.a - &designed.design.gain * &model.c), ts)
+                .unwrap_or_default();
             let prediction = OutputPrediction {
                 c: model.c.clone(),
                 d: model.d.clone(),
