@@ -57,6 +57,7 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let stalls = summary["counters"]["stalled_ticks"].as_u64().unwrap_or(0);
     let stall_misses = summary["counters"]["stall_misses"].as_u64().unwrap_or(0);
     let late = summary["counters"]["late_commands"].as_u64().unwrap_or(0);
+    let stale = summary["counters"]["stale_estimates"].as_u64().unwrap_or(0);
     let over = summary["latency"]["tick_to_command"]["over_one_period"]
         .as_u64()
         .unwrap_or(0);
@@ -117,6 +118,9 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     println!();
     println!(
         "ticks {ticks}, loop misses {misses}, late commands {late}, stalled ticks {stalls} (misses after stalls {stall_misses}), log gaps {gaps}"
+    );
+    println!(
+        "stale estimates {stale} (observer later than half a period: the controller used the estimate of the tick before)"
     );
     let mut cpu = serde_json::Map::new();
     let wall_ns = started.elapsed().as_nanos().max(1) as f64;

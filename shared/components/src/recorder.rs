@@ -58,6 +58,9 @@ pub struct Recorder<W: Write> {
     pub measurements: ChannelCount,
     pub estimates: ChannelCount,
     pub commands: ChannelCount,
+    /// Commands computed with an estimate older than their tick (the observer
+    /// was late and the controller went on without waiting).
+    pub stale_estimates: u64,
     /// The newest measurement (its counters are the plant's totals).
     pub last_measurement: Option<Measurement>,
 }
@@ -90,6 +93,7 @@ impl<W: Write> Recorder<W> {
             measurements: ChannelCount::default(),
             estimates: ChannelCount::default(),
             commands: ChannelCount::default(),
+            stale_estimates: 0,
             last_measurement: None,
         })
     }
@@ -122,6 +126,9 @@ impl<W: Write> Recorder<W> {
 
     pub fn command(&mut self, c: &Command) -> io::Result<()> {
         self.commands.see(c.seq);
+        if c.estimate_seq != c.seq {
+            self.stale_estimates += 1;
+        }
         self.latencies.observe_command(c);
         self.write_record(Kind::Command, c)
     }

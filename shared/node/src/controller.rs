@@ -1,7 +1,7 @@
 //! The controller process: wakes on y(k), publishes u(k).
 
-use crate::NodeError;
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT};
 use flexloop_protocol::{Command, Estimate, Measurement, flags};
@@ -16,24 +16,45 @@ const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
     let mut core = ControllerCore::new(&design, args.generation);
+    // Locked before the ports exist, so their memory is populated now (see plant).
+    let _rt = realtime::apply(
+        Role::Controller.name(),
+        &realtime_settings(&scenario, Role::Controller),
+    );
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("controller")?;
     let measurements =
         Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
     let estimates = Inlet::<Estimate>::open(&node, &ESTIMATE, ESTIMATE.qos.loop_buffer_size)?;
+    let mut ring = EstimateRing::new();
+    if !await_peers(
+        || {
+            if estimates.publishers() >= 1 && measurements.publishers() >= 1 {
+                ring.take(&estimates)?;
+            }
+            Ok(ring.any())
+        },
+        || {
+            format!(
+                "{} measurement publishers (plant), {} estimate publishers (observer), no first estimate yet",
+                measurements.publishers(),
+                estimates.publishers()
+            )
+        },
+    )? {
+        return Ok(());
+    }
+    measurements.connect()?;
+    // The command port opens last: its appearance tells the plant that the
+    // chain is ready for tick 0.
     let commands = Outlet::<Command>::open(&node, &COMMAND)?;
-    let _rt = realtime::apply(
-        Role::Controller.name(),
-        &realtime_settings(&scenario, Role::Controller),
-    );
     let lockstep = scenario.timing.mode == Mode::Lockstep;
     let period_ns = scenario.period_ns();
-    // In realtime, give up on a late estimate early enough to still meet the tick.
-    let estimate_guard_ns = period_ns / 5;
+    // In realtime, wait for a late estimate at most half a period after the
+    // tick: the wake-up after a timed wait can itself be tens of µs late, and
+    // an estimate one tick old (counted) costs less than a missed command.
+    let estimate_wait_ns = period_ns / 2;
 
-    // Recent estimates by sequence: the controller must use the one for its
-    // tick, not merely the newest (the observer may already be a tick ahead).
-    let mut ring = EstimateRing::new();
     let mut stale_estimates = 0u64;
     let mut skipped = 0u64;
     let mut next_seq = 0u64;
@@ -59,7 +80,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             let deadline = if lockstep {
                 received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
             } else {
-                (m.tick_ns + period_ns).saturating_sub(estimate_guard_ns)
+                m.tick_ns + estimate_wait_ns
             };
             loop {
                 let now = monotonic_ns();
@@ -109,7 +130,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
 
 const RING: usize = 8;
 
-/// The last few estimates, by sequence number, preallocated.
+/// The last few estimates, by sequence number, preallocated: the controller
+/// must use the one for its tick, not merely the newest (the observer may
+/// already be a tick ahead).
 struct EstimateRing {
     slots: Box<[Estimate; RING]>,
     valid: [bool; RING],
@@ -132,6 +155,10 @@ impl EstimateRing {
             self.valid[slot] = true;
         }
         Ok(())
+    }
+
+    fn any(&self) -> bool {
+        self.valid.iter().any(|v| *v)
     }
 
     fn find(&self, seq: u64) -> Option<&Estimate> {

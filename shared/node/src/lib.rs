@@ -11,6 +11,7 @@ pub mod plant;
 pub mod summary;
 
 use std::fmt;
+use std::time::{Duration, Instant};
 
 pub use args::{Role, ServiceArgs};
 
@@ -51,6 +52,34 @@ impl From<flexloop_scenario::ScenarioError> for NodeError {
 impl From<flexloop_transport::TransportError> for NodeError {
     fn from(e: flexloop_transport::TransportError) -> Self {
         NodeError::Transport(e)
+    }
+}
+
+/// How long a process waits at start-up for the peers it needs.
+pub(crate) const PEER_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// Start-up wait: polls `ready` every 2 ms until it holds (`Ok(true)`) or a
+/// shutdown is requested (`Ok(false)`); after [`PEER_TIMEOUT`] an error says
+/// what was still `missing`.
+pub(crate) fn await_peers(
+    mut ready: impl FnMut() -> Result<bool, NodeError>,
+    missing: impl Fn() -> String,
+) -> Result<bool, NodeError> {
+    let since = Instant::now();
+    loop {
+        if ready()? {
+            return Ok(true);
+        }
+        if flexloop_runtime::shutdown::requested() {
+            return Ok(false);
+        }
+        if since.elapsed() > PEER_TIMEOUT {
+            return Err(NodeError::Peer(format!(
+                "peers did not connect within {PEER_TIMEOUT:?}: {}",
+                missing()
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(2));
     }
 }
 

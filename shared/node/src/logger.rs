@@ -2,11 +2,11 @@
 //! gaps, keeps the latency histograms and publishes telemetry.
 //!
 //! It polls on its own 2 ms clock instead of waking on events, so the loop
-//! processes never pay a notification for it; its queues hold 200 ms.
+//! processes never pay a notification for it; its queues hold 51 ms.
 
-use crate::NodeError;
 use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::summary::{run_summary, write_json_atomically};
+use crate::{NodeError, await_peers};
 use flexloop_components::Recorder;
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, flags};
@@ -63,19 +63,35 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         .begin_log_with(&mut hlog_file, &mut serializer)
         .map_err(io_err(&hlog_path))?;
 
-    let domain = Domain::new(&args.prefix)?;
-    let node = domain.node("logger")?;
-    let buffer = MEASUREMENT.qos.logger_buffer_size;
-    let estimates = Inlet::<Estimate>::open_polling(&node, &ESTIMATE, buffer)?;
-    let commands = Inlet::<Command>::open_polling(&node, &COMMAND, buffer)?;
-    // Measurements last: the plant starts once it sees this subscriber, and by
-    // then the logger must already hear every other channel.
-    let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, buffer)?;
-    let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
+    // Locked before the ports exist, so their memory is populated now (see plant).
     let _rt = realtime::apply(
         Role::Logger.name(),
         &realtime_settings(&scenario, Role::Logger),
     );
+    let domain = Domain::new(&args.prefix)?;
+    let node = domain.node("logger")?;
+    let buffer = MEASUREMENT.qos.logger_buffer_size;
+    let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
+    let estimates = Inlet::<Estimate>::open_polling(&node, &ESTIMATE, buffer)?;
+    let commands = Inlet::<Command>::open_polling(&node, &COMMAND, buffer)?;
+    if !await_peers(
+        || Ok(estimates.publishers() >= 1 && commands.publishers() >= 1),
+        || {
+            format!(
+                "{} estimate publishers (observer), {} command publishers (controller)",
+                estimates.publishers(),
+                commands.publishers()
+            )
+        },
+    )? {
+        return Ok(());
+    }
+    estimates.connect()?;
+    commands.connect()?;
+    // Measurements last: the plant starts once it sees this subscriber, and by
+    // then the logger must already hear every other channel.
+    let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, buffer)?;
+    measurements.connect()?;
 
     let start_ns = monotonic_ns();
     let mut previous = LoopLatencies::new();

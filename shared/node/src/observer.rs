@@ -1,7 +1,7 @@
 //! The observer process: wakes on y(k), publishes the estimate for tick k+1.
 
-use crate::NodeError;
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
 use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT};
@@ -19,15 +19,40 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         design.n_inputs,
     )
     .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
-    let domain = Domain::new(&args.prefix)?;
-    let node = domain.node("observer")?;
-    let measurements =
-        Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
-    let estimates = Outlet::<Estimate>::open(&node, &ESTIMATE)?;
+    // Locked before the ports exist, so their memory is populated now (see plant).
     let _rt = realtime::apply(
         Role::Observer.name(),
         &realtime_settings(&scenario, Role::Observer),
     );
+    let domain = Domain::new(&args.prefix)?;
+    let node = domain.node("observer")?;
+    let measurements =
+        Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
+    if !await_peers(
+        || Ok(measurements.publishers() >= 1),
+        || "no measurement publisher (plant)".into(),
+    )? {
+        return Ok(());
+    }
+    measurements.connect()?;
+    // Opened only now: the controller takes the first estimate as the sign
+    // that the observer is connected and ready.
+    let estimates = Outlet::<Estimate>::open(&node, &ESTIMATE)?;
+    // A publisher hands its history to late subscribers only when it sends
+    // again, and the next send waits for tick 0: so the first estimate goes
+    // out once its readers (controller, logger) are there.
+    let expected_readers = 1 + usize::from(scenario.logger.enabled);
+    if !await_peers(
+        || Ok(estimates.subscribers() >= expected_readers),
+        || {
+            format!(
+                "{} of {expected_readers} estimate readers (controller, logger)",
+                estimates.subscribers()
+            )
+        },
+    )? {
+        return Ok(());
+    }
 
     // The estimate for tick 0 is the initial state; history keeps it for a
     // controller that connects later.

@@ -1,7 +1,7 @@
 //! The plant process: owns the clock, applies commands, publishes y(k).
 
-use crate::NodeError;
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
 use flexloop_protocol::{Command, Measurement, flags};
@@ -12,40 +12,43 @@ use flexloop_scenario::Mode;
 use flexloop_transport::{Domain, Inlet, Outlet};
 use std::time::Duration;
 
-/// How long the plant waits for its peers to connect at start-up.
-const PEER_TIMEOUT: Duration = Duration::from_secs(20);
 /// In lockstep, how long a command may take before the controller counts as silent.
 const LOCKSTEP_SILENCE: Duration = Duration::from_secs(5);
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
+    // Real-time set-up before any port exists: under mlockall every shared
+    // memory segment is then populated during start-up, never inside the loop.
+    let _rt = realtime::apply(
+        Role::Plant.name(),
+        &realtime_settings(&scenario, Role::Plant),
+    );
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("plant")?;
     let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
     let commands = Inlet::<Command>::open(&node, &COMMAND, COMMAND.qos.loop_buffer_size)?;
 
-    // Observer and controller (and the logger) must be listening before tick 0,
-    // or the first samples would be lost.
+    // Start-up handshake: the observer and the logger subscribe once they are
+    // connected and locked; the controller opens its command port last, once
+    // it holds the observer's first estimate. So when all are there, the
+    // chain is ready and tick 0 can start.
     let expected_readers = 2 + usize::from(scenario.logger.enabled);
-    let since = std::time::Instant::now();
-    while measurements.subscribers() < expected_readers || commands.publishers() < 1 {
-        if shutdown::requested() {
-            return Ok(());
-        }
-        if since.elapsed() > PEER_TIMEOUT {
-            return Err(NodeError::Peer(format!(
-                "peers did not connect within {PEER_TIMEOUT:?} ({} of {expected_readers} readers, {} command publishers)",
+    let ready = await_peers(
+        || Ok(measurements.subscribers() >= expected_readers && commands.publishers() >= 1),
+        || {
+            format!(
+                "{} of {expected_readers} measurement readers, {} command publishers",
                 measurements.subscribers(),
                 commands.publishers()
-            )));
-        }
-        std::thread::sleep(Duration::from_millis(2));
+            )
+        },
+    )?;
+    if !ready {
+        return Ok(());
     }
+    commands.connect()?;
+    measurements.connect()?;
 
-    let _rt = realtime::apply(
-        Role::Plant.name(),
-        &realtime_settings(&scenario, Role::Plant),
-    );
     let mut core = PlantCore::new(&design);
     core.set_generation(args.generation);
     let lockstep = scenario.timing.mode == Mode::Lockstep;

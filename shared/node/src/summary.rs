@@ -44,6 +44,7 @@ pub fn run_summary<W: Write>(
             "late_commands": m.late_commands,
             "stalled_ticks": m.stalled_ticks,
             "stall_misses": m.stall_misses,
+            "stale_estimates": recorder.stale_estimates,
         },
         "samples": {
             "measurement": recorder.measurements.samples,

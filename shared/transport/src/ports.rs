@@ -6,6 +6,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use std::fmt::Debug;
@@ -117,6 +118,14 @@ impl<T: Debug + Default + ZeroCopySend + 'static> Outlet<T> {
     pub fn subscribers(&self) -> usize {
         self.service.dynamic_config().number_of_subscribers()
     }
+
+    /// Connects to every subscriber present now, so that the first publish in
+    /// the loop does not pay for it.
+    pub fn connect(&self) -> Result<(), TransportError> {
+        self.publisher
+            .update_connections()
+            .map_err(|e| TransportError::new(self.channel, "connect to subscribers", e))
+    }
 }
 
 /// Receives samples of `T` from a channel; its listener's fd signals arrivals.
@@ -209,5 +218,14 @@ impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
     /// Publishers currently connected.
     pub fn publishers(&self) -> usize {
         self.service.dynamic_config().number_of_publishers()
+    }
+
+    /// Maps the memory of every publisher present now. Under `mlockall` a
+    /// mapping is populated page by page in the kernel; done on the first
+    /// `receive` inside the loop it stalls the whole CPU for milliseconds.
+    pub fn connect(&self) -> Result<(), TransportError> {
+        self.subscriber
+            .update_connections()
+            .map_err(|e| TransportError::new(self.channel, "connect to publishers", e))
     }
 }
