@@ -224,8 +224,8 @@ pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
         println!("  rate {rate:.0} samples/s");
     }
     println!(
-        "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, log gaps {}",
-        t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.gaps
+        "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, stale estimates {}, log gaps {}",
+        t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.stale_estimates, t.gaps
     );
     let fmt = |v: [u64; 6]| {
         QUANTILE_LABELS

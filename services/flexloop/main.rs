@@ -7,6 +7,7 @@
 mod bench;
 mod design;
 mod probes;
+mod progress;
 mod registry;
 mod run;
 mod supervisor;
@@ -272,8 +273,15 @@ pub fn run_supervised(
         .scenario
         .ticks()
         .map(|_| Duration::from_secs_f64(prepared.scenario.timing.duration_s * 3.0 + 30.0));
+    let rate_hz = prepared.scenario.timing.rate_hz;
+    let prefix = prepared.plan.prefix.clone();
     let mut running = supervisor::start(prepared.plan)?;
-    let outcome = running.supervise(limit, |_| {});
+    let mut progress = progress::Progress::open(&prefix);
+    let outcome = running.watch(limit, |_| progress.show(rate_hz));
+    // The display's node goes first: cleanup removes every file of the prefix.
+    drop(progress);
+    running.stop();
+    running.cleanup();
     match outcome {
         supervisor::Outcome::ChildFailed(role, code) => Err(format!(
             "flexloop-{} failed (exit {code}); all processes stopped\n{}",

@@ -149,9 +149,9 @@ impl RunningLoop {
     }
 
     /// Watches until the run ends by itself, a child fails, `limit` passes or
-    /// a termination signal arrives; then stops everything. `tick` is called
-    /// every 100 ms (progress display).
-    pub fn supervise(
+    /// a termination signal arrives; the caller then stops and cleans up.
+    /// `tick` is called every 100 ms (progress display).
+    pub fn watch(
         &mut self,
         limit: Option<Duration>,
         mut tick: impl FnMut(&RunningLoop),
@@ -185,8 +185,6 @@ impl RunningLoop {
             }
             std::thread::sleep(Duration::from_millis(20));
         }
-        self.stop();
-        self.cleanup();
         outcome
     }
 

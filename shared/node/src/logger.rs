@@ -197,6 +197,7 @@ fn publish_telemetry<W: std::io::Write>(
         t.stalled_ticks = m.stalled_ticks;
         t.stall_misses = m.stall_misses;
         t.gaps = recorder.total_gaps();
+        t.stale_estimates = recorder.stale_estimates;
         t.round_trip = recorder
             .latencies
             .get(Metric::RoundTrip)
