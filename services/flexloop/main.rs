@@ -55,6 +55,10 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
     };
     shutdown::install().map_err(|e| format!("cannot install signal handlers: {e}"))?;
     let rest = rest.to_vec();
+    if rest.iter().any(|a| a == "--help" || a == "-h") {
+        println!("{USAGE}");
+        return Ok(0);
+    }
     match command.to_str() {
         Some("up") => up(LoopArgs::parse(rest, false)?),
         Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),

@@ -270,6 +270,8 @@ pub fn tune_ff(args: Vec<OsString>) -> Result<i32, String> {
     Ok(0)
 }
 
+const FIT_NOTE: &str = "# Fitted by `flexloop tune-ff`";
+
 /// Replaces (or adds) the `[controller.feedforward]` table of a scenario
 /// file, keeping everything else as written; the result is parsed before it
 /// replaces the file, so a failed edit leaves the file as it was.
@@ -292,7 +294,9 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> Result<(), Str
         if header {
             skipping = line.trim() == "[controller.feedforward]";
         }
-        if !skipping {
+        // The note above the table is rewritten with it.
+        let fit_note = line.starts_with(FIT_NOTE);
+        if !skipping && !fit_note {
             out.push_str(line);
             out.push('\n');
         }
@@ -301,7 +305,7 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> Result<(), Str
         out.pop();
     }
     out.push_str(&format!(
-        "\n# Fitted by `flexloop tune-ff` on {} ticks (least squares on e_true).\n\
+        "\n{FIT_NOTE} on {} ticks (least squares on e_true).\n\
          [controller.feedforward]\nsnap = {:e}\njerk = {:e}\nacc = {}\nvel = {:e}\n",
         fit.samples, fit.snap, fit.jerk, fit.acc, fit.vel
     ));
@@ -311,4 +315,44 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> Result<(), Str
     let tmp = path.with_extension("toml.tmp");
     std::fs::write(&tmp, &out).map_err(|e| format!("{}: {e}", tmp.display()))?;
     std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fit(acc: f64) -> FittedFeedforward {
+        FittedFeedforward {
+            snap: 1e-6,
+            jerk: 2e-4,
+            acc,
+            vel: 3e-3,
+            rms_before: 0.0,
+            rms_after_predicted: 0.0,
+            samples: 100,
+        }
+    }
+
+    #[test]
+    fn tune_ff_replaces_the_table_and_its_note_and_keeps_the_rest() {
+        let dir = std::env::temp_dir().join(format!("flexloop-tuneff-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.toml");
+        let source = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/thesis-ad.toml");
+        std::fs::copy(source, &path).unwrap();
+        write_feedforward(&path, &fit(12.0)).unwrap();
+        write_feedforward(&path, &fit(12.5)).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(text.matches(FIT_NOTE).count(), 1, "{text}");
+        assert_eq!(text.matches("[controller.feedforward]").count(), 1);
+        let scenario = Scenario::parse(&path, &text).unwrap();
+        let ff = scenario.controller.feedforward.unwrap();
+        assert_eq!(ff.acc, 12.5);
+        let original = std::fs::read_to_string(source).unwrap();
+        assert_eq!(
+            scenario.name,
+            Scenario::parse(Path::new(source), &original).unwrap().name
+        );
+    }
 }
