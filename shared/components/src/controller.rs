@@ -8,13 +8,15 @@
 //! - u_ff is the feedforward for the tick the command will be applied at,
 //!   advanced by the loop delay so that the delay does not cost tracking.
 
+use crate::handover::{Fingerprint, bumpless_shift};
 use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{
-    Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
-    Measurement, flags,
+    Command, Estimate, Handover, MAX_HANDOVER_STATES, MAX_INPUTS, MAX_OBSERVER_INPUTS,
+    MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS, Measurement, flags,
 };
 use flexloop_scenario::LoopDesign;
 use flexloop_scenario::reference::{Derivatives, Reference};
+use nalgebra::DMatrix;
 
 pub struct ControllerCore {
     feedback: Option<LtiRunner>,
@@ -35,6 +37,12 @@ pub struct ControllerCore {
     observer_input: [f64; MAX_OBSERVER_INPUTS],
     observer_output: [f64; MAX_OBSERVER_OUTPUTS],
     error: [f64; MAX_OUTPUTS],
+    design_hash: u64,
+    /// Feedback state shift per unit of output change (bumpless transfer).
+    bumpless_shift: DMatrix<f64>,
+    /// Consecutive stale estimates, and how many drop the observer.
+    stale_run: u32,
+    estimate_watchdog: u32,
 }
 
 impl ControllerCore {
@@ -43,7 +51,25 @@ impl ControllerCore {
         for (dst, src) in feedforward.iter_mut().zip(&design.feedforward) {
             *dst = *src;
         }
+        let mut fingerprint = Fingerprint::default().number(design.ts);
+        if let Some(fb) = &design.feedback {
+            fingerprint = fingerprint.system(fb);
+        }
+        if let Some(block) = &design.modified_feedforward {
+            fingerprint = fingerprint.system(block);
+        }
+        for gains in &design.feedforward {
+            fingerprint = gains.iter().fold(fingerprint, |f, g| f.number(*g));
+        }
+        let bumpless_shift = design
+            .feedback
+            .as_ref()
+            .map_or_else(|| DMatrix::zeros(0, 0), bumpless_shift);
         Self {
+            design_hash: fingerprint.value(),
+            bumpless_shift,
+            stale_run: 0,
+            estimate_watchdog: u32::MAX,
             feedback: design.feedback.clone().map(LtiRunner::new),
             modified_feedforward: design.modified_feedforward.clone().map(LtiRunner::new),
             feedforward_input: [0.0; MAX_INPUTS + MAX_OUTPUTS],
@@ -62,10 +88,109 @@ impl ControllerCore {
         }
     }
 
+    /// After `ticks` consecutive stale estimates the observer's contribution
+    /// (ŷ_flex, u_d) is dropped until a fresh estimate arrives.
+    pub fn set_estimate_watchdog(&mut self, ticks: u32) {
+        self.estimate_watchdog = ticks.max(1);
+    }
+
+    /// Fingerprint of the controller design (feedback, feedforward).
+    pub fn design_hash(&self) -> u64 {
+        self.design_hash
+    }
+
+    fn state_len(&self) -> usize {
+        self.feedback.as_ref().map_or(0, |f| f.state().len())
+            + self
+                .modified_feedforward
+                .as_ref()
+                .map_or(0, |f| f.state().len())
+    }
+
+    /// Writes the filter states into `out` (a design too large to hand over
+    /// writes none, and no replacement will take it).
+    pub fn save(&self, out: &mut Handover) {
+        let n = self.state_len();
+        out.design_hash = self.design_hash;
+        if n > MAX_HANDOVER_STATES {
+            out.n_states = 0;
+            out.design_hash = 0;
+            return;
+        }
+        out.n_states = n as u32;
+        out.n_inputs = self.n_inputs as u32;
+        let mut at = 0;
+        for runner in [&self.feedback, &self.modified_feedforward]
+            .into_iter()
+            .flatten()
+        {
+            let x = runner.state();
+            out.state[at..at + x.len()].copy_from_slice(x);
+            at += x.len();
+        }
+    }
+
+    /// Takes over the states of an identical design; false (and nothing
+    /// changed) otherwise.
+    pub fn load(&mut self, from: &Handover) -> bool {
+        let n = self.state_len();
+        if from.design_hash != self.design_hash
+            || from.n_states as usize != n
+            || n > MAX_HANDOVER_STATES
+            || from.state[..n].iter().any(|v| !v.is_finite())
+        {
+            return false;
+        }
+        let mut at = 0;
+        for runner in [&mut self.feedback, &mut self.modified_feedforward]
+            .into_iter()
+            .flatten()
+        {
+            let len = runner.state().len();
+            runner.set_state(&from.state[at..at + len]);
+            at += len;
+        }
+        true
+    }
+
+    /// Bumpless transfer for a different design: moves the feedback's
+    /// integrator so that its output changes by `delta_u` from now on.
+    pub fn shift_output(&mut self, delta_u: &[f64]) {
+        let Some(feedback) = &mut self.feedback else {
+            return;
+        };
+        let n = feedback.state().len();
+        if n == 0 || self.bumpless_shift.nrows() != n {
+            return;
+        }
+        let mut x = [0.0; MAX_HANDOVER_STATES];
+        if n > x.len() {
+            return;
+        }
+        x[..n].copy_from_slice(feedback.state());
+        for (j, d) in delta_u.iter().enumerate().take(self.bumpless_shift.ncols()) {
+            for (i, xi) in x[..n].iter_mut().enumerate() {
+                *xi += self.bumpless_shift[(i, j)] * d;
+            }
+        }
+        feedback.set_state(&x[..n]);
+    }
+
     /// Computes u(k) into `out` (all but the receive/publish stamps).
     pub fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
         let n_in = self.n_block_inputs;
+        let mut command_flags = 0;
+        if estimate.seq != m.seq {
+            command_flags |= flags::STALE_ESTIMATE;
+            self.stale_run = self.stale_run.saturating_add(1);
+        } else {
+            self.stale_run = 0;
+        }
+        let observer_dropped = self.stale_run >= self.estimate_watchdog;
+        if observer_dropped {
+            command_flags |= flags::OBSERVER_FALLBACK;
+        }
         self.observer_input[..ny].copy_from_slice(&m.y[..ny]);
         self.observer_input[ny..ny + nu].copy_from_slice(&m.u_applied[..nu]);
         if n_in > ny + nu {
@@ -78,7 +203,11 @@ impl ControllerCore {
                 .zip(&self.observer_input[..n_in])
                 .map(|(d, w)| d * w)
                 .sum();
-            self.observer_output[i] = estimate.free[i] + direct;
+            self.observer_output[i] = if observer_dropped {
+                0.0
+            } else {
+                estimate.free[i] + direct
+            };
         }
         let t_now = m.seq as f64 * self.ts;
         let t_applied = (m.seq + self.loop_delay_samples as u64) as f64 * self.ts;
@@ -94,10 +223,6 @@ impl ControllerCore {
             Some(filter) => filter.step(&self.error[..ny]),
             None => &[0.0; MAX_INPUTS][..nu],
         };
-        let mut command_flags = 0;
-        if estimate.seq != m.seq {
-            command_flags |= flags::STALE_ESTIMATE;
-        }
         for i in 0..nu {
             let gains = &self.feedforward[i];
             self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();

@@ -10,11 +10,13 @@
 //!   estimate for tick k+1.
 //! - [`controller`]: finishes the observer's direct term, runs feedback,
 //!   feedforward and limits: u(k).
+//! - [`handover`]: design fingerprints and bumpless state shifts for swaps.
 //! - [`in_process`]: the whole loop in one process, as lockstep runs it.
 //! - [`recorder`]: the logger's sample file and gap counting.
 //! - [`noise`]: the seeded disturbance generator.
 
 pub mod controller;
+pub mod handover;
 pub mod in_process;
 pub mod noise;
 pub mod observer;

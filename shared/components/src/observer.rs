@@ -5,9 +5,11 @@
 //! controller adds D·[y(k+1); u_a(k+1)] itself when y(k+1) arrives, so the
 //! observer is never on the critical path between y(k+1) and u(k+1).
 
+use crate::handover::Fingerprint;
 use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{
-    Estimate, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES, Measurement,
+    Estimate, Handover, MAX_HANDOVER_STATES, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES,
+    Measurement,
 };
 use flexloop_scenario::design::{ObserverBlock, OutputPrediction};
 use nalgebra::{DMatrix, DVector, DVectorView};
@@ -27,6 +29,7 @@ pub struct ObserverCore {
     /// Direct gain laid out as the message wants it, computed once.
     direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
     next_seq: u64,
+    design_hash: u64,
 }
 
 /// Why an observer block does not fit the protocol.
@@ -94,7 +97,14 @@ impl ObserverCore {
                 direct[i * MAX_OBSERVER_INPUTS + j] = sys.d[(i, j)];
             }
         }
+        let design_hash = Fingerprint::default()
+            .system(sys)
+            .matrix(&block.estimate_map)
+            .matrix(&prediction.c)
+            .matrix(&prediction.d)
+            .value();
         Ok(Self {
+            design_hash,
             x_hat: DVector::zeros(n_est),
             prediction: prediction.clone(),
             innovation: DVector::zeros(n_outputs),
@@ -137,6 +147,44 @@ impl ObserverCore {
         out.innovation[..ny].copy_from_slice(self.innovation.as_slice());
         out.source_tick_ns = m.tick_ns;
         out.source_published_ns = m.published_ns;
+    }
+
+    /// Fingerprint of the observer design.
+    pub fn design_hash(&self) -> u64 {
+        self.design_hash
+    }
+
+    /// Writes the block state into `out` (none if it is too large to hand over).
+    pub fn save(&self, out: &mut Handover) {
+        let x = self.block.state();
+        out.design_hash = self.design_hash;
+        if x.len() > MAX_HANDOVER_STATES {
+            out.n_states = 0;
+            out.design_hash = 0;
+            return;
+        }
+        out.n_states = x.len() as u32;
+        out.n_inputs = self.n_inputs as u32;
+        out.state[..x.len()].copy_from_slice(x);
+    }
+
+    /// Takes over the block state of an identical design, whose next estimate
+    /// is for `from.seq + 1`; false (and nothing changed) otherwise.
+    pub fn load(&mut self, from: &Handover) -> bool {
+        let n = self.block.state().len();
+        if from.design_hash != self.design_hash
+            || from.n_states as usize != n
+            || n > MAX_HANDOVER_STATES
+            || from.state[..n].iter().any(|v| !v.is_finite())
+        {
+            return false;
+        }
+        self.block.set_state(&from.state[..n]);
+        // x̂ feeds the next innovation: recompute it from the new state.
+        let s = DVectorView::from_slice(self.block.state(), n);
+        self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
+        self.next_seq = from.seq + 1;
+        true
     }
 
     /// Sequence the next estimate will carry.

@@ -11,8 +11,9 @@
 
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
-use flexloop_protocol::{Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
+use flexloop_protocol::{Activation, Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
 use flexloop_scenario::LoopDesign;
+use flexloop_scenario::schema::SafeAction;
 
 /// What the plant did with one command it received.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,6 +43,8 @@ pub struct PlantCounters {
     pub wrong_generation: u64,
     pub non_finite: u64,
     pub clamped: u64,
+    /// Ticks under the safe action.
+    pub fallback_ticks: u64,
 }
 
 pub struct PlantCore {
@@ -57,7 +60,12 @@ pub struct PlantCore {
     pending: [f64; MAX_INPUTS],
     pending_seq: u64,
     noise: Gaussian,
-    generation: u32,
+    /// Which controller generation owns which commands.
+    activation: Activation,
+    /// Consecutive ticks without an accepted command, and the watchdog.
+    silent_ticks: u32,
+    watchdog_ticks: u32,
+    safe_action: SafeAction,
     /// Input applied over the current interval.
     held: [f64; MAX_INPUTS],
     /// The on-time command for the next tick, once accepted.
@@ -84,7 +92,10 @@ impl PlantCore {
             pending: [0.0; MAX_INPUTS],
             pending_seq: NO_SEQ,
             noise: Gaussian::new(design.seed),
-            generation: 0,
+            activation: Activation::INITIAL,
+            silent_ticks: 0,
+            watchdog_ticks: 2,
+            safe_action: SafeAction::Hold,
             held: [0.0; MAX_INPUTS],
             next: None,
             model_input: [0.0; 2 * MAX_INPUTS],
@@ -95,16 +106,22 @@ impl PlantCore {
         }
     }
 
-    /// The generation of controller whose commands are accepted.
-    pub fn set_generation(&mut self, generation: u32) {
-        self.generation = generation;
+    /// Which controller generation's commands are accepted, by sequence.
+    pub fn set_activation(&mut self, activation: &Activation) {
+        self.activation = *activation;
+    }
+
+    /// After `ticks` ticks without an accepted command, apply `action`.
+    pub fn set_watchdog(&mut self, ticks: u32, action: SafeAction) {
+        self.watchdog_ticks = ticks.max(1);
+        self.safe_action = action;
     }
 
     /// Judges a command received before tick `k`, whose scheduled time is
     /// `tick_ns`. In lockstep mode pass `tick_ns = u64::MAX` (nothing is late).
     pub fn offer(&mut self, cmd: &Command, k: u64, tick_ns: u64) -> CommandVerdict {
         let due = k.wrapping_sub(1);
-        if cmd.generation != self.generation {
+        if cmd.generation != self.activation.controller_for(cmd.seq) {
             self.counters.wrong_generation += 1;
             CommandVerdict::WrongGeneration
         } else if k == 0 || cmd.seq < due {
@@ -158,16 +175,25 @@ impl PlantCore {
         let arriving = match self.next.take() {
             Some((seq, u)) if seq.wrapping_add(1) == k => {
                 arriving_seq = seq;
+                self.silent_ticks = 0;
                 u
             }
             _ if k == 0 => [0.0; MAX_INPUTS],
-            _ => {
-                // A miss on a tick after a stall is the machine's fault, not the loop's.
-                if self.previous_tick_stalled {
-                    self.counters.stall_misses += 1;
-                } else {
-                    self.counters.misses += 1;
+            _ if self.silent_ticks.saturating_add(1) >= self.watchdog_ticks => {
+                // The controller has been silent too long: the safe action.
+                self.silent_ticks = self.silent_ticks.saturating_add(1);
+                self.count_miss();
+                self.counters.fallback_ticks += 1;
+                tick_flags |= flags::HELD_INPUT | flags::FALLBACK;
+                match (self.safe_action, self.extra_delay) {
+                    (SafeAction::Zero, _) => [0.0; MAX_INPUTS],
+                    (SafeAction::Hold, true) => self.pending,
+                    (SafeAction::Hold, false) => self.held,
                 }
+            }
+            _ => {
+                self.silent_ticks += 1;
+                self.count_miss();
                 tick_flags |= flags::HELD_INPUT;
                 if self.extra_delay {
                     self.pending
@@ -203,8 +229,10 @@ impl PlantCore {
         out.late_commands = self.counters.late_commands;
         out.stalled_ticks = self.counters.stalled_ticks;
         out.stall_misses = self.counters.stall_misses;
+        out.fallback_ticks = self.counters.fallback_ticks;
+        out.rejected_commands = self.counters.wrong_generation + self.counters.non_finite;
         out.flags = tick_flags;
-        out.generation = self.generation;
+        out.generation = self.activation.controller_for(k);
         out.n_outputs = self.n_outputs as u32;
         out.n_inputs = self.n_inputs as u32;
         for i in 0..self.n_outputs {
@@ -239,6 +267,15 @@ impl PlantCore {
             };
         }
         self.model.advance(&self.model_input);
+    }
+
+    /// A miss on a tick after a stall is the machine's fault, not the loop's.
+    fn count_miss(&mut self) {
+        if self.previous_tick_stalled {
+            self.counters.stall_misses += 1;
+        } else {
+            self.counters.misses += 1;
+        }
     }
 
     /// The input that will be applied over the current interval.

@@ -37,9 +37,12 @@ pub struct ServiceArgs {
     pub overrides: Overrides,
     /// Generation of this instance (the plant accepts commands of this one).
     pub generation: u32,
+    /// Join a running loop as a replacement (swap or restart): no start-up
+    /// handshake, shadow until the activation hands it its samples.
+    pub join: bool,
 }
 
-pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N]";
+pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join]";
 
 impl ServiceArgs {
     pub fn parse(role: Role, args: impl IntoIterator<Item = OsString>) -> Result<Self, NodeError> {
@@ -51,6 +54,7 @@ impl ServiceArgs {
         let (mut scenario, mut prefix, mut run_dir) = (None, None, None);
         let mut overrides = Overrides::default();
         let mut generation = 0;
+        let mut join = false;
         while let Some(arg) = parser.next().map_err(|e| usage(e.to_string()))? {
             let value = |p: &mut lexopt::Parser| -> Result<String, NodeError> {
                 p.value()
@@ -82,6 +86,7 @@ impl ServiceArgs {
                         Some(Mode::parse(&v).ok_or_else(|| usage(format!("unknown mode `{v}`")))?)
                 }
                 Long("no-realtime") => overrides.no_realtime = true,
+                Long("join") => join = true,
                 Long("generation") => {
                     generation = value(&mut parser)?
                         .parse()
@@ -102,6 +107,7 @@ impl ServiceArgs {
             run_dir: run_dir.ok_or_else(|| usage("--run-dir is required".into()))?,
             overrides,
             generation,
+            join,
         })
     }
 

@@ -1,10 +1,11 @@
 //! The controller process: wakes on y(k), publishes u(k).
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::handover::{ActivationView, HandoverRing, publish_state};
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
-use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT};
-use flexloop_protocol::{Command, Estimate, Measurement, flags};
+use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
+use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
@@ -16,6 +17,7 @@ const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
     let mut core = ControllerCore::new(&design, args.generation);
+    core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
     // Locked before the ports exist, so their memory is populated now (see plant).
     let _rt = realtime::apply(
         Role::Controller.name(),
@@ -26,13 +28,22 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let measurements =
         Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
     let estimates = Inlet::<Estimate>::open(&node, &ESTIMATE, ESTIMATE.qos.loop_buffer_size)?;
+    let mut activation = ActivationView::open(&node)?;
+    let states_in = Inlet::<Handover>::open_polling(
+        &node,
+        &CONTROLLER_STATE,
+        CONTROLLER_STATE.qos.loop_buffer_size,
+    )?;
+    let states_out = Outlet::<Handover>::open(&node, &CONTROLLER_STATE)?;
     let mut ring = EstimateRing::new();
     if !await_peers(
         || {
             if estimates.publishers() >= 1 && measurements.publishers() >= 1 {
-                ring.take(&estimates)?;
+                ring.take(&estimates, activation.refresh()?)?;
             }
-            Ok(ring.any())
+            // A replacement joins a running loop: the estimates it needs come
+            // with the next sample.
+            Ok(ring.any() || (args.join && estimates.publishers() >= 1))
         },
         || {
             format!(
@@ -45,6 +56,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         return Ok(());
     }
     measurements.connect()?;
+    estimates.connect()?;
     // The command port opens last: its appearance tells the plant that the
     // chain is ready for tick 0.
     let commands = Outlet::<Command>::open(&node, &COMMAND)?;
@@ -55,6 +67,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // an estimate one tick old (counted) costs less than a missed command.
     let estimate_wait_ns = period_ns / 2;
 
+    let mut handovers = HandoverRing::default();
+    let mut takeover = Takeover::default();
+    let mut shadow_command = Command::default();
     let mut stale_estimates = 0u64;
     let mut skipped = 0u64;
     let mut next_seq = 0u64;
@@ -74,9 +89,15 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         let received_ns = monotonic_ns();
         skipped += m.seq.saturating_sub(next_seq);
         next_seq = m.seq + 1;
+        let owner = activation.refresh()?.controller_for(m.seq);
+        let active = owner == args.generation;
+        if !active && takeover.was_active {
+            // Replaced at a sample boundary: the new instance owns this one.
+            break;
+        }
 
-        ring.take(&estimates)?;
-        if ring.find(m.seq).is_none() {
+        ring.take(&estimates, activation.current())?;
+        if active && ring.find(m.seq).is_none() {
             let deadline = if lockstep {
                 received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
             } else {
@@ -90,7 +111,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 }
                 wait_readable(&[estimates.fd()], deadline - now)
                     .map_err(|e| NodeError::Peer(e.to_string()))?;
-                ring.take(&estimates)?;
+                ring.take(&estimates, activation.current())?;
                 if ring.find(m.seq).is_some() {
                     break;
                 }
@@ -98,7 +119,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     return Ok(());
                 }
             }
-            if lockstep && ring.find(m.seq).is_none() {
+            if lockstep && ring.find(m.seq).is_none() && !args.join {
                 return Err(NodeError::Peer(format!(
                     "lockstep: no estimate for tick {} from the observer",
                     m.seq
@@ -110,14 +131,45 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             // No estimate at all yet (observer not started): skip this tick.
             continue;
         };
+
+        handovers.take(&states_in, args.generation)?;
+        if !active {
+            // Shadow: follow the active instance, compute, publish nothing.
+            takeover.follow(&mut core, &handovers, m.seq);
+            core.step(&m, estimate, &mut shadow_command);
+            takeover.shadow_u = shadow_command.u;
+            takeover.shadow_seq = m.seq;
+            publish_state(
+                &states_out,
+                m.seq,
+                args.generation,
+                true,
+                &shadow_command.u[..design.n_inputs],
+                |h| core.save(h),
+            )?;
+            continue;
+        }
+        if !takeover.was_active {
+            takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
+        }
+        let mut sent_u = [0.0; MAX_INPUTS];
         commands.publish(|c| {
             core.step(&m, estimate, c);
             c.received_ns = received_ns;
             c.published_ns = monotonic_ns();
+            sent_u = c.u;
         })?;
         if lockstep {
             commands.notify()?;
         }
+        publish_state(
+            &states_out,
+            m.seq,
+            args.generation,
+            false,
+            &sent_u[..design.n_inputs],
+            |h| core.save(h),
+        )?;
         done = m.flags & flags::END_OF_RUN != 0;
     }
     if stale_estimates + skipped > 0 {
@@ -126,6 +178,61 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         );
     }
     Ok(())
+}
+
+/// How a replacement takes over: in shadow it copies the active instance's
+/// state before each sample (identical design) or runs on its own (another
+/// design); at its first active sample it continues the old command.
+#[derive(Default)]
+struct Takeover {
+    was_active: bool,
+    /// Whether the state was copied from the active instance.
+    copied: bool,
+    shadow_u: [f64; MAX_INPUTS],
+    shadow_seq: u64,
+}
+
+impl Takeover {
+    fn follow(&mut self, core: &mut ControllerCore, handovers: &HandoverRing, seq: u64) {
+        let before = seq.checked_sub(1).and_then(|s| handovers.find(s));
+        // A restart finds no state for the sample before (the old instance
+        // is dead): it takes the newest there is, once.
+        let from = before.or(if self.copied {
+            None
+        } else {
+            handovers.newest()
+        });
+        if let Some(h) = from
+            && core.load(h)
+        {
+            self.copied = true;
+        }
+    }
+
+    fn activate(
+        &mut self,
+        core: &mut ControllerCore,
+        handovers: &HandoverRing,
+        seq: u64,
+        n_inputs: usize,
+    ) {
+        self.was_active = true;
+        let Some(last) = seq.checked_sub(1).and_then(|s| handovers.find(s)) else {
+            return;
+        };
+        if core.load(last) {
+            return;
+        }
+        // Another design: shift its integrator so that its output continues
+        // the old command at the sample both computed.
+        if self.shadow_seq == last.seq {
+            let mut delta = [0.0; MAX_INPUTS];
+            for ((d, old), new) in delta.iter_mut().zip(&last.u).zip(&self.shadow_u) {
+                *d = old - new;
+            }
+            core.shift_output(&delta[..n_inputs]);
+        }
+    }
 }
 
 const RING: usize = 8;
@@ -146,10 +253,18 @@ impl EstimateRing {
         }
     }
 
-    /// Drains the inlet into the ring.
-    fn take(&mut self, estimates: &Inlet<Estimate>) -> Result<(), NodeError> {
+    /// Drains the inlet into the ring, keeping only the estimates of the
+    /// observer generation that owns their sequence number.
+    fn take(
+        &mut self,
+        estimates: &Inlet<Estimate>,
+        activation: &Activation,
+    ) -> Result<(), NodeError> {
         estimates.clear_events()?;
         while let Some(e) = estimates.receive()? {
+            if e.generation != activation.observer_for(e.seq) {
+                continue;
+            }
             let slot = (e.seq % RING as u64) as usize;
             self.slots[slot] = *e;
             self.valid[slot] = true;

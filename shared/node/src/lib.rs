@@ -5,6 +5,7 @@
 
 pub mod args;
 pub mod controller;
+pub mod handover;
 pub mod logger;
 pub mod observer;
 pub mod plant;

@@ -1,11 +1,12 @@
 //! The observer process: wakes on y(k), publishes the estimate for tick k+1.
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::handover::{ActivationView, HandoverRing, publish_state};
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
-use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT};
-use flexloop_protocol::{Estimate, Measurement, flags};
+use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT, OBSERVER_STATE};
+use flexloop_protocol::{Estimate, Handover, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_transport::{Domain, Inlet, Outlet};
@@ -41,42 +42,77 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // A publisher hands its history to late subscribers only when it sends
     // again, and the next send waits for tick 0: so the first estimate goes
     // out once its readers (controller, logger) are there.
-    let expected_readers = 1 + usize::from(scenario.logger.enabled);
-    if !await_peers(
-        || Ok(estimates.subscribers() >= expected_readers),
-        || {
-            format!(
-                "{} of {expected_readers} estimate readers (controller, logger)",
-                estimates.subscribers()
-            )
-        },
-    )? {
-        return Ok(());
+    let mut activation = ActivationView::open(&node)?;
+    let states_in = Inlet::<Handover>::open_polling(
+        &node,
+        &OBSERVER_STATE,
+        OBSERVER_STATE.qos.loop_buffer_size,
+    )?;
+    let states_out = Outlet::<Handover>::open(&node, &OBSERVER_STATE)?;
+    if !args.join {
+        let expected_readers = 1 + usize::from(scenario.logger.enabled);
+        if !await_peers(
+            || Ok(estimates.subscribers() >= expected_readers),
+            || {
+                format!(
+                    "{} of {expected_readers} estimate readers (controller, logger)",
+                    estimates.subscribers()
+                )
+            },
+        )? {
+            return Ok(());
+        }
+        // The estimate for tick 0 is the initial state; history keeps it for a
+        // controller that connects later.
+        estimates.publish(|e| {
+            core.initial(e);
+            e.generation = args.generation;
+            e.published_ns = monotonic_ns();
+        })?;
+        estimates.notify()?;
     }
 
-    // The estimate for tick 0 is the initial state; history keeps it for a
-    // controller that connects later.
-    estimates.publish(|e| {
-        core.initial(e);
-        e.generation = args.generation;
-        e.published_ns = monotonic_ns();
-    })?;
-    estimates.notify()?;
-
-    let mut expected_seq = 0u64;
+    let mut handovers = HandoverRing::default();
+    let mut shadow_estimate = Box::<Estimate>::default();
+    let mut copied = false;
+    let mut was_active = false;
+    let mut expected_seq: Option<u64> = None;
     let mut skipped = 0u64;
     let mut done = false;
-    while !done && !shutdown::requested() {
+    'samples: while !done && !shutdown::requested() {
         wait_readable(&[measurements.fd()], 100_000_000)
             .map_err(|e| NodeError::Peer(e.to_string()))?;
         measurements.clear_events()?;
         // Every measurement, in order: a Kalman predictor must not skip one.
         while let Some(m) = measurements.receive()? {
             let received_ns = monotonic_ns();
-            if m.seq != expected_seq {
-                skipped += m.seq.saturating_sub(expected_seq);
+            if let Some(expected) = expected_seq {
+                skipped += m.seq.saturating_sub(expected);
             }
-            expected_seq = m.seq + 1;
+            expected_seq = Some(m.seq + 1);
+            // This measurement yields the estimate for the next tick.
+            let owner = activation.refresh()?.observer_for(m.seq + 1);
+            if owner != args.generation {
+                if was_active {
+                    // Replaced: the new instance publishes from here on.
+                    break 'samples;
+                }
+                // Shadow: follow the active instance's state, publish nothing.
+                handovers.take(&states_in, args.generation)?;
+                let before = m.seq.checked_sub(1).and_then(|s| handovers.find(s));
+                let from = before.or(if copied { None } else { handovers.newest() });
+                if let Some(h) = from
+                    && core.load(h)
+                {
+                    copied = true;
+                }
+                core.step(&m, &mut shadow_estimate);
+                publish_state(&states_out, m.seq, args.generation, true, &[], |h| {
+                    core.save(h)
+                })?;
+                continue;
+            }
+            was_active = true;
             estimates.publish(|e| {
                 core.step(&m, e);
                 e.generation = args.generation;
@@ -84,6 +120,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 e.published_ns = monotonic_ns();
             })?;
             estimates.notify()?;
+            publish_state(&states_out, m.seq, args.generation, false, &[], |h| {
+                core.save(h)
+            })?;
             done |= m.flags & flags::END_OF_RUN != 0;
         }
     }

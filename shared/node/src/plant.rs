@@ -1,6 +1,7 @@
 //! The plant process: owns the clock, applies commands, publishes y(k).
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
@@ -12,8 +13,10 @@ use flexloop_scenario::Mode;
 use flexloop_transport::{Domain, Inlet, Outlet};
 use std::time::Duration;
 
-/// In lockstep, how long a command may take before the controller counts as silent.
-const LOCKSTEP_SILENCE: Duration = Duration::from_secs(5);
+/// In lockstep, how long a command may take before the tick goes on without it.
+const LOCKSTEP_MISS_AFTER: Duration = Duration::from_secs(1);
+/// In lockstep, how long the controller may stay silent before the run fails.
+const LOCKSTEP_SILENCE: Duration = Duration::from_secs(10);
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
@@ -50,7 +53,13 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     measurements.connect()?;
 
     let mut core = PlantCore::new(&design);
-    core.set_generation(args.generation);
+    core.set_watchdog(
+        scenario.supervision.command_watchdog_ticks,
+        scenario.supervision.safe_action,
+    );
+    let mut activation = ActivationView::open(&node)?;
+    core.set_activation(activation.refresh()?);
+    let mut last_command = std::time::Instant::now();
     let lockstep = scenario.timing.mode == Mode::Lockstep;
     let period_ns = scenario.period_ns();
     let stall_threshold_ns = period_ns / 2;
@@ -62,7 +71,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         let stopping = shutdown::requested();
         let (tick_ns, woke_ns) = if lockstep {
             if k > 0 && !stopping {
-                wait_for_command(&commands, &mut core, k)?;
+                wait_for_command(&commands, &mut activation, &mut core, k, &mut last_command)?;
             }
             let now = monotonic_ns();
             (now, now)
@@ -70,6 +79,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             let tick_ns = grid.tick_ns(k);
             sleep_until(tick_ns);
             let woke_ns = monotonic_ns();
+            core.set_activation(activation.refresh()?);
             while let Some(cmd) = commands.receive()? {
                 core.offer(&cmd, k, tick_ns);
             }
@@ -102,26 +112,37 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     Ok(())
 }
 
-/// Lockstep: block until the command for tick `k` arrived (or shutdown).
+/// Lockstep: block until the command for tick `k` arrived (or shutdown). A
+/// controller silent for [`LOCKSTEP_MISS_AFTER`] costs the tick (a miss, then
+/// the watchdog's safe action), so that a crashed controller does not stop
+/// the plant; silent for [`LOCKSTEP_SILENCE`] in a row, the run fails.
 fn wait_for_command(
     commands: &Inlet<Command>,
+    activation: &mut ActivationView,
     core: &mut PlantCore,
     k: u64,
+    last_command: &mut std::time::Instant,
 ) -> Result<(), NodeError> {
     let since = std::time::Instant::now();
     loop {
         commands.clear_events()?;
+        core.set_activation(activation.refresh()?);
         while let Some(cmd) = commands.receive()? {
             core.offer(&cmd, k, u64::MAX);
         }
-        if core.has_command_for(k) || shutdown::requested() {
+        if core.has_command_for(k) {
+            *last_command = std::time::Instant::now();
             return Ok(());
         }
-        if since.elapsed() > LOCKSTEP_SILENCE {
-            return Err(NodeError::Peer(format!(
-                "lockstep: no command for tick {k} within {LOCKSTEP_SILENCE:?}: controller silent"
-            )));
+        if shutdown::requested() || since.elapsed() > LOCKSTEP_MISS_AFTER {
+            break;
         }
-        wait_readable(&[commands.fd()], 100_000_000).map_err(|e| NodeError::Peer(e.to_string()))?;
+        wait_readable(&[commands.fd()], 10_000_000).map_err(|e| NodeError::Peer(e.to_string()))?;
     }
+    if last_command.elapsed() > LOCKSTEP_SILENCE {
+        return Err(NodeError::Peer(format!(
+            "lockstep: no command since {LOCKSTEP_SILENCE:?} before tick {k}: controller silent"
+        )));
+    }
+    Ok(())
 }

@@ -69,8 +69,50 @@ pub const TELEMETRY: Channel = Channel {
     },
 };
 
+const HANDOVER_QOS: ChannelQos = ChannelQos {
+    max_publishers: 4,
+    max_subscribers: 6,
+    max_nodes: 12,
+    history_size: 1,
+    subscriber_max_buffer_size: 8,
+    loop_buffer_size: 8,
+    logger_buffer_size: 8,
+};
+
+/// The active controller's state after every sample (for swaps and restarts).
+pub const CONTROLLER_STATE: Channel = Channel {
+    name: "flexloop/controller-state",
+    qos: HANDOVER_QOS,
+};
+/// The active observer's state after every sample.
+pub const OBSERVER_STATE: Channel = Channel {
+    name: "flexloop/observer-state",
+    qos: HANDOVER_QOS,
+};
+/// Which generation owns which samples; from the supervisor, kept as history.
+pub const ACTIVATION: Channel = Channel {
+    name: "flexloop/activation",
+    qos: ChannelQos {
+        max_publishers: 2,
+        max_subscribers: 12,
+        max_nodes: 16,
+        history_size: 1,
+        subscriber_max_buffer_size: 4,
+        loop_buffer_size: 4,
+        logger_buffer_size: 4,
+    },
+};
+
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 4] = [MEASUREMENT, ESTIMATE, COMMAND, TELEMETRY];
+pub const ALL: [Channel; 7] = [
+    MEASUREMENT,
+    ESTIMATE,
+    COMMAND,
+    TELEMETRY,
+    CONTROLLER_STATE,
+    OBSERVER_STATE,
+    ACTIVATION,
+];
 
 /// Event ids on the event service paired with each channel.
 pub mod events {

@@ -5,13 +5,16 @@
 //!   reallocated.
 //! - [`channels`]: every service name and every QoS setting, in one place, so
 //!   that all processes open the services with identical settings.
+//! - [`handover`]: component state and activation for swaps and restarts.
 //! - [`time`]: the monotonic nanosecond clock all timestamps use.
 
 pub mod channels;
+pub mod handover;
 pub mod messages;
 pub mod time;
 
 pub use channels::{Channel, ChannelQos};
+pub use handover::{Activation, Handover, MAX_HANDOVER_STATES};
 pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement, NO_SEQ, Telemetry, flags,

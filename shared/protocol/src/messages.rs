@@ -45,12 +45,18 @@ pub mod flags {
     pub const LOCKSTEP: u32 = 1 << 4;
     /// The command was clamped to the actuator limits.
     pub const CLAMPED: u32 = 1 << 5;
+    /// The plant applied its safe action: the active controller was silent
+    /// for the watchdog's number of ticks.
+    pub const FALLBACK: u32 = 1 << 6;
+    /// The controller ran without the observer's contribution: no fresh
+    /// estimate for the watchdog's number of ticks.
+    pub const OBSERVER_FALLBACK: u32 = 1 << 7;
 }
 
 /// y(k) from the plant, published at tick k.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Measurement.v2")]
+#[type_name("flexloop.Measurement.v3")]
 pub struct Measurement {
     pub seq: u64,
     /// Scheduled time of tick k (CLOCK_MONOTONIC ns).
@@ -69,6 +75,11 @@ pub struct Measurement {
     pub stalled_ticks: u64,
     /// Cumulative misses on ticks that were stalled (counted apart from `misses`).
     pub stall_misses: u64,
+    /// Cumulative ticks under the safe action (controller silent).
+    pub fallback_ticks: u64,
+    /// Cumulative commands refused: from an instance that is not the active
+    /// one, or with non-finite values.
+    pub rejected_commands: u64,
     pub flags: u32,
     /// Generation of the command source the plant accepts.
     pub generation: u32,
@@ -207,7 +218,7 @@ mod tests {
         // (and bump the type name version).
         assert_eq!(
             core::mem::size_of::<Measurement>(),
-            9 * 8 + 4 * 4 + 4 * 8 * 8
+            11 * 8 + 4 * 4 + 4 * 8 * 8
         );
         assert_eq!(core::mem::align_of::<Measurement>(), 8);
         assert_eq!(core::mem::size_of::<Command>(), 7 * 8 + 4 * 4 + 6 * 8 * 8);

@@ -53,6 +53,8 @@ pub struct Scenario {
     pub realtime: RealtimeSection,
     #[serde(default)]
     pub logger: LoggerSection,
+    #[serde(default)]
+    pub supervision: SupervisionSection,
     /// The file it was read from (not part of the format).
     #[serde(skip)]
     pub source: PathBuf,
@@ -325,6 +327,77 @@ impl Default for RealtimeSection {
     }
 }
 
+/// What the plant applies once the active controller has been silent for
+/// `command_watchdog_ticks`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SafeAction {
+    /// Keep the last accepted input.
+    Hold,
+    /// Apply zero input.
+    Zero,
+}
+
+/// When the supervisor restarts a component that died.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    OnCrash,
+    Never,
+}
+
+/// Watchdogs and restarts.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SupervisionSection {
+    /// Ticks without an accepted command before the plant's safe action.
+    #[serde(default = "two")]
+    pub command_watchdog_ticks: u32,
+    #[serde(default = "default_safe_action")]
+    pub safe_action: SafeAction,
+    /// Ticks without a fresh estimate before the controller drops the
+    /// observer's contribution (ŷ_flex and u_d) and runs on feedback alone.
+    #[serde(default = "two")]
+    pub estimate_watchdog_ticks: u32,
+    #[serde(default = "default_restart")]
+    pub restart: RestartPolicy,
+    /// Restarts per component before the supervisor stops the run.
+    #[serde(default = "default_max_restarts")]
+    pub max_restarts: u32,
+    /// Wait before the first restart; doubled for each further one.
+    #[serde(default = "default_backoff")]
+    pub restart_backoff_ms: u64,
+}
+
+fn two() -> u32 {
+    2
+}
+fn default_safe_action() -> SafeAction {
+    SafeAction::Hold
+}
+fn default_restart() -> RestartPolicy {
+    RestartPolicy::OnCrash
+}
+fn default_max_restarts() -> u32 {
+    5
+}
+fn default_backoff() -> u64 {
+    100
+}
+
+impl Default for SupervisionSection {
+    fn default() -> Self {
+        Self {
+            command_watchdog_ticks: two(),
+            safe_action: default_safe_action(),
+            estimate_watchdog_ticks: two(),
+            restart: default_restart(),
+            max_restarts: default_max_restarts(),
+            restart_backoff_ms: default_backoff(),
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoggerSection {
@@ -431,6 +504,20 @@ impl Scenario {
         non_negative("plant.force_noise", self.plant.force_noise)?;
         non_negative("plant.sensor_noise", self.plant.sensor_noise)?;
         non_negative("plant.reference_noise", self.plant.reference_noise)?;
+        for (field, ticks) in [
+            (
+                "supervision.command_watchdog_ticks",
+                self.supervision.command_watchdog_ticks,
+            ),
+            (
+                "supervision.estimate_watchdog_ticks",
+                self.supervision.estimate_watchdog_ticks,
+            ),
+        ] {
+            if ticks == 0 {
+                return Err(self.err(field, "must be at least 1 tick"));
+            }
+        }
         if !(1..=7).contains(&self.plant.output) {
             return Err(self.err(
                 "plant.output",

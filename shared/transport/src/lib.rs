@@ -14,4 +14,6 @@ pub use domain::{
     Domain, cleanup_dead_nodes, leftover_files, leftover_files_for_prefix, remove_leftovers,
 };
 pub use error::TransportError;
+/// A process's iceoryx2 node, as [`Domain::node`] returns it.
+pub type LoopNode = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;
 pub use ports::{Inlet, Outlet};
