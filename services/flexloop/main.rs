@@ -5,6 +5,7 @@
 //! `flexloop tune-ff RUN`. See README.md.
 
 mod bench;
+mod conductor;
 mod design;
 mod probes;
 mod progress;
@@ -33,6 +34,10 @@ const USAGE: &str = "usage:
       observer poles, AD damping, largest f_bw meeting the 6 dB rule per case
   flexloop down [--prefix P]          stop running loops
   flexloop status [--prefix P]        live counters and latency percentiles of a running loop
+  flexloop swap controller|observer SCENARIO [--prefix P]
+      replace a running loop's controller or observer by one designed from SCENARIO
+      (same [loop] and [plant]): it starts in shadow, takes over the state and
+      becomes active at a sample boundary; prints the command's step there
   flexloop bench [SCENARIO] [--duration S (10)] [--rate HZ (10000)] [--no-realtime] [--no-probes] [--run-dir DIR]
       run the loop, measure this machine's floors, print the latency table and a verdict";
 
@@ -67,6 +72,7 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         Some("design") => design::design(rest),
         Some("down") => down(prefix_arg(rest)?),
         Some("status") => status(prefix_arg(rest)?),
+        Some("swap") => swap(rest),
         Some("help") | Some("--help") | Some("-h") => {
             println!("{USAGE}");
             Ok(0)
@@ -204,6 +210,7 @@ fn prefix_arg(args: Vec<OsString>) -> Result<Option<String>, String> {
 /// A started loop: its prefix, run directory and the validated scenario.
 pub struct Prepared {
     pub scenario: Scenario,
+    pub overrides: Overrides,
     pub plan: supervisor::LaunchPlan,
 }
 
@@ -245,6 +252,7 @@ pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
             with_logger: scenario.logger.enabled,
         },
         scenario,
+        overrides: args.overrides.clone(),
     })
 }
 
@@ -273,17 +281,49 @@ fn up(args: LoopArgs) -> Result<i32, String> {
 pub fn run_supervised(
     prepared: Prepared,
 ) -> Result<(supervisor::RunningLoop, supervisor::Outcome), String> {
+    run_supervised_with(prepared, |_, _| None).map(|(running, outcome, _)| (running, outcome))
+}
+
+/// As [`run_supervised`], with `hook` called every 20 ms beside the
+/// conductor (bench swaps); returns the switches made.
+pub fn run_supervised_with(
+    prepared: Prepared,
+    mut hook: impl FnMut(
+        &mut supervisor::RunningLoop,
+        &mut conductor::Conductor,
+    ) -> Option<supervisor::Outcome>,
+) -> Result<
+    (
+        supervisor::RunningLoop,
+        supervisor::Outcome,
+        Vec<conductor::Switch>,
+    ),
+    String,
+> {
     let limit = prepared
         .scenario
         .ticks()
         .map(|_| Duration::from_secs_f64(prepared.scenario.timing.duration_s * 3.0 + 30.0));
     let rate_hz = prepared.scenario.timing.rate_hz;
     let prefix = prepared.plan.prefix.clone();
+    let mut conductor = conductor::Conductor::open(
+        &prefix,
+        &prepared.plan.run_dir,
+        &prepared.scenario,
+        &prepared.overrides,
+    )?;
     let mut running = supervisor::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
-    let outcome = running.watch(limit, |_| progress.show(rate_hz));
-    // The display's node goes first: cleanup removes every file of the prefix.
+    let outcome = running.watch(limit, |running| {
+        progress.show(rate_hz);
+        conductor
+            .tick(running)
+            .or_else(|| hook(running, &mut conductor))
+    });
+    let switches = std::mem::take(&mut conductor.switches);
+    // Our own nodes go first: cleanup removes every file of the prefix.
     drop(progress);
+    drop(conductor);
     running.stop();
     running.cleanup();
     match outcome {
@@ -296,8 +336,58 @@ pub fn run_supervised(
             "the run did not end in time; all processes stopped\n{}",
             running.failure_report()
         )),
-        _ => Ok((running, outcome)),
+        _ => Ok((running, outcome, switches)),
     }
+}
+
+fn swap(args: Vec<OsString>) -> Result<i32, String> {
+    use lexopt::prelude::*;
+    let mut parser = lexopt::Parser::from_args(args);
+    let (mut role, mut scenario, mut prefix) = (None, None, None);
+    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+        match arg {
+            Long("prefix") => {
+                prefix = Some(
+                    parser
+                        .value()
+                        .map_err(|e| e.to_string())?
+                        .to_string_lossy()
+                        .into_owned(),
+                )
+            }
+            Value(v) if role.is_none() => role = Some(v.to_string_lossy().into_owned()),
+            Value(v) if scenario.is_none() => scenario = Some(PathBuf::from(v)),
+            other => return Err(other.unexpected().to_string()),
+        }
+    }
+    let role = role.ok_or("swap needs a role: controller or observer")?;
+    if role != "controller" && role != "observer" {
+        return Err(format!("cannot swap `{role}`: only controller or observer"));
+    }
+    let scenario = resolve_scenario(Some(scenario.ok_or("swap needs a scenario file")?))?;
+    let loops = registry::matching(prefix.as_deref());
+    let entry = match loops.as_slice() {
+        [] => return Err("no loop running".into()),
+        [one] => one.clone(),
+        _ => return Err("several loops are running: name one with --prefix".into()),
+    };
+    let answer = conductor::request_swap(&entry.run_dir, &role, &scenario)?;
+    if answer["ok"].as_bool() != Some(true) {
+        return Err(format!(
+            "swap refused: {}",
+            answer["error"].as_str().unwrap_or("no reason given")
+        ));
+    }
+    let s = &answer["switch"];
+    println!(
+        "flexloop: {role} generation {} active from sample {}; |Δu| at the switch {:.3e}, largest ordinary |Δu| over 100 samples before {:.3e} and after {:.3e}",
+        s["generation"],
+        s["from_seq"],
+        s["du_switch"].as_f64().unwrap_or(f64::NAN),
+        s["du_before"].as_f64().unwrap_or(f64::NAN),
+        s["du_after"].as_f64().unwrap_or(f64::NAN)
+    );
+    Ok(0)
 }
 
 fn down(prefix: Option<String>) -> Result<i32, String> {

@@ -30,6 +30,12 @@ pub struct ChildProcess {
     pub role: Role,
     pub pid: i32,
     pub exit: Option<ExitInfo>,
+    pub generation: u32,
+    /// The scenario file it runs (a swap may give a component another one).
+    pub scenario: PathBuf,
+    /// Replaced, crashed-and-restarted, or otherwise dealt with: its exit is
+    /// not the run's failure.
+    pub settled: bool,
 }
 
 /// How a child ended and what CPU it used.
@@ -65,11 +71,14 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
         &[Role::Observer, Role::Controller, Role::Plant]
     };
     for &role in roles {
-        match spawn(&plan, role) {
+        match spawn(&plan, role, &plan.scenario, 0, false) {
             Ok(pid) => running.children.push(ChildProcess {
                 role,
                 pid,
                 exit: None,
+                generation: 0,
+                scenario: plan.scenario.clone(),
+                settled: false,
             }),
             Err(e) => {
                 running.stop();
@@ -81,11 +90,32 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
     Ok(running)
 }
 
-fn spawn(plan: &LaunchPlan, role: Role) -> std::io::Result<i32> {
-    let stderr = std::fs::File::create(plan.run_dir.join(format!("{}.stderr", role.name())))?;
+/// The stderr file of a role's instance of `generation`.
+pub fn stderr_name(role: Role, generation: u32) -> String {
+    if generation == 0 {
+        format!("{}.stderr", role.name())
+    } else {
+        format!("{}.g{generation}.stderr", role.name())
+    }
+}
+
+fn spawn(
+    plan: &LaunchPlan,
+    role: Role,
+    scenario: &Path,
+    generation: u32,
+    join: bool,
+) -> std::io::Result<i32> {
+    let stderr = std::fs::File::create(plan.run_dir.join(stderr_name(role, generation)))?;
     let mut cmd = Command::new(binary(role)?);
+    if generation > 0 {
+        cmd.arg("--generation").arg(generation.to_string());
+    }
+    if join {
+        cmd.arg("--join");
+    }
     cmd.arg("--scenario")
-        .arg(&plan.scenario)
+        .arg(scenario)
         .arg("--prefix")
         .arg(&plan.prefix)
         .arg("--run-dir")
@@ -144,30 +174,71 @@ impl RunningLoop {
         self.children.iter().filter(|c| c.exit.is_none()).count()
     }
 
+    /// The current instance of `role` (the newest started).
     pub fn child(&self, role: Role) -> Option<&ChildProcess> {
-        self.children.iter().find(|c| c.role == role)
+        self.children.iter().rev().find(|c| c.role == role)
+    }
+
+    pub fn child_mut(&mut self, role: Role) -> Option<&mut ChildProcess> {
+        self.children.iter_mut().rev().find(|c| c.role == role)
+    }
+
+    /// Starts another instance of `role` that joins the running loop (swap
+    /// or restart) as generation `generation`.
+    pub fn start_replacement(
+        &mut self,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+    ) -> Result<i32, String> {
+        let pid = spawn(&self.plan, role, scenario, generation, true)
+            .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
+        self.children.push(ChildProcess {
+            role,
+            pid,
+            exit: None,
+            generation,
+            scenario: scenario.to_path_buf(),
+            settled: false,
+        });
+        Ok(pid)
+    }
+
+    /// Stops one child by pid (one we started and have not reaped).
+    pub fn terminate(&mut self, pid: i32) {
+        if let Some(c) = self.children.iter_mut().find(|c| c.pid == pid) {
+            c.settled = true;
+            if c.exit.is_none() {
+                // SAFETY: a pid we started and have not reaped, so not reused.
+                unsafe { libc::kill(pid, libc::SIGTERM) };
+            }
+        }
     }
 
     /// Watches until the run ends by itself, a child fails, `limit` passes or
     /// a termination signal arrives; the caller then stops and cleans up.
-    /// `tick` is called every 100 ms (progress display).
+    /// `tick` is called every 20 ms, after reaping and before judging exits:
+    /// it may settle a child's exit (a restart) or end the run.
     pub fn watch(
         &mut self,
         limit: Option<Duration>,
-        mut tick: impl FnMut(&RunningLoop),
+        mut tick: impl FnMut(&mut RunningLoop) -> Option<Outcome>,
     ) -> Outcome {
         let mut outcome = Outcome::Completed;
-        let mut last_tick = Instant::now();
         loop {
             self.reap();
             if shutdown::requested() {
                 outcome = Outcome::Interrupted;
                 break;
             }
+            if let Some(ended) = tick(self) {
+                outcome = ended;
+                break;
+            }
             if let Some(failed) = self
                 .children
                 .iter()
-                .find(|c| c.exit.is_some_and(|e| e.code != 0))
+                .find(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
             {
                 outcome = Outcome::ChildFailed(failed.role, failed.exit.map_or(-1, |e| e.code));
                 break;
@@ -178,10 +249,6 @@ impl RunningLoop {
             if limit.is_some_and(|l| self.started.elapsed() > l) {
                 outcome = Outcome::TimedOut;
                 break;
-            }
-            if last_tick.elapsed() >= Duration::from_millis(100) {
-                tick(self);
-                last_tick = Instant::now();
             }
             std::thread::sleep(Duration::from_millis(20));
         }

@@ -6,5 +6,6 @@
 
 mod bad_input;
 mod loop_processes;
+mod swap;
 mod thesis;
 mod util;

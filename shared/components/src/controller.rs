@@ -43,7 +43,13 @@ pub struct ControllerCore {
     /// Consecutive stale estimates, and how many drop the observer.
     stale_run: u32,
     estimate_watchdog: u32,
+    /// The sample whose feedforward the modified block computes next.
+    feedforward_next_seq: u64,
 }
+
+/// Skipped samples the step catches the feedforward block up on; a longer
+/// gap (a joining instance) is closed by [`ControllerCore::fast_forward`].
+const MAX_FEEDFORWARD_CATCH_UP: u64 = 64;
 
 impl ControllerCore {
     pub fn new(design: &LoopDesign, generation: u32) -> Self {
@@ -70,6 +76,7 @@ impl ControllerCore {
             bumpless_shift,
             stale_run: 0,
             estimate_watchdog: u32::MAX,
+            feedforward_next_seq: 0,
             feedback: design.feedback.clone().map(LtiRunner::new),
             modified_feedforward: design.modified_feedforward.clone().map(LtiRunner::new),
             feedforward_input: [0.0; MAX_INPUTS + MAX_OUTPUTS],
@@ -150,6 +157,7 @@ impl ControllerCore {
             runner.set_state(&from.state[at..at + len]);
             at += len;
         }
+        self.feedforward_next_seq = from.seq + 1;
         true
     }
 
@@ -174,6 +182,44 @@ impl ControllerCore {
             }
         }
         feedback.set_state(&x[..n]);
+    }
+
+    /// Steps the modified feedforward block through samples `from..to`
+    /// (their outputs are not needed, only the state they leave).
+    fn advance_feedforward(&mut self, from: u64, to: u64) {
+        if self.modified_feedforward.is_none() {
+            return;
+        }
+        let n = self.n_inputs + self.n_outputs;
+        for seq in from..to {
+            self.fill_feedforward_input(seq);
+            if let Some(block) = &mut self.modified_feedforward {
+                block.advance(&self.feedforward_input[..n]);
+            }
+        }
+    }
+
+    /// [u0; r] at the tick sample `seq`'s command applies; returns r's derivatives there.
+    fn fill_feedforward_input(&mut self, seq: u64) -> [f64; 5] {
+        let (ny, nu) = (self.n_outputs, self.n_inputs);
+        let t_applied = (seq + self.loop_delay_samples as u64) as f64 * self.ts;
+        let r_applied = self.reference.sample(t_applied);
+        for i in 0..nu {
+            let gains = &self.feedforward[i];
+            self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
+        }
+        for i in 0..ny {
+            self.feedforward_input[nu + i] = r_applied[0];
+        }
+        r_applied
+    }
+
+    /// A replacement joining at sample `seq` brings its feedforward block to
+    /// where a loop running since sample 0 has it (design-time work: one
+    /// block step per sample passed).
+    pub fn fast_forward(&mut self, seq: u64) {
+        self.advance_feedforward(self.feedforward_next_seq, seq);
+        self.feedforward_next_seq = self.feedforward_next_seq.max(seq);
     }
 
     /// Computes u(k) into `out` (all but the receive/publish stamps).
@@ -210,9 +256,16 @@ impl ControllerCore {
             };
         }
         let t_now = m.seq as f64 * self.ts;
-        let t_applied = (m.seq + self.loop_delay_samples as u64) as f64 * self.ts;
         let r_now = self.reference.sample(t_now);
-        let r_applied = self.reference.sample(t_applied);
+        // Appendix A's block runs on the set-point alone: samples this
+        // instance did not process (misses, a late join) are stepped through
+        // so that its state stays on the loop's time base.
+        let catch_up_from = self
+            .feedforward_next_seq
+            .max(m.seq.saturating_sub(MAX_FEEDFORWARD_CATCH_UP));
+        self.advance_feedforward(catch_up_from, m.seq);
+        self.feedforward_next_seq = m.seq + 1;
+        self.fill_feedforward_input(m.seq);
         for i in 0..ny {
             let y_comp = m.y[i] - self.observer_output[i];
             out.r[i] = r_now[0];
@@ -223,13 +276,6 @@ impl ControllerCore {
             Some(filter) => filter.step(&self.error[..ny]),
             None => &[0.0; MAX_INPUTS][..nu],
         };
-        for i in 0..nu {
-            let gains = &self.feedforward[i];
-            self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
-        }
-        for i in 0..ny {
-            self.feedforward_input[nu + i] = r_applied[0];
-        }
         let u_ff: &[f64] = match &mut self.modified_feedforward {
             Some(block) => block.step(&self.feedforward_input[..nu + ny]),
             None => &self.feedforward_input[..nu],

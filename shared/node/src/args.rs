@@ -129,8 +129,11 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
         Role::Logger => &rt.logger,
     };
     let is_loop = role != Role::Logger;
+    // Lockstep runs the chain flat out: under SCHED_FIFO it would starve
+    // everything else on its CPU (kernel threads, a replacement instance).
+    let lockstep = scenario.timing.mode == flexloop_scenario::Mode::Lockstep;
     RealtimeSettings {
-        fifo_priority: process.priority,
+        fifo_priority: process.priority.filter(|_| !lockstep),
         cpu: process.cpu,
         lock_memory: rt.lock_memory && is_loop,
         timer_slack_ns: Some(rt.timer_slack_ns),

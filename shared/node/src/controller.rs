@@ -68,6 +68,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let estimate_wait_ns = period_ns / 2;
 
     let mut handovers = HandoverRing::default();
+    let mut backlog = Backlog::default();
+    let mut fast_forwarded = false;
     let mut takeover = Takeover::default();
     let mut shadow_command = Command::default();
     let mut stale_estimates = 0u64;
@@ -78,14 +80,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         wait_readable(&[measurements.fd()], 100_000_000)
             .map_err(|e| NodeError::Peer(e.to_string()))?;
         measurements.clear_events()?;
-        // Act on the newest measurement only: an older one is already late.
-        let mut newest: Option<Measurement> = None;
+        // The active instance acts on the newest measurement only (an older
+        // one is already late); a shadow steps through all of them in order,
+        // so that a different design's filters see every sample.
+        backlog.clear();
         while let Some(m) = measurements.receive()? {
-            if newest.is_none_or(|n| m.seq > n.seq) {
-                newest = Some(*m);
-            }
+            backlog.push(&m);
         }
-        let Some(m) = newest else { continue };
+        let Some(m) = backlog.newest() else { continue };
+        if args.join && !fast_forwarded {
+            // Joining a running loop: bring the feedforward to the loop's time.
+            core.fast_forward(backlog.first_seq());
+            fast_forwarded = true;
+        }
         let received_ns = monotonic_ns();
         skipped += m.seq.saturating_sub(next_seq);
         next_seq = m.seq + 1;
@@ -133,6 +140,22 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         };
 
         handovers.take(&states_in, args.generation)?;
+        if !takeover.was_active {
+            for older in backlog.older() {
+                if activation.current().controller_for(older.seq) == args.generation {
+                    continue;
+                }
+                if let Some(e) = ring
+                    .find(older.seq)
+                    .or_else(|| ring.newest_before(older.seq))
+                {
+                    takeover.follow(&mut core, &handovers, older.seq);
+                    core.step(older, e, &mut shadow_command);
+                    takeover.shadow_u = shadow_command.u;
+                    takeover.shadow_seq = older.seq;
+                }
+            }
+        }
         if !active {
             // Shadow: follow the active instance, compute, publish nothing.
             takeover.follow(&mut core, &handovers, m.seq);
@@ -178,6 +201,51 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         );
     }
     Ok(())
+}
+
+const BACKLOG: usize = 16;
+
+/// The measurements one wake-up drained, in arrival order (preallocated).
+struct Backlog {
+    items: Box<[Measurement; BACKLOG]>,
+    len: usize,
+}
+
+impl Default for Backlog {
+    fn default() -> Self {
+        Self {
+            items: Box::new([Measurement::default(); BACKLOG]),
+            len: 0,
+        }
+    }
+}
+
+impl Backlog {
+    fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// Keeps the last [`BACKLOG`] measurements (the queue holds no more).
+    fn push(&mut self, m: &Measurement) {
+        if self.len == BACKLOG {
+            self.items.copy_within(1.., 0);
+            self.len -= 1;
+        }
+        self.items[self.len] = *m;
+        self.len += 1;
+    }
+
+    fn newest(&self) -> Option<Measurement> {
+        self.len.checked_sub(1).map(|i| self.items[i])
+    }
+
+    fn first_seq(&self) -> u64 {
+        self.items[0].seq
+    }
+
+    fn older(&self) -> &[Measurement] {
+        &self.items[..self.len.saturating_sub(1)]
+    }
 }
 
 /// How a replacement takes over: in shadow it copies the active instance's

@@ -15,6 +15,8 @@ use std::time::Duration;
 
 /// In lockstep, how long a command may take before the tick goes on without it.
 const LOCKSTEP_MISS_AFTER: Duration = Duration::from_secs(1);
+/// In lockstep, how long the last tick waits for its command once a stop was asked.
+const LOCKSTEP_STOP_WAIT: Duration = Duration::from_millis(100);
 /// In lockstep, how long the controller may stay silent before the run fails.
 const LOCKSTEP_SILENCE: Duration = Duration::from_secs(10);
 
@@ -70,7 +72,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     loop {
         let stopping = shutdown::requested();
         let (tick_ns, woke_ns) = if lockstep {
-            if k > 0 && !stopping {
+            if k > 0 {
+                // Stopping too: the command for this last tick is on its way.
                 wait_for_command(&commands, &mut activation, &mut core, k, &mut last_command)?;
             }
             let now = monotonic_ns();
@@ -134,7 +137,12 @@ fn wait_for_command(
             *last_command = std::time::Instant::now();
             return Ok(());
         }
-        if shutdown::requested() || since.elapsed() > LOCKSTEP_MISS_AFTER {
+        let patience = if shutdown::requested() {
+            LOCKSTEP_STOP_WAIT
+        } else {
+            LOCKSTEP_MISS_AFTER
+        };
+        if since.elapsed() > patience {
             break;
         }
         wait_readable(&[commands.fd()], 10_000_000).map_err(|e| NodeError::Peer(e.to_string()))?;

@@ -45,6 +45,8 @@ pub fn run_summary<W: Write>(
             "stalled_ticks": m.stalled_ticks,
             "stall_misses": m.stall_misses,
             "stale_estimates": recorder.stale_estimates,
+            "fallback_ticks": m.fallback_ticks,
+            "rejected_commands": m.rejected_commands,
         },
         "samples": {
             "measurement": recorder.measurements.samples,

@@ -1,0 +1,544 @@
+//! The supervisor's side of hand-overs: it owns the activation (which
+//! generation of controller and observer owns which samples), swaps a
+//! component on request (shadow start, boundary, drain), restarts a crashed
+//! one with back-off, and writes every event to the run's `events.jsonl`.
+
+use crate::supervisor::{Outcome, RunningLoop};
+use flexloop_node::Role;
+use flexloop_protocol::channels::{ACTIVATION, COMMAND, CONTROLLER_STATE, OBSERVER_STATE};
+use flexloop_protocol::{Activation, Command, Handover, MAX_INPUTS};
+use flexloop_scenario::schema::RestartPolicy;
+use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
+use serde_json::{Value, json};
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Where `flexloop swap` leaves requests for the supervisor and finds answers.
+pub const REQUESTS_DIR: &str = "requests";
+pub const EVENTS_FILE: &str = "events.jsonl";
+/// How long a replacement may take to start and follow the loop in shadow.
+const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long the replaced instance may take to hand over and exit.
+const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
+/// Commands kept for measuring the step at a switch.
+const COMMAND_HISTORY: usize = 4096;
+/// Ordinary sample-to-sample changes are measured over this many samples
+/// before and after the switch.
+const BEFORE_SWITCH: u64 = 100;
+
+/// What one swap or restart did.
+#[derive(Debug, Clone)]
+pub struct Switch {
+    pub role: Role,
+    pub generation: u32,
+    pub from_seq: u64,
+    /// |u(from) − u(from−1)|, the largest over the inputs.
+    pub du_switch: f64,
+    /// The largest |u(k) − u(k−1)| over the samples before the switch.
+    pub du_before: f64,
+    /// The same after the switch (the new design's own ordinary steps).
+    pub du_after: f64,
+}
+
+impl Switch {
+    pub fn json(&self) -> Value {
+        json!({
+            "role": self.role.name(),
+            "generation": self.generation,
+            "from_seq": self.from_seq,
+            "du_switch": self.du_switch,
+            "du_before": self.du_before,
+            "du_after": self.du_after,
+        })
+    }
+}
+
+struct PendingRestart {
+    role: Role,
+    due: Instant,
+}
+
+pub struct Conductor {
+    // Ports before the node: they must drop first.
+    activation_out: Outlet<Activation>,
+    controller_states: Inlet<Handover>,
+    observer_states: Inlet<Handover>,
+    commands: Inlet<Command>,
+    _node: LoopNode,
+    domain: Domain,
+    current: Activation,
+    scenario: Scenario,
+    overrides: Overrides,
+    run_dir: PathBuf,
+    started: Instant,
+    last_seq: Option<u64>,
+    recent_u: VecDeque<(u64, [f64; MAX_INPUTS])>,
+    n_inputs: usize,
+    restarts: [u32; 4],
+    pending: Vec<PendingRestart>,
+    pub switches: Vec<Switch>,
+}
+
+impl Conductor {
+    pub fn open(
+        prefix: &str,
+        run_dir: &Path,
+        scenario: &Scenario,
+        overrides: &Overrides,
+    ) -> Result<Self, String> {
+        let err = |e: flexloop_transport::TransportError| e.to_string();
+        let domain = Domain::new(prefix).map_err(err)?;
+        let node = domain.node("supervisor").map_err(err)?;
+        let activation_out = Outlet::<Activation>::open(&node, &ACTIVATION).map_err(err)?;
+        let controller_states =
+            Inlet::<Handover>::open_polling(&node, &CONTROLLER_STATE, 8).map_err(err)?;
+        let observer_states =
+            Inlet::<Handover>::open_polling(&node, &OBSERVER_STATE, 8).map_err(err)?;
+        let commands =
+            Inlet::<Command>::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)
+                .map_err(err)?;
+        let current = Activation {
+            published_ns: flexloop_runtime::monotonic_ns(),
+            ..Activation::INITIAL
+        };
+        activation_out.publish(|a| *a = current).map_err(err)?;
+        let n_inputs = LoopDesign::from_scenario(scenario)
+            .map(|d| d.n_inputs)
+            .unwrap_or(1);
+        Ok(Self {
+            activation_out,
+            controller_states,
+            observer_states,
+            commands,
+            _node: node,
+            domain,
+            current,
+            scenario: scenario.clone(),
+            overrides: overrides.clone(),
+            run_dir: run_dir.to_path_buf(),
+            started: Instant::now(),
+            last_seq: None,
+            recent_u: VecDeque::with_capacity(COMMAND_HISTORY),
+            n_inputs,
+            restarts: [0; 4],
+            pending: Vec::new(),
+            switches: Vec::new(),
+        })
+    }
+
+    /// Takes in the recent commands and with them the loop's newest sample
+    /// number. (Not from the measurements: the plant counts their readers to
+    /// know when the chain is ready.)
+    fn poll(&mut self) {
+        // A publisher hands its history to a new subscriber only when it
+        // updates its connections: a replacement must learn the activation.
+        let _ = self.activation_out.connect();
+        while let Ok(Some(c)) = self.commands.receive() {
+            self.last_seq = Some(self.last_seq.map_or(c.seq, |s| s.max(c.seq)));
+            if c.generation != self.current.controller_for(c.seq) {
+                continue;
+            }
+            if self.recent_u.len() == COMMAND_HISTORY {
+                self.recent_u.pop_front();
+            }
+            self.recent_u.push_back((c.seq, c.u));
+        }
+    }
+
+    /// Appends one event to the run's events file (best effort: an event
+    /// that cannot be written is printed instead).
+    pub fn event(&self, kind: &str, role: Role, generation: u32, detail: Value) {
+        let line = json!({
+            "t_s": self.started.elapsed().as_secs_f64(),
+            "kind": kind,
+            "role": role.name(),
+            "generation": generation,
+            "seq": self.last_seq,
+            "detail": detail,
+        });
+        let written = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(self.run_dir.join(EVENTS_FILE))
+            .and_then(|mut f| writeln!(f, "{line}"));
+        if written.is_err() {
+            eprintln!("flexloop: event {line}");
+        }
+    }
+
+    /// Called by the supervisor every 20 ms: crashes, restarts, requests.
+    pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
+        self.poll();
+        self.settle_crashes(running);
+        let due: Vec<Role> = self
+            .pending
+            .iter()
+            .filter(|p| p.due <= Instant::now())
+            .map(|p| p.role)
+            .collect();
+        self.pending.retain(|p| p.due > Instant::now());
+        for role in due {
+            if let Err(e) = self.restart(running, role) {
+                self.event("restart-failed", role, 0, json!(e));
+                eprintln!("flexloop: restart of flexloop-{} failed: {e}", role.name());
+                return Some(Outcome::ChildFailed(role, -1));
+            }
+        }
+        for request in pending_requests(&self.run_dir) {
+            let answer = match self.handle_request(running, &request) {
+                Ok(switch) => json!({"ok": true, "switch": switch.json()}),
+                Err(e) => json!({"ok": false, "error": e}),
+            };
+            let _ = std::fs::remove_file(&request);
+            write_answer(&request, &answer);
+        }
+        None
+    }
+
+    fn settle_crashes(&mut self, running: &mut RunningLoop) {
+        let policy = self.scenario.supervision.restart;
+        let crashed: Vec<(i32, Role, u32, i32)> = running
+            .children
+            .iter()
+            .filter(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
+            .map(|c| (c.pid, c.role, c.generation, c.exit.map_or(-1, |e| e.code)))
+            .collect();
+        for (pid, role, generation, code) in crashed {
+            let restartable = matches!(role, Role::Observer | Role::Controller);
+            let slot = role as usize;
+            if !restartable
+                || policy == RestartPolicy::Never
+                || self.restarts[slot] >= self.scenario.supervision.max_restarts
+            {
+                continue;
+            }
+            if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
+                c.settled = true;
+            }
+            // The dead node's shared memory, now that no live process uses
+            // it; never from inside the loop.
+            let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
+            let backoff = Duration::from_millis(
+                self.scenario.supervision.restart_backoff_ms << self.restarts[slot].min(10),
+            );
+            self.restarts[slot] += 1;
+            self.event(
+                "crash",
+                role,
+                generation,
+                json!({"exit": code, "cleaned_nodes": cleaned, "restart_in_ms": backoff.as_millis() as u64}),
+            );
+            self.pending.push(PendingRestart {
+                role,
+                due: Instant::now() + backoff,
+            });
+        }
+    }
+
+    fn next_generation(&self, running: &RunningLoop, role: Role) -> u32 {
+        running
+            .children
+            .iter()
+            .filter(|c| c.role == role)
+            .map(|c| c.generation + 1)
+            .max()
+            .unwrap_or(1)
+    }
+
+    fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<(), String> {
+        let scenario = running
+            .child(role)
+            .map(|c| c.scenario.clone())
+            .ok_or("no instance to restart")?;
+        let generation = self.next_generation(running, role);
+        running.start_replacement(role, &scenario, generation)?;
+        self.await_shadow(running, role, generation)?;
+        let switch = self.activate_and_measure(running, role, generation, None)?;
+        self.event("restart", role, generation, switch.json());
+        self.switches.push(switch);
+        Ok(())
+    }
+
+    fn handle_request(&mut self, running: &mut RunningLoop, path: &Path) -> Result<Switch, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let request: Value =
+            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        let role = match request["role"].as_str() {
+            Some("controller") => Role::Controller,
+            Some("observer") => Role::Observer,
+            other => {
+                return Err(format!(
+                    "cannot swap {other:?}: only controller or observer"
+                ));
+            }
+        };
+        let scenario = PathBuf::from(
+            request["scenario"]
+                .as_str()
+                .ok_or("request has no scenario")?,
+        );
+        self.swap(running, role, &scenario)
+    }
+
+    /// Replaces the active `role` by an instance running `scenario`.
+    pub fn swap(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario_path: &Path,
+    ) -> Result<Switch, String> {
+        self.check_compatible(scenario_path)?;
+        let old = running
+            .child(role)
+            .filter(|c| c.exit.is_none())
+            .map(|c| c.pid)
+            .ok_or_else(|| format!("no running flexloop-{}", role.name()))?;
+        let generation = self.next_generation(running, role);
+        let pid = running.start_replacement(role, scenario_path, generation)?;
+        if let Err(e) = self.await_shadow(running, role, generation) {
+            running.terminate(pid);
+            return Err(e);
+        }
+        let switch = self.activate_and_measure(running, role, generation, Some(old))?;
+        self.event(
+            "swap",
+            role,
+            generation,
+            json!({"scenario": scenario_path.display().to_string(), "switch": switch.json()}),
+        );
+        self.switches.push(switch.clone());
+        Ok(switch)
+    }
+
+    /// The replacement must fit the running loop: same rate, mode and plant,
+    /// same loop delay, and a design that passes its own checks.
+    fn check_compatible(&self, path: &Path) -> Result<(), String> {
+        let new = Scenario::load(path, &self.overrides).map_err(|e| e.to_string())?;
+        let run = &self.scenario;
+        let field = |name: &str| {
+            format!(
+                "{}: field {name} differs from the running loop's ({}); a swap replaces only [controller] or [observer]",
+                path.display(),
+                run.source.display()
+            )
+        };
+        if new.timing != run.timing {
+            return Err(field("loop"));
+        }
+        if new.plant != run.plant {
+            return Err(field("plant"));
+        }
+        if new.controller.extra_delay_samples != run.controller.extra_delay_samples {
+            return Err(field("controller.extra_delay_samples"));
+        }
+        LoopDesign::from_scenario(&new)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
+
+    /// Waits until the new instance follows the loop in shadow.
+    fn await_shadow(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        generation: u32,
+    ) -> Result<(), String> {
+        let since = Instant::now();
+        loop {
+            self.poll();
+            let states = match role {
+                Role::Controller => &self.controller_states,
+                _ => &self.observer_states,
+            };
+            while let Ok(Some(h)) = states.receive() {
+                if h.generation == generation && h.shadow != 0 {
+                    return Ok(());
+                }
+            }
+            running.reap();
+            if let Some(c) = running
+                .children
+                .iter_mut()
+                .find(|c| c.role == role && c.generation == generation)
+                && let Some(exit) = c.exit
+            {
+                c.settled = true;
+                return Err(format!(
+                    "the new flexloop-{} (generation {generation}) exited with {} before it followed the loop; see {}",
+                    role.name(),
+                    exit.code,
+                    self.run_dir
+                        .join(crate::supervisor::stderr_name(role, generation))
+                        .display()
+                ));
+            }
+            if since.elapsed() > SHADOW_TIMEOUT {
+                return Err(format!(
+                    "the new flexloop-{} did not follow the loop within {SHADOW_TIMEOUT:?}",
+                    role.name()
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// Announces the boundary, waits until the loop passed it (and the old
+    /// instance, if any, exited), and measures the command's step there.
+    fn activate_and_measure(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        generation: u32,
+        old: Option<i32>,
+    ) -> Result<Switch, String> {
+        self.poll();
+        let now_seq = self.last_seq.unwrap_or(0);
+        // Far enough ahead that every process sees the announcement first.
+        let margin = ((self.scenario.timing.rate_hz * 0.05) as u64).max(50);
+        let from_seq = now_seq + margin;
+        let mut next = self.current;
+        match role {
+            Role::Controller => {
+                next.previous_controller_generation =
+                    next.controller_for(from_seq.saturating_sub(1));
+                next.controller_generation = generation;
+                next.controller_from_seq = from_seq;
+            }
+            _ => {
+                next.previous_observer_generation = next.observer_for(from_seq.saturating_sub(1));
+                next.observer_generation = generation;
+                next.observer_from_seq = from_seq;
+            }
+        }
+        next.published_ns = flexloop_runtime::monotonic_ns();
+        if let Some(pid) = old
+            && let Some(c) = running.children.iter_mut().find(|c| c.pid == pid)
+        {
+            // Its exit after the boundary is the plan, not a crash.
+            c.settled = true;
+        }
+        self.activation_out
+            .publish(|a| *a = next)
+            .map_err(|e| e.to_string())?;
+        self.current = next;
+        let since = Instant::now();
+        loop {
+            self.poll();
+            running.reap();
+            let passed = self.last_seq.is_some_and(|s| s > from_seq + BEFORE_SWITCH);
+            let old_gone = old.is_none_or(|pid| {
+                running
+                    .children
+                    .iter()
+                    .find(|c| c.pid == pid)
+                    .is_none_or(|c| c.exit.is_some())
+            });
+            if passed && old_gone {
+                break;
+            }
+            if running.child(Role::Plant).is_some_and(|p| p.exit.is_some()) {
+                return Err("the plant ended before the switch".into());
+            }
+            if since.elapsed() > DRAIN_TIMEOUT {
+                if let Some(pid) = old {
+                    running.terminate(pid);
+                }
+                return Err(format!(
+                    "the loop did not pass the switch at sample {from_seq} within {DRAIN_TIMEOUT:?}"
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let (du_switch, du_before, du_after) = self.step_at(from_seq);
+        Ok(Switch {
+            role,
+            generation,
+            from_seq,
+            du_switch,
+            du_before,
+            du_after,
+        })
+    }
+
+    /// The command's step at `from_seq` and the largest ordinary steps
+    /// before and after it.
+    fn step_at(&self, from_seq: u64) -> (f64, f64, f64) {
+        let u_of = |seq: u64| {
+            self.recent_u
+                .iter()
+                .rev()
+                .find(|(s, _)| *s == seq)
+                .map(|(_, u)| *u)
+        };
+        let step = |seq: u64| -> Option<f64> {
+            let (a, b) = (u_of(seq.checked_sub(1)?)?, u_of(seq)?);
+            Some(
+                (0..self.n_inputs)
+                    .map(|i| (b[i] - a[i]).abs())
+                    .fold(0.0, f64::max),
+            )
+        };
+        let du_switch = step(from_seq).unwrap_or(f64::NAN);
+        let largest = |range: std::ops::Range<u64>| range.filter_map(step).fold(0.0, f64::max);
+        let du_before = largest(from_seq.saturating_sub(BEFORE_SWITCH)..from_seq);
+        let du_after = largest(from_seq + 1..from_seq + 1 + BEFORE_SWITCH);
+        (du_switch, du_before, du_after)
+    }
+}
+
+/// Request files waiting for the supervisor, oldest first.
+fn pending_requests(run_dir: &Path) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(run_dir.join(REQUESTS_DIR)) else {
+        return Vec::new();
+    };
+    let mut found: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "request"))
+        .collect();
+    found.sort();
+    found
+}
+
+fn answer_path(request: &Path) -> PathBuf {
+    request.with_extension("answer")
+}
+
+fn write_answer(request: &Path, answer: &Value) {
+    let path = answer_path(request);
+    let tmp = path.with_extension("answer.tmp");
+    if std::fs::write(&tmp, answer.to_string()).is_ok() {
+        let _ = std::fs::rename(&tmp, &path);
+    }
+}
+
+/// `flexloop swap`: leaves a request in the loop's run directory and waits
+/// for the supervisor's answer.
+pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value, String> {
+    let dir = run_dir.join(REQUESTS_DIR);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let scenario =
+        std::fs::canonicalize(scenario).map_err(|e| format!("{}: {e}", scenario.display()))?;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let request = dir.join(format!("{stamp}-{}.request", std::process::id()));
+    let tmp = request.with_extension("tmp");
+    let body = json!({"role": role, "scenario": scenario.display().to_string()});
+    std::fs::write(&tmp, body.to_string()).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, &request).map_err(|e| format!("{}: {e}", request.display()))?;
+    let answer = answer_path(&request);
+    let since = Instant::now();
+    while since.elapsed() < SHADOW_TIMEOUT + DRAIN_TIMEOUT + Duration::from_secs(10) {
+        if let Ok(text) = std::fs::read_to_string(&answer) {
+            let _ = std::fs::remove_file(&answer);
+            return serde_json::from_str(&text).map_err(|e| format!("{}: {e}", answer.display()));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = std::fs::remove_file(&request);
+    Err("the supervisor did not answer the swap request".into())
+}

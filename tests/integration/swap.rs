@@ -1,0 +1,276 @@
+//! Live replacement of components: swaps on request, restarts after a crash,
+//! and a plant that refuses commands it must not apply.
+
+use crate::util::*;
+use flexloop_components::{InProcessLoop, LogReader};
+use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
+use flexloop_protocol::{Command, Measurement, flags};
+use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_transport::{Domain, Inlet, Outlet};
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Child, Stdio};
+use std::time::{Duration, Instant};
+
+/// `flexloop up` until stopped, in the background.
+fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Child, String) {
+    let mut cmd = flexloop();
+    cmd.arg("up")
+        .arg(scenario(scenario_name))
+        .args(["--no-realtime", "--duration", "0", "--run-dir"])
+        .arg(dir)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let child = cmd.spawn().unwrap();
+    let prefix = format!("flx{}_", child.id());
+    (child, prefix)
+}
+
+/// Waits (bounded) until the logger has recorded `bytes` of samples.
+fn wait_for_log(dir: &Path, bytes: u64) {
+    let since = Instant::now();
+    while std::fs::metadata(dir.join("samples.flxlog")).map_or(0, |m| m.len()) < bytes {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "loop did not run"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn swap(prefix: &str, role: &str, scenario_file: &Path) -> String {
+    let out = run_bounded(
+        {
+            let mut c = flexloop();
+            c.args(["swap", role])
+                .arg(scenario_file)
+                .args(["--prefix", prefix]);
+            c
+        },
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn stop(prefix: &str, child: Child) {
+    let down = run_bounded(
+        {
+            let mut c = flexloop();
+            c.args(["down", "--prefix", prefix]);
+            c
+        },
+        Duration::from_secs(60),
+    );
+    assert!(down.status.success(), "{}", describe(&down));
+    let out = wait_bounded(child, Duration::from_secs(60));
+    assert!(out.status.success(), "{}", describe(&out));
+}
+
+fn events(dir: &Path) -> Vec<Value> {
+    std::fs::read_to_string(dir.join("events.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+fn counter(summary: &Value, name: &str) -> u64 {
+    summary["counters"][name].as_u64().unwrap()
+}
+
+fn assert_no_gaps(summary: &Value) {
+    for channel in ["measurement", "estimate", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+}
+
+#[test]
+fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
+    let dir = temp_dir("swap-lockstep");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_log(&dir, 2_000_000);
+    let same = scenario("lecture-double-integrator");
+    let first = swap(&prefix, "controller", &same);
+    assert!(first.contains("generation 1"), "{first}");
+    swap(&prefix, "observer", &same);
+    swap(&prefix, "controller", &same);
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_eq!(counter(&summary, "rejected_commands"), 0, "{summary}");
+    assert_no_gaps(&summary);
+    let swaps: Vec<Value> = events(&dir)
+        .into_iter()
+        .filter(|e| e["kind"] == "swap")
+        .collect();
+    assert_eq!(swaps.len(), 3, "{swaps:?}");
+
+    // Every command, across three hand-overs, is the one an unswapped loop
+    // computes: the state copy makes the switch exact.
+    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let commands: Vec<&Command> = log.commands().collect();
+    let generations: std::collections::BTreeSet<u32> =
+        commands.iter().map(|c| c.generation).collect();
+    assert_eq!(generations.len(), 3, "controllers 0, 1, 2: {generations:?}");
+    let scenario = Scenario::load(
+        &scenario("lecture-double-integrator"),
+        &Overrides {
+            mode: Some(flexloop_scenario::Mode::Lockstep),
+            no_realtime: true,
+            duration_s: Some(0.0),
+            ..Overrides::default()
+        },
+    )
+    .unwrap();
+    let design = LoopDesign::from_scenario(&scenario).unwrap();
+    let mut reference = InProcessLoop::new(&design).unwrap();
+    for (k, c) in commands.iter().enumerate() {
+        reference.tick();
+        assert_eq!(c.seq, k as u64, "commands are contiguous");
+        assert_eq!(
+            c.u[0].to_bits(),
+            reference.command.u[0].to_bits(),
+            "u({k}) from generation {} differs from the unswapped loop",
+            c.generation
+        );
+    }
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_retuned_controller_takes_over_without_a_step() {
+    let dir = temp_dir("swap-retuned");
+    // The default scenario scans back and forth; its PID (f_bw 77.5 Hz) is
+    // replaced mid-scan by the original tuning (35.5 Hz), same trajectory.
+    let retuned = dir.join("retuned.toml");
+    let text = std::fs::read_to_string(scenario("default")).unwrap();
+    assert!(text.contains("bandwidth_hz = 77.5"));
+    std::fs::write(
+        &retuned,
+        text.replace("bandwidth_hz = 77.5", "bandwidth_hz = 35.5"),
+    )
+    .unwrap();
+    let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
+    wait_for_log(&dir, 15_000_000);
+    swap(&prefix, "controller", &retuned);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_no_gaps(&summary);
+    let swap = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "swap")
+        .unwrap();
+    let du_switch = swap["detail"]["switch"]["du_switch"].as_f64().unwrap();
+    let du_before = swap["detail"]["switch"]["du_before"].as_f64().unwrap();
+    let du_after = swap["detail"]["switch"]["du_after"].as_f64().unwrap();
+    // No larger than the ordinary steps of the old or the new design (twice,
+    // with a 1 µN floor for a switch where the command barely moves): the
+    // switch itself adds no transient. Without the hand-over it is the
+    // difference of the two designs' feedforward blocks, about 6 N here.
+    let ordinary = du_before.max(du_after);
+    assert!(
+        du_switch <= 2.0 * ordinary + 1e-6,
+        "step at the switch {du_switch} N, ordinary steps up to {du_before} N before, {du_after} N after"
+    );
+    assert_clean(&dir);
+}
+
+#[test]
+fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
+    let dir = temp_dir("swap-crash");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
+    wait_for_log(&dir, 500_000);
+    for role in ["controller", "observer"] {
+        let pid = pid_of(&dir, role);
+        // SAFETY: a pid of a process this test started (through flexloop).
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+        let since = Instant::now();
+        while !events(&dir)
+            .iter()
+            .any(|e| e["kind"] == "restart" && e["role"] == role)
+        {
+            assert!(
+                since.elapsed() < Duration::from_secs(90),
+                "{role} did not come back: {:?}",
+                events(&dir)
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    // The silent controller cost ticks under the safe action, and the loop
+    // went on: the plant ran to the end.
+    assert!(counter(&summary, "fallback_ticks") > 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let last = log.measurements().last().unwrap();
+    assert!(last.flags & flags::END_OF_RUN != 0);
+    assert!(log.commands().any(|c| c.generation >= 1));
+    let crashes = events(&dir).iter().filter(|e| e["kind"] == "crash").count();
+    assert_eq!(crashes, 2);
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
+    let dir = temp_dir("swap-rogue");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_log(&dir, 1_000_000);
+    {
+        // Answers every measurement before or beside the real controller:
+        // once from a generation that is not active, once with NaN.
+        let domain = Domain::new(&prefix).unwrap();
+        let node = domain.node("rogue").unwrap();
+        let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, 16).unwrap();
+        let rogue = Outlet::<Command>::open(&node, &COMMAND).unwrap();
+        let since = Instant::now();
+        while since.elapsed() < Duration::from_millis(500) {
+            while let Some(m) = measurements.receive().unwrap() {
+                for (generation, value) in [(7, 500.0), (0, f64::NAN)] {
+                    rogue
+                        .publish(|c| {
+                            c.seq = m.seq;
+                            c.tick_ns = m.tick_ns;
+                            c.measurement_published_ns = m.published_ns;
+                            c.received_ns = flexloop_protocol::time::monotonic_ns();
+                            c.published_ns = c.received_ns;
+                            c.generation = generation;
+                            c.n_inputs = 1;
+                            c.u[0] = value;
+                        })
+                        .unwrap();
+                }
+                rogue.notify().unwrap();
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert!(counter(&summary, "rejected_commands") > 0, "{summary}");
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    for m in log.measurements() {
+        assert!(m.u_applied[0].is_finite() && m.u_applied[0].abs() < 100.0);
+    }
+    assert_clean(&dir);
+}
+
+/// The pid of the current instance of `role` in the run at `dir`.
+fn pid_of(dir: &Path, role: &str) -> i32 {
+    let needle = dir.display().to_string();
+    let binary = format!("flexloop-{role}");
+    let mut found: Vec<i32> = processes_mentioning(&needle)
+        .into_iter()
+        .filter(|p| p.contains(&binary))
+        .filter_map(|p| p.split(':').next()?.parse().ok())
+        .collect();
+    found.sort();
+    *found
+        .last()
+        .unwrap_or_else(|| panic!("no {binary} running"))
+}
