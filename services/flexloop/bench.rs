@@ -1,7 +1,9 @@
 //! `flexloop bench`: the loop's latency table, its verdict, and the
 //! machine's own floors measured in the same run.
 
-use crate::{LoopArgs, prepare, probes, registry, run_supervised};
+use crate::conductor::Switch;
+use crate::{LoopArgs, prepare, probes, registry, run_supervised_with};
+use flexloop_components::LogReader;
 use flexloop_node::Role;
 use flexloop_node::args::realtime_settings;
 use flexloop_protocol::Telemetry;
@@ -25,7 +27,31 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         run_dir.display()
     );
     let started = Instant::now();
-    let (running, _) = run_supervised(prepared)?;
+    let scenario_file = prepared.plan.scenario.clone();
+    let mut next_swap = args
+        .swap_every_s
+        .map(|s| Instant::now() + Duration::from_secs_f64(s));
+    let mut swap_roles = [Role::Controller, Role::Observer].into_iter().cycle();
+    let mut swap_error: Option<String> = None;
+    let (running, _, switches) = run_supervised_with(prepared, |running, conductor| {
+        let due = next_swap?;
+        if Instant::now() < due {
+            return None;
+        }
+        let role = swap_roles.next()?;
+        if let Err(e) = conductor.swap(running, role, &scenario_file) {
+            swap_error = Some(e);
+            next_swap = None;
+            return None;
+        }
+        next_swap = args
+            .swap_every_s
+            .map(|s| due.max(Instant::now()) + Duration::from_secs_f64(s));
+        None
+    })?;
+    if let Some(e) = &swap_error {
+        eprintln!("flexloop bench: swapping stopped: {e}");
+    }
     eprintln!(
         "flexloop bench: loop ran {:.1} s",
         started.elapsed().as_secs_f64()
@@ -124,13 +150,19 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     );
     let mut cpu = serde_json::Map::new();
     let wall_ns = started.elapsed().as_nanos().max(1) as f64;
-    let cpu_line: Vec<String> = running
-        .children
+    // Per role, over all its instances (swaps and restarts start more).
+    let cpu_line: Vec<String> = Role::ALL
         .iter()
-        .map(|c| {
-            let ns = c.exit.map_or(0, |e| e.cpu_ns);
-            cpu.insert(c.role.name().into(), json!(ns));
-            format!("{} {:.1} %", c.role.name(), 100.0 * ns as f64 / wall_ns)
+        .filter(|role| running.children.iter().any(|c| c.role == **role))
+        .map(|role| {
+            let ns: u64 = running
+                .children
+                .iter()
+                .filter(|c| c.role == *role)
+                .map(|c| c.exit.map_or(0, |e| e.cpu_ns))
+                .sum();
+            cpu.insert(role.name().into(), json!(ns));
+            format!("{} {:.1} %", role.name(), 100.0 * ns as f64 / wall_ns)
         })
         .collect();
     println!(
@@ -168,7 +200,13 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         100.0 * rate,
         over
     );
+    let swaps = if switches.is_empty() {
+        Value::Null
+    } else {
+        swap_report(&run_dir, &switches)?
+    };
     let bench_json = json!({
+        "swaps": swaps,
         "summary": summary,
         "probes": { "timer_wakeup": timer_json, "iceoryx2_event_ping_pong": pp_json },
         "cpu_ns": Value::Object(cpu),
@@ -183,6 +221,73 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         path.display()
     );
     Ok(0)
+}
+
+/// Misses inside the swap windows (from the replacement's start to 100
+/// samples after its boundary) apart from the rest, and the command's step at
+/// each switch.
+fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, String> {
+    let path = run_dir.join(flexloop_node::logger::SAMPLES_FILE);
+    let log = LogReader::open(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let in_window = |seq: u64| {
+        switches
+            .iter()
+            .any(|s| seq >= s.start_seq && seq <= s.from_seq + 100)
+    };
+    let (mut inside, mut outside, mut ticks_inside, mut ticks_outside) = (0u64, 0u64, 0u64, 0u64);
+    let mut previous_misses = 0;
+    for m in log.measurements() {
+        let missed = m.misses.saturating_sub(previous_misses);
+        previous_misses = m.misses;
+        if in_window(m.seq) {
+            inside += missed;
+            ticks_inside += 1;
+        } else {
+            outside += missed;
+            ticks_outside += 1;
+        }
+    }
+    let mut steps: Vec<f64> = switches
+        .iter()
+        .map(|s| s.du_switch)
+        .filter(|d| d.is_finite())
+        .collect();
+    steps.sort_by(f64::total_cmp);
+    let median = steps.get(steps.len() / 2).copied().unwrap_or(f64::NAN);
+    let largest = steps.last().copied().unwrap_or(f64::NAN);
+    let ordinary = switches
+        .iter()
+        .map(|s| s.du_before.max(s.du_after))
+        .fold(0.0, f64::max);
+    println!(
+        "swaps {}: misses inside swap windows {inside} (of {ticks_inside} ticks), outside {outside} (of {ticks_outside} ticks)",
+        switches.len()
+    );
+    println!(
+        "|Δu| at the switches: median {median:.3e}, largest {largest:.3e}; largest ordinary |Δu| around them {ordinary:.3e}"
+    );
+    if switches.len() > 10 {
+        println!("  (the first 10; all in bench.json)");
+    }
+    for s in switches.iter().take(10) {
+        println!(
+            "  {} generation {} from sample {}: |Δu| {:.3e} (ordinary before {:.3e}, after {:.3e})",
+            s.role.name(),
+            s.generation,
+            s.from_seq,
+            s.du_switch,
+            s.du_before,
+            s.du_after
+        );
+    }
+    Ok(json!({
+        "count": switches.len(),
+        "misses_inside": inside,
+        "ticks_inside": ticks_inside,
+        "misses_outside": outside,
+        "ticks_outside": ticks_outside,
+        "switches": switches.iter().map(Switch::json).collect::<Vec<_>>(),
+    }))
 }
 
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it).

@@ -34,6 +34,8 @@ const BEFORE_SWITCH: u64 = 100;
 pub struct Switch {
     pub role: Role,
     pub generation: u32,
+    /// The loop's sample when the replacement was started.
+    pub start_seq: u64,
     pub from_seq: u64,
     /// |u(from) − u(from−1)|, the largest over the inputs.
     pub du_switch: f64,
@@ -48,6 +50,7 @@ impl Switch {
         json!({
             "role": self.role.name(),
             "generation": self.generation,
+            "start_seq": self.start_seq,
             "from_seq": self.from_seq,
             "du_switch": self.du_switch,
             "du_before": self.du_before,
@@ -207,7 +210,7 @@ impl Conductor {
             .map(|c| (c.pid, c.role, c.generation, c.exit.map_or(-1, |e| e.code)))
             .collect();
         for (pid, role, generation, code) in crashed {
-            let restartable = matches!(role, Role::Observer | Role::Controller);
+            let restartable = matches!(role, Role::Observer | Role::Controller | Role::Logger);
             let slot = role as usize;
             if !restartable
                 || policy == RestartPolicy::Never
@@ -254,9 +257,20 @@ impl Conductor {
             .map(|c| c.scenario.clone())
             .ok_or("no instance to restart")?;
         let generation = self.next_generation(running, role);
+        let start_seq = self.last_seq.unwrap_or(0);
         running.start_replacement(role, &scenario, generation)?;
+        if role == Role::Logger {
+            // It only listens: nothing to hand over, no boundary to announce.
+            self.event(
+                "restart",
+                role,
+                generation,
+                json!({"files": crate::logger_files(generation)}),
+            );
+            return Ok(());
+        }
         self.await_shadow(running, role, generation)?;
-        let switch = self.activate_and_measure(running, role, generation, None)?;
+        let switch = self.activate_and_measure(running, role, generation, None, start_seq)?;
         self.event("restart", role, generation, switch.json());
         self.switches.push(switch);
         Ok(())
@@ -297,12 +311,14 @@ impl Conductor {
             .map(|c| c.pid)
             .ok_or_else(|| format!("no running flexloop-{}", role.name()))?;
         let generation = self.next_generation(running, role);
+        self.poll();
+        let start_seq = self.last_seq.unwrap_or(0);
         let pid = running.start_replacement(role, scenario_path, generation)?;
         if let Err(e) = self.await_shadow(running, role, generation) {
             running.terminate(pid);
             return Err(e);
         }
-        let switch = self.activate_and_measure(running, role, generation, Some(old))?;
+        let switch = self.activate_and_measure(running, role, generation, Some(old), start_seq)?;
         self.event(
             "swap",
             role,
@@ -393,6 +409,7 @@ impl Conductor {
         role: Role,
         generation: u32,
         old: Option<i32>,
+        start_seq: u64,
     ) -> Result<Switch, String> {
         self.poll();
         let now_seq = self.last_seq.unwrap_or(0);
@@ -456,6 +473,7 @@ impl Conductor {
         Ok(Switch {
             role,
             generation,
+            start_seq,
             from_seq,
             du_switch,
             du_before,

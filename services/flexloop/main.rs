@@ -39,7 +39,10 @@ const USAGE: &str = "usage:
       (same [loop] and [plant]): it starts in shadow, takes over the state and
       becomes active at a sample boundary; prints the command's step there
   flexloop bench [SCENARIO] [--duration S (10)] [--rate HZ (10000)] [--no-realtime] [--no-probes] [--run-dir DIR]
-      run the loop, measure this machine's floors, print the latency table and a verdict";
+               [--swap-every S]
+      run the loop, measure this machine's floors, print the latency table and a verdict;
+      with --swap-every, replace the controller and the observer in turn every S seconds
+      and count the misses inside the swap windows apart from the rest";
 
 fn main() {
     let args: Vec<OsString> = std::env::args_os().skip(1).collect();
@@ -88,6 +91,8 @@ pub struct LoopArgs {
     pub overrides: Overrides,
     pub run_dir: Option<PathBuf>,
     pub probes: bool,
+    /// `bench --swap-every S`: swap controller and observer in turn.
+    pub swap_every_s: Option<f64>,
 }
 
 impl LoopArgs {
@@ -98,6 +103,7 @@ impl LoopArgs {
         let mut overrides = Overrides::default();
         let mut run_dir = None;
         let mut probes = true;
+        let mut swap_every_s = None;
         if bench {
             overrides.duration_s = Some(10.0);
             overrides.rate_hz = Some(10_000.0);
@@ -125,6 +131,15 @@ impl LoopArgs {
                 }
                 Long("no-realtime") => overrides.no_realtime = true,
                 Long("no-probes") if bench => probes = false,
+                Long("swap-every") if bench => {
+                    let s = number(&mut parser, "--swap-every")?;
+                    if !(s.is_finite() && s > 0.0) {
+                        return Err(format!(
+                            "--swap-every needs a positive number of seconds, got {s}"
+                        ));
+                    }
+                    swap_every_s = Some(s);
+                }
                 other => return Err(format!("{}\n{USAGE}", other.unexpected())),
             }
         }
@@ -133,6 +148,7 @@ impl LoopArgs {
             overrides,
             run_dir,
             probes,
+            swap_every_s,
         })
     }
 
@@ -275,6 +291,15 @@ fn up(args: LoopArgs) -> Result<i32, String> {
     let result = run_supervised(prepared);
     registry::unregister(&entry.prefix);
     result.map(|_| 0)
+}
+
+/// The sample and histogram logs of the logger of `generation`.
+pub fn logger_files(generation: u32) -> [String; 2] {
+    use flexloop_node::logger::{HISTOGRAM_LOG, SAMPLES_FILE, generation_file};
+    [
+        generation_file(SAMPLES_FILE, generation),
+        generation_file(HISTOGRAM_LOG, generation),
+    ]
 }
 
 /// Starts and supervises until the end; returns the run directory.

@@ -184,7 +184,7 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let dir = temp_dir("swap-crash");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
     wait_for_log(&dir, 500_000);
-    for role in ["controller", "observer"] {
+    for role in ["controller", "observer", "logger"] {
         let pid = pid_of(&dir, role);
         // SAFETY: a pid of a process this test started (through flexloop).
         unsafe { libc::kill(pid, libc::SIGKILL) };
@@ -201,17 +201,31 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
             std::thread::sleep(Duration::from_millis(50));
         }
     }
+    // The restarted logger records before the run ends.
+    let since = Instant::now();
+    while std::fs::metadata(dir.join("samples.g1.flxlog")).map_or(0, |m| m.len()) < 50_000 {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "the logger did not come back"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     stop(&prefix, child);
     let summary = summary(&dir);
     // The silent controller cost ticks under the safe action, and the loop
     // went on: the plant ran to the end.
     assert!(counter(&summary, "fallback_ticks") > 0, "{summary}");
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
-    let last = log.measurements().last().unwrap();
-    assert!(last.flags & flags::END_OF_RUN != 0);
-    assert!(log.commands().any(|c| c.generation >= 1));
     let crashes = events(&dir).iter().filter(|e| e["kind"] == "crash").count();
-    assert_eq!(crashes, 2);
+    assert_eq!(crashes, 3);
+    // The first logger saw the restarted controller take over before it was
+    // killed; the restarted logger writes its own files, to the end.
+    let first = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    assert!(first.commands().any(|c| c.generation >= 1));
+    let second = LogReader::open(&dir.join("samples.g1.flxlog")).unwrap();
+    let seqs: Vec<u64> = second.measurements().map(|m| m.seq).collect();
+    assert!(seqs.len() > 10 && seqs.windows(2).all(|w| w[1] == w[0] + 1));
+    let last = second.measurements().last().unwrap();
+    assert!(last.flags & flags::END_OF_RUN != 0);
     assert_clean(&dir);
 }
 

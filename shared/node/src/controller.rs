@@ -19,10 +19,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut core = ControllerCore::new(&design, args.generation);
     core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
     // Locked before the ports exist, so their memory is populated now (see plant).
-    let _rt = realtime::apply(
-        Role::Controller.name(),
-        &realtime_settings(&scenario, Role::Controller),
-    );
+    let rt = realtime_settings(&scenario, Role::Controller);
+    let _memory = realtime::apply(Role::Controller.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("controller")?;
     let measurements =
@@ -57,6 +55,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     measurements.connect()?;
     estimates.connect()?;
+    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
+    let _scheduling = realtime::apply(Role::Controller.name(), &rt.scheduling_part());
     // The command port opens last: its appearance tells the plant that the
     // chain is ready for tick 0.
     let commands = Outlet::<Command>::open(&node, &COMMAND)?;

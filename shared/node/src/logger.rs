@@ -39,8 +39,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, _design) = args.load()?;
     let period_ns = scenario.period_ns();
     // Files first: an unwritable run directory fails before the loop starts.
-    let samples_path = args.run_dir.join(SAMPLES_FILE);
-    let hlog_path = args.run_dir.join(HISTOGRAM_LOG);
+    // A restarted logger (generation > 0) never touches its predecessor's
+    // files, which may end in a torn record.
+    let samples_path = args
+        .run_dir
+        .join(generation_file(SAMPLES_FILE, args.generation));
+    let hlog_path = args
+        .run_dir
+        .join(generation_file(HISTOGRAM_LOG, args.generation));
     let metadata = serde_json::json!({
         "scenario": scenario.name,
         "scenario_file": scenario.source.display().to_string(),
@@ -64,10 +70,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         .map_err(io_err(&hlog_path))?;
 
     // Locked before the ports exist, so their memory is populated now (see plant).
-    let _rt = realtime::apply(
-        Role::Logger.name(),
-        &realtime_settings(&scenario, Role::Logger),
-    );
+    let rt = realtime_settings(&scenario, Role::Logger);
+    let _memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
     let buffer = MEASUREMENT.qos.logger_buffer_size;
@@ -92,6 +96,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // then the logger must already hear every other channel.
     let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, buffer)?;
     measurements.connect()?;
+    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
+    let _scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
 
     let start_ns = monotonic_ns();
     let mut previous = LoopLatencies::new();
@@ -155,6 +161,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         eprintln!("flexloop-logger: {gaps} samples never reached the log (see {SUMMARY_FILE})");
     }
     Ok(())
+}
+
+/// `samples.flxlog` for the first logger, `samples.g2.flxlog` for generation 2.
+pub fn generation_file(name: &str, generation: u32) -> String {
+    match (generation, name.rsplit_once('.')) {
+        (0, _) | (_, None) => name.to_string(),
+        (g, Some((stem, ext))) => format!("{stem}.g{g}.{ext}"),
+    }
 }
 
 fn write_interval<W: std::io::Write>(

@@ -21,10 +21,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     )
     .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
     // Locked before the ports exist, so their memory is populated now (see plant).
-    let _rt = realtime::apply(
-        Role::Observer.name(),
-        &realtime_settings(&scenario, Role::Observer),
-    );
+    let rt = realtime_settings(&scenario, Role::Observer);
+    let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
     let measurements =
@@ -49,6 +47,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         OBSERVER_STATE.qos.loop_buffer_size,
     )?;
     let states_out = Outlet::<Handover>::open(&node, &OBSERVER_STATE)?;
+    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
+    let _scheduling = realtime::apply(Role::Observer.name(), &rt.scheduling_part());
     if !args.join {
         let expected_readers = 1 + usize::from(scenario.logger.enabled);
         if !await_peers(

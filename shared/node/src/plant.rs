@@ -24,10 +24,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
     // Real-time set-up before any port exists: under mlockall every shared
     // memory segment is then populated during start-up, never inside the loop.
-    let _rt = realtime::apply(
-        Role::Plant.name(),
-        &realtime_settings(&scenario, Role::Plant),
-    );
+    let rt = realtime_settings(&scenario, Role::Plant);
+    let _memory = realtime::apply(Role::Plant.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("plant")?;
     let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
@@ -53,6 +51,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     commands.connect()?;
     measurements.connect()?;
+    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
+    let _scheduling = realtime::apply(Role::Plant.name(), &rt.scheduling_part());
 
     let mut core = PlantCore::new(&design);
     core.set_watchdog(

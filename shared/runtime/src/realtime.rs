@@ -26,6 +26,32 @@ pub struct RealtimeSettings {
     pub hold_cpu_dma_latency: bool,
 }
 
+impl RealtimeSettings {
+    /// The part a process applies first, before it maps any shared memory:
+    /// memory locking (so that mappings are populated while it starts, not in
+    /// the loop) and timer slack.
+    pub fn memory_part(&self) -> RealtimeSettings {
+        RealtimeSettings {
+            fifo_priority: None,
+            cpu: None,
+            hold_cpu_dma_latency: false,
+            ..self.clone()
+        }
+    }
+
+    /// The part applied once the process is connected and about to loop:
+    /// CPU, priority and wake-up latency. Applied earlier, a replacement
+    /// joining a running loop would do its start-up work at real-time
+    /// priority on the loop's CPU and stall the loop.
+    pub fn scheduling_part(&self) -> RealtimeSettings {
+        RealtimeSettings {
+            lock_memory: false,
+            timer_slack_ns: None,
+            ..self.clone()
+        }
+    }
+}
+
 /// One setting and how it went.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Applied {
