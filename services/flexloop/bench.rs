@@ -290,6 +290,32 @@ fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, 
     }))
 }
 
+/// Swaps, crashes and restarts so far, from the supervisor's events file.
+fn print_events(run_dir: &std::path::Path) {
+    let text =
+        std::fs::read_to_string(run_dir.join(crate::conductor::EVENTS_FILE)).unwrap_or_default();
+    let events: Vec<Value> = text
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
+    let count = |kind: &str| events.iter().filter(|e| e["kind"] == kind).count();
+    println!(
+        "  events: {} swaps, {} crashes, {} restarts",
+        count("swap"),
+        count("crash"),
+        count("restart")
+    );
+    if let Some(last) = events.last() {
+        println!(
+            "  last: {} of {} (generation {}) at {:.1} s",
+            last["kind"].as_str().unwrap_or("?"),
+            last["role"].as_str().unwrap_or("?"),
+            last["generation"],
+            last["t_s"].as_f64().unwrap_or(0.0)
+        );
+    }
+}
+
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it).
 pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
     let domain = Domain::new(&entry.prefix).map_err(|e| e.to_string())?;
@@ -342,5 +368,6 @@ pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
     };
     println!("  round trip µs:    {}", fmt(t.round_trip));
     println!("  tick lateness µs: {}", fmt(t.tick_lateness));
+    print_events(&entry.run_dir);
     Ok(())
 }

@@ -76,3 +76,70 @@ fn unwritable_run_directory_is_reported_before_anything_starts() {
     assert!(processes_mentioning("/proc/flexloop-run").is_empty());
     let _ = dir;
 }
+
+#[test]
+fn supervision_settings_are_checked() {
+    let dir = temp_dir("bad-supervision");
+    let text = std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap();
+    for (section, field) in [
+        (
+            "command_watchdog_ticks = 0",
+            "supervision.command_watchdog_ticks",
+        ),
+        ("safe_action = \"explode\"", "safe_action"),
+    ] {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, format!("{text}\n[supervision]\n{section}\n")).unwrap();
+        let out = up_with(&path, &dir.join("run"));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+        assert!(err.contains("bad.toml") && err.contains(field), "{err}");
+    }
+    assert!(processes_mentioning(&dir.display().to_string()).is_empty());
+}
+
+#[test]
+fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
+    let dir = temp_dir("bad-swap");
+    let mut cmd = flexloop();
+    cmd.arg("up")
+        .arg(scenario("lecture-double-integrator"))
+        .args([
+            "--no-realtime",
+            "--rate",
+            "1000",
+            "--duration",
+            "0",
+            "--run-dir",
+        ])
+        .arg(&dir)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped());
+    let child = cmd.spawn().unwrap();
+    let prefix = format!("flx{}_", child.id());
+    let since = std::time::Instant::now();
+    while !dir.join("samples.flxlog").is_file() {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "loop did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let mut swap = flexloop();
+    swap.args(["swap", "controller"])
+        .arg(scenario("thesis-original"))
+        .args(["--prefix", &prefix]);
+    let out = run_bounded(swap, Duration::from_secs(60));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        err.contains("thesis-original.toml") && err.contains("plant"),
+        "{err}"
+    );
+    let mut down = flexloop();
+    down.args(["down", "--prefix", &prefix]);
+    assert!(run_bounded(down, Duration::from_secs(60)).status.success());
+    let out = wait_bounded(child, Duration::from_secs(60));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert_clean(&dir);
+}

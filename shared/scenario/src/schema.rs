@@ -439,7 +439,8 @@ impl Scenario {
                 .span()
                 .map(|span| line_col(text, span.start))
                 .unwrap_or((0, 0));
-            let field = field_in_message(e.message());
+            let field = field_in_message(e.message())
+                .or_else(|| e.span().and_then(|span| key_at(text, span.start)));
             ScenarioError::new(
                 path,
                 field.as_deref(),
@@ -625,9 +626,22 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     (line, col)
 }
 
+/// The key of the `key = value` line holding byte `at` (for a bad value,
+/// where serde's message names the value, not the field).
+fn key_at(text: &str, at: usize) -> Option<String> {
+    let line_start = text[..at.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    (!key.is_empty() && !key.starts_with('[')).then(|| key.to_string())
+}
+
 /// Pulls the field name out of serde's "unknown field `x`" / "missing field `x`".
 fn field_in_message(message: &str) -> Option<String> {
-    let start = message.find('`')? + 1;
+    if !message.contains("field `") {
+        return None;
+    }
+    let start = message.find("field `")? + "field `".len();
     let end = start + message[start..].find('`')?;
     Some(message[start..end].to_string())
 }
