@@ -1,0 +1,188 @@
+//! The thesis default design (`scenarios/default.toml`: Kalman observer with
+//! noise model, MC + AD, PID, modified feedforward) runs its per-sample path
+//! (plant tick, observer step, controller step, as lockstep runs them) without
+//! one allocation. The global allocator aborts the test process on any
+//! allocation inside `assert_no_alloc` (debug builds, as `cargo test` builds);
+//! the last test checks that the guard really is armed.
+
+use assert_no_alloc::{AllocDisabler, assert_no_alloc};
+use flexloop_components::InProcessLoop;
+use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use std::path::PathBuf;
+use std::process::Command;
+
+#[global_allocator]
+static ALLOCATOR: AllocDisabler = AllocDisabler;
+
+/// 0.5 s at 10 kHz: the scan starts at 10 ms, so most of it is in motion.
+const TICKS: usize = 5000;
+
+fn default_scenario() -> Scenario {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/default.toml");
+    Scenario::load(&path, &Overrides::default()).unwrap()
+}
+
+/// Runs `TICKS` lockstep ticks inside the guard; returns the loop and the
+/// largest |u_ff|, |u_d| and |ŷ_flex| seen, to show every part was working.
+fn run_guarded(design: &LoopDesign) -> (InProcessLoop, [f64; 3]) {
+    let mut l = InProcessLoop::new(design).unwrap();
+    let mut peaks = [0.0f64; 3];
+    assert_no_alloc(|| {
+        for _ in 0..TICKS {
+            l.tick();
+            let parts = [
+                l.command.u_ff[0],
+                l.command.u_d[0],
+                l.used_estimate.free[0] + l.used_estimate.direct[0] * l.measurement.y[0],
+            ];
+            for (peak, v) in peaks.iter_mut().zip(parts) {
+                *peak = peak.max(v.abs());
+            }
+        }
+    });
+    (l, peaks)
+}
+
+#[test]
+fn thesis_default_loop_does_not_allocate() {
+    let s = default_scenario();
+    assert!(s.observer.mc && s.observer.ad, "default is MC + AD");
+    assert_eq!(s.controller.feedforward_form, "modified");
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    assert!(design.feedback.is_some() && design.modified_feedforward.is_some());
+    let (l, [u_ff, u_d, y_flex]) = run_guarded(&design);
+    assert!(
+        u_ff > 0.0 && u_d > 0.0 && y_flex > 0.0,
+        "{u_ff} {u_d} {y_flex}"
+    );
+    assert_eq!(l.plant.counters.misses, 0);
+    assert_eq!(l.next_tick(), TICKS as u64);
+}
+
+/// The default scenario with Gaussian disturbances in the plant (its other
+/// per-sample branch).
+fn with_noise() -> Scenario {
+    let mut s = default_scenario();
+    s.plant.force_noise = 0.01;
+    s.plant.sensor_noise = 1e-9;
+    s.plant.reference_noise = 1e-9;
+    s
+}
+
+#[test]
+fn thesis_default_with_noise_does_not_allocate() {
+    let s = with_noise();
+    s.validate().unwrap();
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    let (l, [u_ff, u_d, y_flex]) = run_guarded(&design);
+    assert!(
+        u_ff > 0.0 && u_d > 0.0 && y_flex > 0.0,
+        "{u_ff} {u_d} {y_flex}"
+    );
+    assert_eq!(l.plant.counters.misses, 0);
+}
+
+#[test]
+fn thesis_extra_delay_does_not_allocate() {
+    // One more sample of loop delay: the observer block takes u_pending and the
+    // plant runs its delay line. The modified feedforward refuses extra delay,
+    // so this one uses the plain four-gain filter.
+    let mut s = with_noise();
+    s.controller.extra_delay_samples = 1;
+    s.controller.feedforward_form = "plain".into();
+    s.validate().unwrap();
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    assert_eq!(design.observer.extra_delay_samples, 1);
+    let (l, [u_ff, u_d, y_flex]) = run_guarded(&design);
+    assert!(
+        u_ff > 0.0 && u_d > 0.0 && y_flex > 0.0,
+        "{u_ff} {u_d} {y_flex}"
+    );
+    assert_eq!(l.plant.counters.misses, 0);
+}
+
+/// Set only by [`the_guard_aborts_on_an_allocation`] for its child process.
+const CANARY: &str = "FLEXLOOP_NO_ALLOC_CANARY";
+
+/// Allocates inside the guard when [`CANARY`] is set (and so aborts); does
+/// nothing in an ordinary run.
+#[test]
+fn canary_allocates_inside_the_guard() {
+    if std::env::var_os(CANARY).is_some() {
+        let v = assert_no_alloc(|| std::hint::black_box(vec![1u8; 16]));
+        assert_eq!(v.len(), 16, "unreachable: the allocation above must abort");
+    }
+}
+
+#[test]
+fn the_guard_aborts_on_an_allocation() {
+    // Without this, a build where the guard is compiled out (release with
+    // `disable_release`) would pass the tests above without checking anything.
+    let out = Command::new(std::env::current_exe().unwrap())
+        .args([
+            "--exact",
+            "canary_allocates_inside_the_guard",
+            "--test-threads=1",
+        ])
+        .env(CANARY, "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "the canary's allocation went through"
+    );
+    assert!(
+        stderr.contains("memory allocation of 16 bytes failed"),
+        "the canary failed for another reason: {stderr}"
+    );
+}
+
+/// The hand-over path runs every sample too: each active instance saves its
+/// state, a shadow loads it, the plant reads the activation, and a retuned
+/// replacement shifts its integrator once.
+#[test]
+fn hand_over_path_does_not_allocate() {
+    use flexloop_components::{ControllerCore, ObserverCore};
+    use flexloop_protocol::{Activation, Command, Estimate, Handover};
+    let design = LoopDesign::from_scenario(&default_scenario()).unwrap();
+    let mut l = InProcessLoop::new(&design).unwrap();
+    let mut shadow_controller = ControllerCore::new(&design, 1);
+    let mut shadow_observer = ObserverCore::new(
+        &design.observer,
+        &design.output_prediction,
+        design.n_outputs,
+        design.n_inputs,
+    )
+    .unwrap();
+    let mut controller_state = Box::<Handover>::default();
+    let mut observer_state = Box::<Handover>::default();
+    let mut shadow_command = Box::<Command>::default();
+    let mut shadow_estimate = Box::<Estimate>::default();
+    let activation = Activation {
+        controller_from_seq: TICKS as u64 / 2,
+        controller_generation: 1,
+        ..Activation::INITIAL
+    };
+    let mut loaded = 0;
+    assert_no_alloc(|| {
+        for _ in 0..TICKS {
+            l.plant.set_activation(&activation);
+            let m = l.measurement;
+            if shadow_controller.load(&controller_state) {
+                loaded += 1;
+            }
+            shadow_observer.load(&observer_state);
+            shadow_controller.step(&m, &l.estimate, &mut shadow_command);
+            shadow_observer.step(&m, &mut shadow_estimate);
+            l.tick();
+            l.controller.save(&mut controller_state);
+            controller_state.seq = l.measurement.seq;
+            l.observer.save(&mut observer_state);
+            observer_state.seq = l.measurement.seq;
+        }
+        shadow_controller.shift_output(&[1.0]);
+        shadow_controller.fast_forward(2 * TICKS as u64);
+    });
+    assert!(loaded > TICKS / 2, "the shadow took over the state");
+}
