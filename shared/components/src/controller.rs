@@ -40,8 +40,7 @@ pub struct ControllerCore {
     design_hash: u64,
     /// Feedback state shift per unit of output change (bumpless transfer).
     bumpless_shift: DMatrix<f64>,
-    /// Consecutive stale estimates, and how many drop the observer.
-    stale_run: u32,
+    /// How many ticks old an estimate may be before the observer is dropped.
     estimate_watchdog: u32,
     /// The sample whose feedforward the modified block computes next.
     feedforward_next_seq: u64,
@@ -74,7 +73,6 @@ impl ControllerCore {
         Self {
             design_hash: fingerprint.value(),
             bumpless_shift,
-            stale_run: 0,
             estimate_watchdog: u32::MAX,
             feedforward_next_seq: 0,
             feedback: design.feedback.clone().map(LtiRunner::new),
@@ -95,8 +93,9 @@ impl ControllerCore {
         }
     }
 
-    /// After `ticks` consecutive stale estimates the observer's contribution
-    /// (ŷ_flex, u_d) is dropped until a fresh estimate arrives.
+    /// With an estimate more than `ticks` ticks old the observer counts as
+    /// silent: its contribution (ŷ_flex, u_d) is dropped until a fresh
+    /// estimate arrives.
     pub fn set_estimate_watchdog(&mut self, ticks: u32) {
         self.estimate_watchdog = ticks.max(1);
     }
@@ -217,9 +216,12 @@ impl ControllerCore {
     /// A replacement joining at sample `seq` brings its feedforward block to
     /// where a loop running since sample 0 has it (design-time work: one
     /// block step per sample passed).
-    pub fn fast_forward(&mut self, seq: u64) {
-        self.advance_feedforward(self.feedforward_next_seq, seq);
-        self.feedforward_next_seq = self.feedforward_next_seq.max(seq);
+    /// Returns how many samples it stepped through.
+    pub fn fast_forward(&mut self, seq: u64) -> u64 {
+        let from = self.feedforward_next_seq;
+        self.advance_feedforward(from, seq);
+        self.feedforward_next_seq = from.max(seq);
+        seq.saturating_sub(from)
     }
 
     /// Computes u(k) into `out` (all but the receive/publish stamps).
@@ -227,13 +229,13 @@ impl ControllerCore {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
         let n_in = self.n_block_inputs;
         let mut command_flags = 0;
-        if estimate.seq != m.seq {
+        // An estimate a tick or two old (the observer was late) still serves;
+        // older than the watchdog's ticks, the observer counts as silent.
+        let age = m.seq.saturating_sub(estimate.seq);
+        if age > 0 {
             command_flags |= flags::STALE_ESTIMATE;
-            self.stale_run = self.stale_run.saturating_add(1);
-        } else {
-            self.stale_run = 0;
         }
-        let observer_dropped = self.stale_run >= self.estimate_watchdog;
+        let observer_dropped = age > u64::from(self.estimate_watchdog);
         if observer_dropped {
             command_flags |= flags::OBSERVER_FALLBACK;
         }

@@ -30,24 +30,71 @@ pub enum Record {
     Command(Command),
 }
 
-/// Per-channel sequence bookkeeping.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// Per-channel sequence bookkeeping, tolerant of reordering: during a swap
+/// two instances publish on one channel and a reader may get sample k+1 from
+/// the new one before sample k from the old one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ChannelCount {
     pub samples: u64,
-    /// Sequence numbers that never arrived.
-    pub gaps: u64,
+    /// Highest sequence number seen.
     pub last_seq: Option<u64>,
+    /// Missing numbers that fell out of the reorder window.
+    settled_gaps: u64,
+    /// Bit i: `last_seq − i` was seen (numbers before the first count as seen).
+    window: u64,
 }
+
+impl Default for ChannelCount {
+    fn default() -> Self {
+        Self {
+            samples: 0,
+            last_seq: None,
+            settled_gaps: 0,
+            window: u64::MAX,
+        }
+    }
+}
+
+/// How far back a late sample still fills its place.
+const REORDER_WINDOW: u64 = 64;
 
 impl ChannelCount {
     fn see(&mut self, seq: u64) {
-        if let Some(last) = self.last_seq
-            && seq > last + 1
-        {
-            self.gaps += seq - last - 1;
-        }
-        self.last_seq = Some(self.last_seq.map_or(seq, |l| l.max(seq)));
         self.samples += 1;
+        match self.last_seq {
+            None => {
+                self.last_seq = Some(seq);
+            }
+            Some(last) if seq > last => {
+                let shift = seq - last;
+                if shift >= REORDER_WINDOW {
+                    // All of the window leaves, and so do the missing numbers
+                    // too old for the new one; the newer missing ones stay
+                    // in the new window as unseen.
+                    self.settled_gaps +=
+                        u64::from(self.window.count_zeros()) + shift - REORDER_WINDOW;
+                    self.window = 0;
+                } else {
+                    let leaving = self.window >> (REORDER_WINDOW - shift);
+                    self.settled_gaps += shift - u64::from(leaving.count_ones());
+                    self.window <<= shift;
+                }
+                self.window |= 1;
+                self.last_seq = Some(seq);
+            }
+            Some(last) => {
+                let back = last - seq;
+                if back < REORDER_WINDOW {
+                    self.window |= 1 << back;
+                }
+            }
+        }
+    }
+
+    /// Sequence numbers that never arrived (those still inside the reorder
+    /// window count as missing too: a reader that asks now gets no more).
+    pub fn gaps(&self) -> u64 {
+        self.settled_gaps + u64::from(self.window.count_zeros())
     }
 }
 
@@ -138,7 +185,7 @@ impl<W: Write> Recorder<W> {
     }
 
     pub fn total_gaps(&self) -> u64 {
-        self.measurements.gaps + self.estimates.gaps + self.commands.gaps
+        self.measurements.gaps() + self.estimates.gaps() + self.commands.gaps()
     }
 }
 
@@ -262,7 +309,7 @@ mod tests {
                 ..Default::default()
             })
             .unwrap();
-            assert_eq!(r.measurements.gaps, 2);
+            assert_eq!(r.measurements.gaps(), 2);
             assert_eq!(r.measurements.samples, 4);
             assert_eq!(r.total_gaps(), 2);
         }
@@ -284,5 +331,29 @@ mod tests {
     #[test]
     fn rejects_foreign_files() {
         assert!(LogReader::parse(b"hello").is_err());
+    }
+}
+
+#[cfg(test)]
+mod channel_count_tests {
+    use super::ChannelCount;
+
+    fn count(seqs: &[u64]) -> ChannelCount {
+        let mut c = ChannelCount::default();
+        for s in seqs {
+            c.see(*s);
+        }
+        c
+    }
+
+    #[test]
+    fn reordering_within_the_window_is_not_a_gap() {
+        assert_eq!(count(&[0, 1, 3, 2, 4]).gaps(), 0);
+        assert_eq!(count(&[5, 6, 8, 9]).gaps(), 1);
+        assert_eq!(count(&[0, 1, 200, 2]).gaps(), 198);
+        // A sample that comes back after the window was already counted missing.
+        let mut late = count(&(0..100).filter(|s| *s != 10).collect::<Vec<_>>());
+        late.see(10);
+        assert_eq!(late.gaps(), 1);
     }
 }

@@ -55,6 +55,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     measurements.connect()?;
     estimates.connect()?;
+    if args.join && !catch_up_with_loop(&mut core, &measurements)? {
+        return Ok(());
+    }
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
     let _scheduling = realtime::apply(Role::Controller.name(), &rt.scheduling_part());
     // The command port opens last: its appearance tells the plant that the
@@ -69,7 +72,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
 
     let mut handovers = HandoverRing::default();
     let mut backlog = Backlog::default();
-    let mut fast_forwarded = false;
     let mut takeover = Takeover::default();
     let mut shadow_command = Command::default();
     let mut stale_estimates = 0u64;
@@ -88,11 +90,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             backlog.push(&m);
         }
         let Some(m) = backlog.newest() else { continue };
-        if args.join && !fast_forwarded {
-            // Joining a running loop: bring the feedforward to the loop's time.
-            core.fast_forward(backlog.first_seq());
-            fast_forwarded = true;
-        }
         let received_ns = monotonic_ns();
         skipped += m.seq.saturating_sub(next_seq);
         next_seq = m.seq + 1;
@@ -195,12 +192,49 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         )?;
         done = m.flags & flags::END_OF_RUN != 0;
     }
+    // Replaced or done: the teardown must not run at real-time priority.
+    realtime::step_down(rt.cpu);
     if stale_estimates + skipped > 0 {
         eprintln!(
             "flexloop-controller: {stale_estimates} stale estimates, {skipped} measurements skipped"
         );
     }
     Ok(())
+}
+
+/// A replacement joining a running loop replays its feedforward block up to
+/// the loop's current sample before it takes its CPU and priority: the
+/// replay is design-time work (one block step per sample since the start)
+/// and must not run at real-time priority beside the loop. False if a
+/// shutdown came first.
+fn catch_up_with_loop(
+    core: &mut ControllerCore,
+    measurements: &Inlet<Measurement>,
+) -> Result<bool, NodeError> {
+    let since = std::time::Instant::now();
+    loop {
+        if shutdown::requested() {
+            return Ok(false);
+        }
+        if since.elapsed() > crate::PEER_TIMEOUT {
+            return Err(NodeError::Peer(
+                "joining: the plant published no measurement".into(),
+            ));
+        }
+        wait_readable(&[measurements.fd()], 100_000_000)
+            .map_err(|e| NodeError::Peer(e.to_string()))?;
+        measurements.clear_events()?;
+        let mut newest = None;
+        while let Some(m) = measurements.receive()? {
+            newest = Some(m.seq);
+        }
+        // Close the gap until what is left fits the per-sample catch-up.
+        if let Some(seq) = newest
+            && core.fast_forward(seq) <= 32
+        {
+            return Ok(true);
+        }
+    }
 }
 
 const BACKLOG: usize = 16;
@@ -237,10 +271,6 @@ impl Backlog {
 
     fn newest(&self) -> Option<Measurement> {
         self.len.checked_sub(1).map(|i| self.items[i])
-    }
-
-    fn first_seq(&self) -> u64 {
-        self.items[0].seq
     }
 
     fn older(&self) -> &[Measurement] {

@@ -126,6 +126,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             done |= m.flags & flags::END_OF_RUN != 0;
         }
     }
+    // Replaced or done: the teardown must not run at real-time priority.
+    realtime::step_down(rt.cpu);
     if skipped > 0 {
         eprintln!("flexloop-observer: {skipped} measurements never arrived");
     }

@@ -54,9 +54,9 @@ pub fn run_summary<W: Write>(
             "command": recorder.commands.samples,
         },
         "gaps": {
-            "measurement": recorder.measurements.gaps,
-            "estimate": recorder.estimates.gaps,
-            "command": recorder.commands.gaps,
+            "measurement": recorder.measurements.gaps(),
+            "estimate": recorder.estimates.gaps(),
+            "command": recorder.commands.gaps(),
         },
         "logger_cpu_ns": logger_cpu_ns,
         "latency": latencies_json(&recorder.latencies, period_ns),

@@ -24,6 +24,12 @@ pub struct RealtimeSettings {
     pub timer_slack_ns: Option<u64>,
     /// Hold `/dev/cpu_dma_latency` at 0 µs: idle CPUs poll instead of halting.
     pub hold_cpu_dma_latency: bool,
+    /// From now on, lock new mappings page by page as they are touched
+    /// instead of populating them whole when they are mapped.
+    pub lock_future_on_fault: bool,
+    /// Run anywhere but this CPU (a process starting up beside a running
+    /// loop keeps its start-up work off the loop's CPU).
+    pub avoid_cpu: Option<usize>,
 }
 
 impl RealtimeSettings {
@@ -35,6 +41,7 @@ impl RealtimeSettings {
             fifo_priority: None,
             cpu: None,
             hold_cpu_dma_latency: false,
+            avoid_cpu: self.cpu,
             ..self.clone()
         }
     }
@@ -43,10 +50,18 @@ impl RealtimeSettings {
     /// CPU, priority and wake-up latency. Applied earlier, a replacement
     /// joining a running loop would do its start-up work at real-time
     /// priority on the loop's CPU and stall the loop.
+    ///
+    /// It also switches memory locking to on-fault: a segment another process
+    /// creates later (a swap, a restart) is mapped by this one inside the
+    /// loop, and populating megabytes there stalls its CPU for milliseconds
+    /// (measured: 1–14 ms per swap); touched page by page it costs a minor
+    /// fault per new page instead.
     pub fn scheduling_part(&self) -> RealtimeSettings {
         RealtimeSettings {
             lock_memory: false,
             timer_slack_ns: None,
+            lock_future_on_fault: self.lock_memory,
+            avoid_cpu: None,
             ..self.clone()
         }
     }
@@ -103,6 +118,16 @@ pub fn apply(role: &str, settings: &RealtimeSettings) -> RealtimeGuard {
         let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
         note("mlockall", os_result(rc == 0, "locked".into()));
     }
+    if let Some(cpu) = settings.avoid_cpu {
+        // Quietly: on a one-CPU machine there is nowhere else to go.
+        let _ = avoid_cpu(cpu);
+    }
+    if settings.lock_future_on_fault {
+        // SAFETY: plain syscall with constant flags.
+        let rc =
+            unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE | libc::MCL_ONFAULT) };
+        note("mlockall_onfault", os_result(rc == 0, "on fault".into()));
+    }
     if let Some(slack) = settings.timer_slack_ns {
         // SAFETY: PR_SET_TIMERSLACK takes an unsigned long value.
         let rc = unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, slack as libc::c_ulong, 0, 0, 0) };
@@ -154,6 +179,49 @@ pub fn pin_to_cpu(cpu: usize) -> Result<(), String> {
             return Err(format!("cpu {cpu} out of range"));
         }
         libc::CPU_SET(cpu, &mut set);
+        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            return Err(std::io::Error::last_os_error().to_string());
+        }
+    }
+    Ok(())
+}
+
+/// Leaves real time before the process ends. Its teardown (unmapping and
+/// unlocking megabytes of shared memory) is long kernel work; on a kernel
+/// without preemption, done at real-time priority on the loop's CPU it stalls
+/// the loop for milliseconds (measured at every swap before this). Best
+/// effort: each step that fails is skipped.
+pub fn step_down(loop_cpu: Option<usize>) {
+    let _ = thread_priority::set_thread_priority_and_policy(
+        thread_priority::thread_native_id(),
+        ThreadPriority::Crossplatform(ThreadPriorityValue::try_from(0u8).unwrap_or_default()),
+        ThreadSchedulePolicy::Normal(thread_priority::NormalThreadSchedulePolicy::Other),
+    );
+    // Off the loop's CPU at once (a mask without the current CPU migrates
+    // the process now), then unlock there.
+    let _ = match loop_cpu {
+        Some(cpu) => avoid_cpu(cpu),
+        None => Ok(()),
+    };
+    // SAFETY: plain syscall.
+    unsafe { libc::munlockall() };
+}
+
+/// Lets the calling thread run on every online CPU but `cpu` (refused if
+/// that leaves none).
+pub fn avoid_cpu(cpu: usize) -> Result<(), String> {
+    // SAFETY: sysconf is a plain query.
+    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as usize;
+    let online = online.min(libc::CPU_SETSIZE as usize);
+    if online < 2 || cpu >= online {
+        return Err(format!("no CPU besides {cpu}"));
+    }
+    // SAFETY: cpu_set_t is plain data; CPU_SET bounds-checks against its size.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for other in (0..online).filter(|c| *c != cpu) {
+            libc::CPU_SET(other, &mut set);
+        }
         if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
             return Err(std::io::Error::last_os_error().to_string());
         }
