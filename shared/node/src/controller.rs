@@ -23,9 +23,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(Role::Controller.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("controller")?;
-    let measurements =
-        Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
-    let estimates = Inlet::<Estimate>::open(&node, &ESTIMATE, ESTIMATE.qos.loop_buffer_size)?;
+    let measurements = Inlet::<Measurement>::open(&node, &MEASUREMENT, FOLLOW_DEPTH)?;
+    let estimates = Inlet::<Estimate>::open(&node, &ESTIMATE, FOLLOW_DEPTH)?;
     let mut activation = ActivationView::open(&node)?;
     let states_in = Inlet::<Handover>::open_polling(
         &node,
@@ -237,7 +236,10 @@ fn catch_up_with_loop(
     }
 }
 
-const BACKLOG: usize = 16;
+/// How many samples a shadow may fall behind and still step through every
+/// one of them (in lockstep the loop runs flat out beside it).
+const FOLLOW_DEPTH: usize = 128;
+const BACKLOG: usize = FOLLOW_DEPTH;
 
 /// The measurements one wake-up drained, in arrival order (preallocated).
 struct Backlog {
@@ -333,7 +335,7 @@ impl Takeover {
     }
 }
 
-const RING: usize = 8;
+const RING: usize = FOLLOW_DEPTH;
 
 /// The last few estimates, by sequence number, preallocated: the controller
 /// must use the one for its tick, not merely the newest (the observer may
