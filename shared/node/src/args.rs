@@ -138,7 +138,7 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
         lock_memory: rt.lock_memory && is_loop,
         timer_slack_ns: Some(rt.timer_slack_ns),
         hold_cpu_dma_latency: rt.hold_cpu_dma_latency && role == Role::Plant,
-        lock_future_on_fault: false,
+        stop_locking_future: false,
         avoid_cpu: None,
     }
 }

@@ -74,10 +74,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
-    let buffer = MEASUREMENT.qos.logger_buffer_size;
     let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
-    let estimates = Inlet::<Estimate>::open_polling(&node, &ESTIMATE, buffer)?;
-    let commands = Inlet::<Command>::open_polling(&node, &COMMAND, buffer)?;
+    let estimates =
+        Inlet::<Estimate>::open_polling(&node, &ESTIMATE, ESTIMATE.qos.logger_buffer_size)?;
+    let commands = Inlet::<Command>::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)?;
     if !await_peers(
         || Ok(estimates.publishers() >= 1 && commands.publishers() >= 1),
         || {
@@ -94,7 +94,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     commands.connect()?;
     // Measurements last: the plant starts once it sees this subscriber, and by
     // then the logger must already hear every other channel.
-    let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, buffer)?;
+    let measurements = Inlet::<Measurement>::open_polling(
+        &node,
+        &MEASUREMENT,
+        MEASUREMENT.qos.logger_buffer_size,
+    )?;
     measurements.connect()?;
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
     let _scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());

@@ -24,9 +24,9 @@ pub struct RealtimeSettings {
     pub timer_slack_ns: Option<u64>,
     /// Hold `/dev/cpu_dma_latency` at 0 µs: idle CPUs poll instead of halting.
     pub hold_cpu_dma_latency: bool,
-    /// From now on, lock new mappings page by page as they are touched
-    /// instead of populating them whole when they are mapped.
-    pub lock_future_on_fault: bool,
+    /// From now on, leave new mappings unlocked (they are other processes'
+    /// shared memory, locked by their creators).
+    pub stop_locking_future: bool,
     /// Run anywhere but this CPU (a process starting up beside a running
     /// loop keeps its start-up work off the loop's CPU).
     pub avoid_cpu: Option<usize>,
@@ -51,16 +51,16 @@ impl RealtimeSettings {
     /// joining a running loop would do its start-up work at real-time
     /// priority on the loop's CPU and stall the loop.
     ///
-    /// It also switches memory locking to on-fault: a segment another process
+    /// It also stops locking future mappings: a segment another process
     /// creates later (a swap, a restart) is mapped by this one inside the
-    /// loop, and populating megabytes there stalls its CPU for milliseconds
-    /// (measured: 1–14 ms per swap); touched page by page it costs a minor
-    /// fault per new page instead.
+    /// loop, and populating megabytes there, or unlocking them when that
+    /// process goes, stalls its CPU for milliseconds (measured: 1–14 ms per
+    /// swap). The creator's own lock keeps those pages resident.
     pub fn scheduling_part(&self) -> RealtimeSettings {
         RealtimeSettings {
             lock_memory: false,
             timer_slack_ns: None,
-            lock_future_on_fault: self.lock_memory,
+            stop_locking_future: self.lock_memory,
             avoid_cpu: None,
             ..self.clone()
         }
@@ -122,11 +122,15 @@ pub fn apply(role: &str, settings: &RealtimeSettings) -> RealtimeGuard {
         // Quietly: on a one-CPU machine there is nowhere else to go.
         let _ = avoid_cpu(cpu);
     }
-    if settings.lock_future_on_fault {
+    if settings.stop_locking_future {
+        // Keep what is locked, stop locking what comes: a segment another
+        // process creates later stays resident through its creator's lock.
         // SAFETY: plain syscall with constant flags.
-        let rc =
-            unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE | libc::MCL_ONFAULT) };
-        note("mlockall_onfault", os_result(rc == 0, "on fault".into()));
+        let rc = unsafe { libc::mlockall(libc::MCL_CURRENT) };
+        note(
+            "mlockall_current",
+            os_result(rc == 0, "current only".into()),
+        );
     }
     if let Some(slack) = settings.timer_slack_ns {
         // SAFETY: PR_SET_TIMERSLACK takes an unsigned long value.
