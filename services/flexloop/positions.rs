@@ -36,6 +36,7 @@ struct Options {
     json: bool,
     each: bool,
     processes: bool,
+    keep_logs: bool,
     per_span: usize,
     /// Explicit positions (`--at`), in place of the grid.
     at: Option<Vec<f64>>,
@@ -51,6 +52,7 @@ fn parse(args: Vec<OsString>) -> Result<Options, String> {
         json: false,
         each: false,
         processes: false,
+        keep_logs: false,
         per_span: 4,
         at: None,
         feedforward: FeedforwardChoice::ComplianceShifted,
@@ -62,6 +64,7 @@ fn parse(args: Vec<OsString>) -> Result<Options, String> {
             Long("json") => o.json = true,
             Long("each") => o.each = true,
             Long("processes") => o.processes = true,
+            Long("keep-logs") => o.keep_logs = true,
             Long("per-span") => {
                 let v = parser.value().map_err(|e| e.to_string())?;
                 o.per_span = v
@@ -136,7 +139,14 @@ pub fn positions(args: Vec<OsString>) -> Result<i32, String> {
             }
         );
         let scan = if o.processes {
-            through_processes(path, &s, &positions, o.feedforward, o.run_dir.as_deref())?
+            through_processes(
+                path,
+                &s,
+                &positions,
+                o.feedforward,
+                o.run_dir.as_deref(),
+                o.keep_logs,
+            )?
         } else {
             position_scan(&s, &positions, o.feedforward).map_err(|e| in_file(path, e))?
         };
@@ -229,6 +239,7 @@ fn through_processes(
     positions: &[f64],
     feedforward: FeedforwardChoice,
     root: Option<&Path>,
+    keep_logs: bool,
 ) -> Result<PositionScan, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let stamp = std::time::SystemTime::now()
@@ -245,7 +256,7 @@ fn through_processes(
         }
         let name = format!("{}-p{position:.2}", s.name);
         let run_dir = root.join(&name);
-        std::fs::create_dir_all(&run_dir).map_err(|e| format!("{}: {e}", run_dir.display()))?;
+        std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
         let file = root.join(format!("{name}.toml"));
         std::fs::write(&file, with_sensor_position(&text, position))
             .map_err(|e| format!("{}: {e}", file.display()))?;
@@ -268,36 +279,7 @@ fn through_processes(
                 },
             )?;
         }
-        let args = LoopArgs {
-            scenario: file,
-            overrides: Overrides {
-                mode: Some(Mode::Lockstep),
-                // Lockstep results do not depend on scheduling.
-                no_realtime: true,
-                ..Overrides::default()
-            },
-            run_dir: Some(run_dir.clone()),
-            probes: false,
-            swap_every_s: None,
-        };
-        let prepared = prepare(&args)?;
-        let entry = registry::Entry {
-            prefix: prepared.plan.prefix.clone(),
-            supervisor_pid: std::process::id() as i32,
-            run_dir: run_dir.clone(),
-            scenario: name.clone(),
-        };
-        registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
-        let result = run_supervised(prepared);
-        registry::unregister(&entry.prefix);
-        result.map_err(|e| format!("{name}: {e}"))?;
-        let report = crate::run::RunReport::load(&run_dir)?;
-        let rms_e_true = report.metrics.rms_e_true_scan.ok_or_else(|| {
-            format!(
-                "{}: field `reference.shape`: no complete scan in the run",
-                path.display()
-            )
-        })?;
+        let rms_e_true = run_position(&file, &run_dir, &name, path, keep_logs)?;
         runs.push(PositionRms {
             position,
             rms_e_true,
@@ -305,6 +287,82 @@ fn through_processes(
     }
     eprintln!("flexloop positions: runs in {}", root.display());
     Ok(PositionScan::new(s.name.clone(), feedforward, runs))
+}
+
+/// Lockstep runs are deterministic, but the logger is not part of the lockstep:
+/// on a busy machine it can miss samples, and metrics over a log with holes
+/// would not be the run's. Such a run is repeated.
+const ATTEMPTS: u32 = 3;
+
+/// One position through the processes; rms of e_true over the scan [m].
+fn run_position(
+    file: &Path,
+    run_dir: &Path,
+    name: &str,
+    source: &Path,
+    keep_logs: bool,
+) -> Result<f64, String> {
+    let mut last_gaps = 0;
+    for _ in 0..ATTEMPTS {
+        // Each attempt starts from an empty directory.
+        let _ = std::fs::remove_dir_all(run_dir);
+        let args = LoopArgs {
+            scenario: file.to_path_buf(),
+            overrides: Overrides {
+                mode: Some(Mode::Lockstep),
+                // Lockstep results do not depend on scheduling.
+                no_realtime: true,
+                ..Overrides::default()
+            },
+            run_dir: Some(run_dir.to_path_buf()),
+            probes: false,
+            swap_every_s: None,
+        };
+        let prepared = prepare(&args)?;
+        let entry = registry::Entry {
+            prefix: prepared.plan.prefix.clone(),
+            supervisor_pid: std::process::id() as i32,
+            run_dir: run_dir.to_path_buf(),
+            scenario: name.to_string(),
+        };
+        registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
+        let result = run_supervised(prepared);
+        registry::unregister(&entry.prefix);
+        result.map_err(|e| format!("{name}: {e}"))?;
+        let report = crate::run::RunReport::load(run_dir)?;
+        let gaps: u64 = ["measurement", "estimate", "command"]
+            .iter()
+            .map(|k| report.summary["gaps"][k].as_u64().unwrap_or(0))
+            .sum::<u64>()
+            + report.trace.incomplete_ticks;
+        if gaps > 0 {
+            last_gaps = gaps;
+            eprintln!(
+                "flexloop positions: {name}: the log missed {gaps} samples; running it again"
+            );
+            continue;
+        }
+        let rms = report.metrics.rms_e_true_scan.ok_or_else(|| {
+            format!(
+                "{}: field `reference.shape`: no complete scan in the run",
+                source.display()
+            )
+        })?;
+        let metrics = run_dir.join(crate::run::METRICS_FILE);
+        flexloop_node::summary::write_json_atomically(&metrics, &report.to_json())
+            .map_err(|e| format!("{}: {e}", metrics.display()))?;
+        if !keep_logs {
+            // ~5 MB per position, 1 GB for the whole table; the summary and
+            // the metrics stay.
+            let _ = std::fs::remove_file(run_dir.join(flexloop_node::logger::SAMPLES_FILE));
+        }
+        return Ok(rms);
+    }
+    Err(format!(
+        "{name}: the log of {} missed {last_gaps} samples in each of {ATTEMPTS} runs \
+         (a busy machine); the in-process table (without --processes) is the same loop",
+        run_dir.display()
+    ))
 }
 
 /// The scenario text with the sensor at `position`: `output` and any

@@ -225,6 +225,7 @@ pub fn scenario_at(
             s.controller.feedforward = Some(ff);
         }
     }
+    s.validate()?;
     Ok(s)
 }
 
