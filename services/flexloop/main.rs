@@ -7,6 +7,7 @@
 mod bench;
 mod conductor;
 mod design;
+mod positions;
 mod probes;
 mod progress;
 mod registry;
@@ -32,6 +33,12 @@ const USAGE: &str = "usage:
   flexloop design [SCENARIO] [--continuous] [--json]
       design report of the thesis chain at the scenario's rate and loop delay: modes,
       observer poles, AD damping, largest f_bw meeting the 6 dB rule per case
+  flexloop positions [SCENARIO...] [--json] [--each] [--per-span N (4) | --at P,P...]
+                   [--feedforward compliance-shifted|as-tuned|mass-only] [--processes [--run-dir DIR] [--keep-logs]]
+      Table 4.1: each scenario (default: the seven thesis cases) with the sensor at
+      7·N+1 positions along the chain (0 = ma … 7 = m7); min / mean / max rms e_true over
+      the scan beside the thesis; in-process lockstep, or --processes through the processes
+      in lockstep (one run directory per position; sample logs removed unless --keep-logs)
   flexloop down [--prefix P]          stop running loops
   flexloop status [--prefix P]        live counters and latency percentiles of a running loop
   flexloop swap controller|observer SCENARIO [--prefix P]
@@ -73,6 +80,7 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         Some("run") => run::run(LoopArgs::parse(rest, false)?),
         Some("tune-ff") => run::tune_ff(rest),
         Some("design") => design::design(rest),
+        Some("positions") => positions::positions(rest),
         Some("down") => down(prefix_arg(rest)?),
         Some("status") => status(prefix_arg(rest)?),
         Some("swap") => swap(rest),

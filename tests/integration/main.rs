@@ -6,6 +6,7 @@
 
 mod bad_input;
 mod loop_processes;
+mod positions;
 mod swap;
 mod thesis;
 mod util;

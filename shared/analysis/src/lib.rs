@@ -7,12 +7,18 @@
 //! - [`modal_damping`]: the damping the loop achieves on each flexible mode,
 //!   from the closed-loop model and identified from the run's ring-down.
 //! - [`feedforward_fit`]: least-squares feedforward gains from a recorded run.
+//! - [`positions`]: Table 4.1, the scan with the sensor at positions along
+//!   the chain (min / mean / max rms of e_true).
+//! - [`scheduling_comparison`]: time-varying Kalman filter against
+//!   interpolated steady-state gains on a sensor the chain scans past.
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
 
 pub mod feedforward_fit;
 pub mod metrics;
 pub mod modal_damping;
+pub mod positions;
+pub mod scheduling_comparison;
 pub mod trace;
 
 pub use metrics::{ControlMetrics, MetricsOptions};

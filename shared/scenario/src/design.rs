@@ -403,8 +403,7 @@ fn double_integrator(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts,
 /// MC, AD and the noise model as the scenario says.
 fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
     let err = |field: &str, reason: String| ScenarioError::new(&s.source, Some(field), reason);
-    let output = s.plant.output;
-    let modal = models::thesis_plant(output).map_err(|e| err("plant.output", e.to_string()))?;
+    let modal = thesis_chain_seen_by_sensor(s)?;
     let plant = zoh(&modal.state_space(), ts).map_err(|e| err("plant", format!("ZOH: {e}")))?;
     let flexible_modes = modal
         .frequencies_hz()
@@ -415,8 +414,13 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
     let o = &s.observer;
     let (observer, output_prediction, observer_modes) = match o.design.as_str() {
         "kalman" => {
-            let reduced =
-                models::thesis_reduced(output).map_err(|e| err("plant.output", e.to_string()))?;
+            // Output position dependency only (control.md §1.4): C_t and
+            // T_DC follow the sensor, B_t does not, so the AD gain K (from
+            // φ_a) is the same everywhere while the Kalman gain, which
+            // depends on C, is designed for this position.
+            let reduced = modal
+                .truncate(4, &[4, 5, 6])
+                .map_err(|e| err(sensor_field(s), e.to_string()))?;
             let q_nu = match o.q_nu {
                 Some(0.0) => None,
                 Some(q) => Some(q),
@@ -477,6 +481,36 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
         flexible_modes,
         observer_modes,
     })
+}
+
+/// The field that places the thesis chain's sensor.
+fn sensor_field(s: &Scenario) -> &'static str {
+    if s.plant.sensor_position.is_some() {
+        "plant.sensor_position"
+    } else {
+        "plant.output"
+    }
+}
+
+/// The full chain (8 modes) as its one sensor sees it: mass m_i for
+/// `output = i` (exactly [`models::thesis_plant`]), or the world-fixed sensor
+/// of `sensor_position` with mode-shape rows interpolated between nodes.
+/// The observer's reduced model (rigid + 3 flexible, T_DC of modes 4–6, as
+/// [`models::thesis_reduced`]) is truncated from it, so C_t and T_DC follow
+/// the sensor too.
+fn thesis_chain_seen_by_sensor(
+    s: &Scenario,
+) -> Result<flexloop_control::modal::ModalModel, ScenarioError> {
+    let field = sensor_field(s);
+    let err = |e: flexloop_control::modal::ModelError| {
+        ScenarioError::new(&s.source, Some(field), e.to_string())
+    };
+    match s.plant.sensor_position {
+        Some(p) => models::thesis_chain_modal()
+            .and_then(|m| m.with_sensor_positions(&[p]))
+            .map_err(err),
+        None => models::thesis_plant(s.plant.output).map_err(err),
+    }
 }
 
 /// A block without states whose outputs are zero: the loop without an observer.
@@ -605,6 +639,99 @@ start_s = 0.01
     fn mc_without_an_observer_is_refused() {
         let err = design(&THESIS.replace("design = \"kalman\"", "design = \"none\"")).unwrap_err();
         assert_eq!(err.field.as_deref(), Some("observer.design"));
+    }
+
+    /// THESIS with the sensor moved from `output` (default 5) to a position.
+    fn at_position(p: &str) -> String {
+        THESIS.replace(
+            "model = \"thesis-chain\"",
+            &format!("model = \"thesis-chain\"\nsensor_position = {p}"),
+        )
+    }
+
+    #[test]
+    fn an_integer_sensor_position_is_that_output_exactly() {
+        for (position, output) in [("5.0", 5), ("1", 1), ("7.0", 7)] {
+            let by_output = design(&THESIS.replace(
+                "model = \"thesis-chain\"",
+                &format!("model = \"thesis-chain\"\noutput = {output}"),
+            ))
+            .unwrap();
+            let by_position = design(&at_position(position)).unwrap();
+            // Bit for bit: the same sensor row, hence the same Kalman gain,
+            // observer block, feedforward block and closed loop.
+            assert_eq!(by_position.plant, by_output.plant, "{position}");
+            assert_eq!(by_position.observer, by_output.observer, "{position}");
+            assert_eq!(by_position.output_prediction, by_output.output_prediction);
+            assert_eq!(
+                by_position.modified_feedforward,
+                by_output.modified_feedforward
+            );
+            assert_eq!(by_position.closed_loop, by_output.closed_loop);
+        }
+    }
+
+    #[test]
+    fn a_sensor_between_nodes_interpolates_c_and_t_dc_but_not_b() {
+        let [d4, d425, d5] = ["4", "4.25", "5"].map(|p| design(&at_position(p)).unwrap());
+        // Plant: B is the actuator's (position-independent), C is 3/4 of m4's
+        // row plus 1/4 of m5's.
+        assert_eq!(d425.plant.b, d4.plant.b);
+        let want = &d4.plant.c * 0.75 + &d5.plant.c * 0.25;
+        assert!((&d425.plant.c - &want).amax() < 1e-15);
+        assert!((&d425.plant.c - &d4.plant.c).amax() > 1e-3);
+        // Observer model: C_t and T_DC (= D) follow the sensor linearly.
+        let (p4, p425, p5) = (
+            &d4.output_prediction,
+            &d425.output_prediction,
+            &d5.output_prediction,
+        );
+        assert!((&p425.c - (&p4.c * 0.75 + &p5.c * 0.25)).amax() < 1e-15);
+        assert!((&p425.d - (&p4.d * 0.75 + &p5.d * 0.25)).amax() < 1e-24);
+        assert!(p425.d[(0, 0)] != p4.d[(0, 0)]);
+        // The actuator mass itself (collocated) is a position too.
+        design(&at_position("0")).unwrap();
+    }
+
+    #[test]
+    fn bad_sensor_positions_name_the_field() {
+        for bad in ["7.5", "-0.25", "nan", "inf"] {
+            let err = design(&at_position(bad)).unwrap_err();
+            assert_eq!(err.field.as_deref(), Some("plant.sensor_position"), "{bad}");
+            assert!(err.reason.contains("[0, 7]"), "{bad}: {err}");
+            assert!(err.to_string().contains("t.toml"), "{err}");
+        }
+        // Both ways of placing the sensor at once.
+        let both = at_position("4.25").replace("input_limit", "output = 5\ninput_limit");
+        let err = design(&both).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("plant.sensor_position"));
+        assert!(err.reason.contains("not both"), "{err}");
+        // Only the chain has positions.
+        let lecture = LECTURE.replace(
+            "model = \"double-integrator\"",
+            "model = \"double-integrator\"\nsensor_position = 1.0",
+        );
+        let err = design(&lecture).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("plant.sensor_position"));
+        assert!(err.reason.contains("thesis chain"), "{err}");
+        // A wrong type is a parse error that names the key.
+        let err = Scenario::parse(Path::new("t.toml"), &at_position("\"m5\"")).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("sensor_position"), "{err}");
+    }
+
+    #[test]
+    fn set_sensor_position_overrides_a_files_output() {
+        let mut s = Scenario::parse(
+            Path::new("t.toml"),
+            &THESIS.replace("input_limit", "output = 3\ninput_limit"),
+        )
+        .unwrap();
+        assert!(s.plant.output_given);
+        s.set_sensor_position(5.0);
+        s.validate().unwrap();
+        assert_eq!(s.plant.sensor_node(), 5.0);
+        let d = LoopDesign::from_scenario(&s).unwrap();
+        assert_eq!(d.plant, design(THESIS).unwrap().plant);
     }
 
     #[test]

@@ -93,6 +93,15 @@ pub struct PlantSection {
     /// Thesis chain: the measured mass y1..y7 (control.md §1.3; y5 in the thesis runs).
     #[serde(default = "default_output")]
     pub output: usize,
+    /// Thesis chain: a world-fixed sensor at this position along the
+    /// structure in node units, 0 = ma, 1 = m1 … 7 = m7; between nodes the
+    /// mass-normalised mode-shape rows are interpolated linearly (control.md
+    /// §1.4). Replaces `output`: an integer position is the same sensor.
+    pub sensor_position: Option<f64>,
+    /// Whether the file named `output` (not part of the format): `output`
+    /// has a default, so only the text tells a given one from the default.
+    #[serde(skip)]
+    pub output_given: bool,
     /// |u| limit in N; commands beyond it are clamped and counted.
     #[serde(default = "default_limit")]
     pub input_limit: f64,
@@ -108,6 +117,17 @@ pub struct PlantSection {
     /// σ of the sensor reference noise v in m (0: off); y_meas = y − v + d.
     #[serde(default)]
     pub reference_noise: f64,
+}
+
+/// The last node of the thesis chain (m7), in sensor-position units.
+pub const SENSOR_POSITION_MAX: f64 = 7.0;
+
+impl PlantSection {
+    /// The thesis chain's sensor in node units: `sensor_position`, or the
+    /// node of `output` (y_i sits on node i).
+    pub fn sensor_node(&self) -> f64 {
+        self.sensor_position.unwrap_or(self.output as f64)
+    }
 }
 
 fn default_output() -> usize {
@@ -448,7 +468,18 @@ impl Scenario {
             )
         })?;
         scenario.source = path.to_path_buf();
+        scenario.plant.output_given = toml::from_str::<toml::Table>(text)
+            .ok()
+            .and_then(|t| t.get("plant")?.as_table()?.get("output").cloned())
+            .is_some();
         Ok(scenario)
+    }
+
+    /// Puts the thesis chain's world-fixed sensor at `position` (node units),
+    /// in place of whatever output the file named; `validate` checks the range.
+    pub fn set_sensor_position(&mut self, position: f64) {
+        self.plant.sensor_position = Some(position);
+        self.plant.output_given = false;
     }
 
     pub fn apply(&mut self, overrides: &Overrides) {
@@ -524,6 +555,33 @@ impl Scenario {
                 "plant.output",
                 format!("the chain has outputs 1..=7, got {}", self.plant.output),
             ));
+        }
+        if let Some(p) = self.plant.sensor_position {
+            let field = "plant.sensor_position";
+            if self.plant.model != "thesis-chain" {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "only the thesis chain has a sensor position, not `{}`",
+                        self.plant.model
+                    ),
+                ));
+            }
+            if self.plant.output_given {
+                return Err(self.err(
+                    field,
+                    "give either plant.output or plant.sensor_position, not both \
+                     (position 5.0 is output 5)",
+                ));
+            }
+            if !(p.is_finite() && (0.0..=SENSOR_POSITION_MAX).contains(&p)) {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {p}"
+                    ),
+                ));
+            }
         }
         if let Some(q) = self.observer.q_nu {
             non_negative("observer.q_nu", q)?;
