@@ -345,6 +345,15 @@ pub fn run_supervised_with(
         &prepared.scenario,
         &prepared.overrides,
     )?;
+    // The supervisor and every process it starts (they inherit it) work off
+    // the loop's CPU: on a kernel without preemption their system calls
+    // (fork, exec, mapping memory) would delay the loop there by up to a
+    // millisecond each (seen in a scheduler trace of a swap).
+    if let Some(cpu) = prepared.scenario.realtime.plant.cpu
+        && prepared.scenario.timing.mode == Mode::Realtime
+    {
+        let _ = flexloop_runtime::realtime::avoid_cpu(cpu);
+    }
     let mut running = supervisor::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
     let outcome = running.watch(limit, |running| {

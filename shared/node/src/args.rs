@@ -139,7 +139,8 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
         timer_slack_ns: Some(rt.timer_slack_ns),
         hold_cpu_dma_latency: rt.hold_cpu_dma_latency && role == Role::Plant,
         stop_locking_future: false,
-        avoid_cpu: None,
+        // Start-up work stays off the CPU of the plant's clock (the loop's).
+        avoid_cpu: rt.plant.cpu,
     }
 }
 

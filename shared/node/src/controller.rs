@@ -57,11 +57,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     if args.join && !catch_up_with_loop(&mut core, &measurements)? {
         return Ok(());
     }
-    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Controller.name(), &rt.scheduling_part());
     // The command port opens last: its appearance tells the plant that the
     // chain is ready for tick 0.
     let commands = Outlet::<Command>::open(&node, &COMMAND)?;
+    commands.connect()?;
+    states_in.connect()?;
+    activation.connect()?;
+    // Priority and CPU only now, every port open and connected: creating a
+    // port initialises its shared memory, milliseconds of kernel work that
+    // must not run at real-time priority on the loop's CPU (measured: each
+    // controller swap stalled the plant 1–25 ms). See
+    // `RealtimeSettings::scheduling_part`.
+    let _scheduling = realtime::apply(Role::Controller.name(), &shadow_scheduling(&rt, args));
+    let mut priority_raised = !args.join;
     let lockstep = scenario.timing.mode == Mode::Lockstep;
     let period_ns = scenario.period_ns();
     // In realtime, wait for a late estimate at most half a period after the
@@ -94,6 +102,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         next_seq = m.seq + 1;
         let owner = activation.refresh()?.controller_for(m.seq);
         let active = owner == args.generation;
+        if !priority_raised && activation.current().controller_generation == args.generation {
+            // Named for a coming boundary: the loop's priority from now on.
+            raise_priority(&rt);
+            priority_raised = true;
+        }
         if !active && takeover.was_active {
             // Replaced at a sample boundary: the new instance owns this one.
             break;
@@ -199,6 +212,28 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         );
     }
     Ok(())
+}
+
+/// A replacement follows in shadow at the lowest real-time priority, so that
+/// stepping through its backlog never delays the active loop on their
+/// shared CPU; it takes the loop's priority once it is named for a boundary.
+pub(crate) fn shadow_scheduling(
+    rt: &flexloop_runtime::realtime::RealtimeSettings,
+    args: &ServiceArgs,
+) -> flexloop_runtime::realtime::RealtimeSettings {
+    let mut scheduling = rt.scheduling_part();
+    if args.join {
+        scheduling.fifo_priority = scheduling.fifo_priority.map(|_| 1);
+    }
+    scheduling
+}
+
+pub(crate) fn raise_priority(rt: &flexloop_runtime::realtime::RealtimeSettings) {
+    if let Some(priority) = rt.fifo_priority
+        && let Err(e) = realtime::set_fifo_priority(priority)
+    {
+        eprintln!("flexloop: priority {priority} refused ({e}); running on");
+    }
 }
 
 /// A replacement joining a running loop replays its feedforward block up to

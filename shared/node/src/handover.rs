@@ -31,6 +31,11 @@ impl ActivationView {
         Ok(&self.current)
     }
 
+    /// Maps the supervisor's memory now rather than in the loop.
+    pub fn connect(&self) -> Result<(), NodeError> {
+        Ok(self.inlet.connect()?)
+    }
+
     pub fn current(&self) -> &Activation {
         &self.current
     }

@@ -47,8 +47,15 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         OBSERVER_STATE.qos.loop_buffer_size,
     )?;
     let states_out = Outlet::<Handover>::open(&node, &OBSERVER_STATE)?;
-    // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Observer.name(), &rt.scheduling_part());
+    states_in.connect()?;
+    activation.connect()?;
+    // Priority and CPU only now, every port open and connected: see
+    // `RealtimeSettings::scheduling_part` and the controller.
+    let _scheduling = realtime::apply(
+        Role::Observer.name(),
+        &crate::controller::shadow_scheduling(&rt, args),
+    );
+    let mut priority_raised = !args.join;
     if !args.join {
         let expected_readers = 1 + usize::from(scenario.logger.enabled);
         if !await_peers(
@@ -92,6 +99,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             expected_seq = Some(m.seq + 1);
             // This measurement yields the estimate for the next tick.
             let owner = activation.refresh()?.observer_for(m.seq + 1);
+            if !priority_raised && activation.current().observer_generation == args.generation {
+                crate::controller::raise_priority(&rt);
+                priority_raised = true;
+            }
             if owner != args.generation {
                 if was_active {
                     // Replaced: the new instance publishes from here on.

@@ -48,14 +48,7 @@ pub const MEASUREMENT: Channel = Channel {
 /// Observer output for the next tick.
 pub const ESTIMATE: Channel = Channel {
     name: "flexloop/estimate",
-    // Its samples are ten times a measurement's (the observer's direct gain
-    // travels with each): queues of 12.8 ms at 10 kHz keep its segment at
-    // 3 MB, cheap to map and unmap when an observer is replaced.
-    qos: ChannelQos {
-        subscriber_max_buffer_size: 128,
-        logger_buffer_size: 128,
-        ..LOOP_QOS
-    },
+    qos: LOOP_QOS,
 };
 /// u_c(k) from the controller.
 pub const COMMAND: Channel = Channel {

@@ -28,7 +28,8 @@ pub struct RealtimeSettings {
     /// shared memory, locked by their creators).
     pub stop_locking_future: bool,
     /// Run anywhere but this CPU (a process starting up beside a running
-    /// loop keeps its start-up work off the loop's CPU).
+    /// loop keeps its start-up work off the loop's CPU): applied by the
+    /// memory part, replaced by `cpu` in the scheduling part.
     pub avoid_cpu: Option<usize>,
 }
 
@@ -41,7 +42,6 @@ impl RealtimeSettings {
             fifo_priority: None,
             cpu: None,
             hold_cpu_dma_latency: false,
-            avoid_cpu: self.cpu,
             ..self.clone()
         }
     }
@@ -141,18 +141,10 @@ pub fn apply(role: &str, settings: &RealtimeSettings) -> RealtimeGuard {
         note("cpu", pin_to_cpu(cpu).map(|_| cpu.to_string()));
     }
     if let Some(priority) = settings.fifo_priority {
-        let outcome = ThreadPriorityValue::try_from(priority)
-            .map_err(|e| e.to_string())
-            .and_then(|value| {
-                thread_priority::set_thread_priority_and_policy(
-                    thread_priority::thread_native_id(),
-                    ThreadPriority::Crossplatform(value),
-                    ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
-                )
-                .map_err(|e| format!("{e:?}"))
-            })
-            .map(|_| format!("fifo:{priority}"));
-        note("priority", outcome);
+        note(
+            "priority",
+            set_fifo_priority(priority).map(|_| format!("fifo:{priority}")),
+        );
     }
     if settings.hold_cpu_dma_latency {
         match open_dma_latency() {
@@ -209,6 +201,17 @@ pub fn step_down(loop_cpu: Option<usize>) {
     };
     // SAFETY: plain syscall.
     unsafe { libc::munlockall() };
+}
+
+/// SCHED_FIFO at `priority` for the calling thread.
+pub fn set_fifo_priority(priority: u8) -> Result<(), String> {
+    let value = ThreadPriorityValue::try_from(priority).map_err(|e| e.to_string())?;
+    thread_priority::set_thread_priority_and_policy(
+        thread_priority::thread_native_id(),
+        ThreadPriority::Crossplatform(value),
+        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+    )
+    .map_err(|e| format!("{e:?}"))
 }
 
 /// Lets the calling thread run on every online CPU but `cpu` (refused if
