@@ -102,8 +102,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         next_seq = m.seq + 1;
         let owner = activation.refresh()?.controller_for(m.seq);
         let active = owner == args.generation;
-        if !priority_raised && activation.current().controller_generation == args.generation {
-            // Named for a coming boundary: the loop's priority from now on.
+        // Named for a coming boundary and caught up (nothing left over from
+        // following at low priority), or at the latest at its first sample:
+        // the loop's priority from now on.
+        let named = activation.current().controller_generation == args.generation;
+        if !priority_raised && ((named && backlog.older().is_empty()) || active) {
             raise_priority(&rt);
             priority_raised = true;
         }
@@ -149,7 +152,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         };
 
         handovers.take(&states_in, args.generation)?;
-        if !takeover.was_active {
+        // A design that copies the active state before each sample needs
+        // only the newest; another one steps through every sample it missed.
+        if !takeover.was_active && !takeover.copied {
             for older in backlog.older() {
                 if activation.current().controller_for(older.seq) == args.generation {
                     continue;

@@ -99,7 +99,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             expected_seq = Some(m.seq + 1);
             // This measurement yields the estimate for the next tick.
             let owner = activation.refresh()?.observer_for(m.seq + 1);
-            if !priority_raised && activation.current().observer_generation == args.generation {
+            // As the controller: once named, at the latest at its first estimate.
+            if !priority_raised
+                && (activation.current().observer_generation == args.generation
+                    || owner == args.generation)
+            {
                 crate::controller::raise_priority(&rt);
                 priority_raised = true;
             }
