@@ -11,6 +11,8 @@ use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
 use flexloop_transport::{Domain, Inlet, Outlet};
 
+/// In lockstep, how long a new instance waits for its predecessor's last state.
+const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 100_000_000;
 /// In lockstep, how long to wait for the observer before giving up.
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
@@ -187,6 +189,18 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             continue;
         }
         if !takeover.was_active {
+            // The old instance publishes its last state just after its last
+            // command, and the plant may already have moved on: wait for it
+            // briefly (it carries what a retuned design must continue).
+            let deadline = if lockstep {
+                monotonic_ns() + HANDOVER_WAIT_LOCKSTEP_NS
+            } else {
+                m.tick_ns + period_ns / 4
+            };
+            while m.seq > 0 && handovers.find(m.seq - 1).is_none() && monotonic_ns() < deadline {
+                std::thread::sleep(std::time::Duration::from_micros(20));
+                handovers.take(&states_in, args.generation)?;
+            }
             takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
         }
         let mut sent_u = [0.0; MAX_INPUTS];
