@@ -5,7 +5,7 @@ use crate::handover::{ActivationView, HandoverRing, publish_state};
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
-use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT, OBSERVER_STATE};
+use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT, OBSERVER_STATE, OBSERVER_WAKEUP};
 use flexloop_protocol::{Estimate, Handover, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
@@ -25,8 +25,12 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
-    let measurements =
-        Inlet::<Measurement>::open(&node, &MEASUREMENT, MEASUREMENT.qos.loop_buffer_size)?;
+    let measurements = Inlet::<Measurement>::open_woken_by(
+        &node,
+        &MEASUREMENT,
+        &OBSERVER_WAKEUP,
+        MEASUREMENT.qos.loop_buffer_size,
+    )?;
     if !await_peers(
         || Ok(measurements.publishers() >= 1),
         || "no measurement publisher (plant)".into(),

@@ -4,13 +4,13 @@ use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
-use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
+use flexloop_protocol::channels::{COMMAND, MEASUREMENT, OBSERVER_WAKEUP};
 use flexloop_protocol::{Command, Measurement, flags};
 use flexloop_runtime::clock::{TickGrid, sleep_until};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
-use flexloop_transport::{Domain, Inlet, Outlet};
+use flexloop_transport::{Domain, Inlet, Outlet, Wakeup};
 use std::time::Duration;
 
 /// In lockstep, how long a command may take before the tick goes on without it.
@@ -29,6 +29,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("plant")?;
     let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
+    let observer_wakeup = Wakeup::open(&node, &OBSERVER_WAKEUP)?;
     let commands = Inlet::<Command>::open(&node, &COMMAND, COMMAND.qos.loop_buffer_size)?;
 
     // Start-up handshake: the observer and the logger subscribe once they are
@@ -100,7 +101,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             }
             m.published_ns = monotonic_ns();
         })?;
+        // The controller first (critical path), then the observer (due
+        // before the next tick); the model update after both.
         measurements.notify()?;
+        observer_wakeup.wake()?;
         core.advance();
         if last {
             break;

@@ -45,6 +45,13 @@ pub const MEASUREMENT: Channel = Channel {
     name: "flexloop/measurement",
     qos: LOOP_QOS,
 };
+/// Wakes the observer for y(k), after the measurement's own event has woken
+/// the controller: the controller is on the critical path, the observer only
+/// has to finish before the next tick (only its event service is used).
+pub const OBSERVER_WAKEUP: Channel = Channel {
+    name: "flexloop/measurement-observer",
+    qos: LOOP_QOS,
+};
 /// Observer output for the next tick.
 pub const ESTIMATE: Channel = Channel {
     name: "flexloop/estimate",
@@ -104,8 +111,9 @@ pub const ACTIVATION: Channel = Channel {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 7] = [
+pub const ALL: [Channel; 8] = [
     MEASUREMENT,
+    OBSERVER_WAKEUP,
     ESTIMATE,
     COMMAND,
     TELEMETRY,

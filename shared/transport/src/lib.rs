@@ -16,4 +16,4 @@ pub use domain::{
 pub use error::TransportError;
 /// A process's iceoryx2 node, as [`Domain::node`] returns it.
 pub type LoopNode = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;
-pub use ports::{Inlet, Outlet};
+pub use ports::{Inlet, Outlet, Wakeup};

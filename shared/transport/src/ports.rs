@@ -128,6 +128,36 @@ impl<T: Debug + Default + ZeroCopySend + 'static> Outlet<T> {
     }
 }
 
+/// A second wake-up for the readers of a channel, so that a publisher wakes
+/// them in the order it chooses (the one on the critical path first).
+pub struct Wakeup {
+    channel: &'static str,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl Wakeup {
+    pub fn open(
+        node: &Node<ipc::Service>,
+        wakeup: &'static Channel,
+    ) -> Result<Self, TransportError> {
+        let notifier = open_event(node, wakeup)?
+            .notifier_builder()
+            .default_event_id(EventId::new(events::SAMPLE))
+            .create()
+            .map_err(|e| TransportError::new(wakeup.name, "create notifier", e))?;
+        Ok(Self {
+            channel: wakeup.name,
+            notifier,
+        })
+    }
+
+    pub fn wake(&self) -> Result<usize, TransportError> {
+        self.notifier
+            .notify()
+            .map_err(|e| TransportError::new(self.channel, "notify", e))
+    }
+}
+
 /// Receives samples of `T` from a channel; its listener's fd signals arrivals.
 pub struct Inlet<T: Debug + ZeroCopySend + 'static> {
     channel: &'static str,
@@ -145,6 +175,24 @@ impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
         buffer_size: usize,
     ) -> Result<Self, TransportError> {
         Self::open_with(node, channel, buffer_size, true)
+    }
+
+    /// An inlet woken by another channel's event service than its own: a
+    /// reader the publisher wakes at a different moment (see [`Wakeup`]).
+    pub fn open_woken_by(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+        wakeup: &'static Channel,
+        buffer_size: usize,
+    ) -> Result<Self, TransportError> {
+        let mut inlet = Self::open_with(node, channel, buffer_size, false)?;
+        inlet.listener = Some(
+            open_event(node, wakeup)?
+                .listener_builder()
+                .create()
+                .map_err(|e| TransportError::new(wakeup.name, "create listener", e))?,
+        );
+        Ok(inlet)
     }
 
     /// An inlet without a listener, for a reader that polls on its own clock.
