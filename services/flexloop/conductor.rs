@@ -5,8 +5,10 @@
 
 use crate::supervisor::{Outcome, RunningLoop};
 use flexloop_node::Role;
-use flexloop_protocol::channels::{ACTIVATION, COMMAND, CONTROLLER_STATE, OBSERVER_STATE};
-use flexloop_protocol::{Activation, Command, Handover, MAX_INPUTS};
+use flexloop_protocol::channels::{
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, OBSERVER_STATE,
+};
+use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS};
 use flexloop_scenario::schema::RestartPolicy;
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
@@ -70,6 +72,7 @@ pub struct Conductor {
     controller_states: Inlet<Handover>,
     observer_states: Inlet<Handover>,
     commands: Inlet<Command>,
+    estimates: Inlet<Estimate>,
     _node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -79,6 +82,14 @@ pub struct Conductor {
     started: Instant,
     last_seq: Option<u64>,
     recent_u: VecDeque<(u64, [f64; MAX_INPUTS])>,
+    /// The last state each role's active instance published: a restarted
+    /// instance gets it from here, since a dead publisher hands nothing over.
+    last_active: [Option<Handover>; 2],
+    /// Shadows seen following, by role and generation.
+    shadows_seen: Vec<(Role, u32)>,
+    /// (when, newest sample) over the last half second: the loop's real pace.
+    pace: VecDeque<(Instant, u64)>,
+    states_out: [Outlet<Handover>; 2],
     n_inputs: usize,
     restarts: [u32; 4],
     pending: Vec<PendingRestart>,
@@ -103,6 +114,11 @@ impl Conductor {
         let commands =
             Inlet::<Command>::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)
                 .map_err(err)?;
+        let estimates = Inlet::<Estimate>::open_polling(&node, &ESTIMATE, 16).map_err(err)?;
+        let states_out = [
+            Outlet::<Handover>::open(&node, &CONTROLLER_STATE).map_err(err)?,
+            Outlet::<Handover>::open(&node, &OBSERVER_STATE).map_err(err)?,
+        ];
         let current = Activation {
             published_ns: flexloop_runtime::monotonic_ns(),
             ..Activation::INITIAL
@@ -116,6 +132,7 @@ impl Conductor {
             controller_states,
             observer_states,
             commands,
+            estimates,
             _node: node,
             domain,
             current,
@@ -125,6 +142,10 @@ impl Conductor {
             started: Instant::now(),
             last_seq: None,
             recent_u: VecDeque::with_capacity(COMMAND_HISTORY),
+            last_active: [None, None],
+            shadows_seen: Vec::new(),
+            pace: VecDeque::new(),
+            states_out,
             n_inputs,
             restarts: [0; 4],
             pending: Vec::new(),
@@ -139,6 +160,37 @@ impl Conductor {
         // A publisher hands its history to a new subscriber only when it
         // updates its connections: a replacement must learn the activation.
         let _ = self.activation_out.connect();
+        // Estimates too: when the controller is dead they still show the pace.
+        while let Ok(Some(e)) = self.estimates.receive() {
+            let seq = e.seq.saturating_sub(1);
+            self.last_seq = Some(self.last_seq.map_or(seq, |s| s.max(seq)));
+        }
+        for (slot, role) in [(0, Role::Controller), (1, Role::Observer)] {
+            let inlet = match role {
+                Role::Controller => &self.controller_states,
+                _ => &self.observer_states,
+            };
+            while let Ok(Some(h)) = inlet.receive() {
+                if h.shadow != 0 {
+                    if !self.shadows_seen.contains(&(role, h.generation)) {
+                        self.shadows_seen.push((role, h.generation));
+                    }
+                } else if self.last_active[slot].is_none_or(|l| l.seq <= h.seq) {
+                    self.last_active[slot] = Some(*h);
+                }
+            }
+        }
+        if let Some(seq) = self.last_seq {
+            let now = Instant::now();
+            self.pace.push_back((now, seq));
+            while self
+                .pace
+                .front()
+                .is_some_and(|(t, _)| now.duration_since(*t) > Duration::from_millis(500))
+            {
+                self.pace.pop_front();
+            }
+        }
         while let Ok(Some(c)) = self.commands.receive() {
             self.last_seq = Some(self.last_seq.map_or(c.seq, |s| s.max(c.seq)));
             if c.generation != self.current.controller_for(c.seq) {
@@ -176,18 +228,32 @@ impl Conductor {
     pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
         self.poll();
         self.settle_crashes(running);
-        let due: Vec<Role> = self
-            .pending
-            .iter()
-            .filter(|p| p.due <= Instant::now())
-            .map(|p| p.role)
-            .collect();
-        self.pending.retain(|p| p.due > Instant::now());
+        let now = Instant::now();
+        let (due, later): (Vec<PendingRestart>, Vec<PendingRestart>) =
+            std::mem::take(&mut self.pending)
+                .into_iter()
+                .partition(|p| p.due <= now);
+        self.pending = later;
+        let due: Vec<Role> = due.into_iter().map(|p| p.role).collect();
         for role in due {
             if let Err(e) = self.restart(running, role) {
                 self.event("restart-failed", role, 0, json!(e));
                 eprintln!("flexloop: restart of flexloop-{} failed: {e}", role.name());
-                return Some(Outcome::ChildFailed(role, -1));
+                let slot = role as usize;
+                if self.restarts[slot] >= self.scenario.supervision.max_restarts
+                    || flexloop_runtime::shutdown::requested()
+                {
+                    return Some(Outcome::ChildFailed(role, -1));
+                }
+                self.restarts[slot] += 1;
+                self.pending.push(PendingRestart {
+                    role,
+                    due: Instant::now()
+                        + Duration::from_millis(
+                            self.scenario.supervision.restart_backoff_ms
+                                << self.restarts[slot].min(10),
+                        ),
+                });
             }
         }
         for request in pending_requests(&self.run_dir) {
@@ -258,7 +324,7 @@ impl Conductor {
             .ok_or("no instance to restart")?;
         let generation = self.next_generation(running, role);
         let start_seq = self.last_seq.unwrap_or(0);
-        running.start_replacement(role, &scenario, generation)?;
+        let pid = running.start_replacement(role, &scenario, generation)?;
         if role == Role::Logger {
             // It only listens: nothing to hand over, no boundary to announce.
             self.event(
@@ -269,8 +335,17 @@ impl Conductor {
             );
             return Ok(());
         }
-        self.await_shadow(running, role, generation)?;
-        let switch = self.activate_and_measure(running, role, generation, None, start_seq)?;
+        // A failed attempt leaves nothing behind: the next one starts afresh.
+        let switch = match self
+            .await_shadow(running, role, generation)
+            .and_then(|_| self.activate_and_measure(running, role, generation, None, start_seq))
+        {
+            Ok(switch) => switch,
+            Err(e) => {
+                running.terminate(pid);
+                return Err(e);
+            }
+        };
         self.event("restart", role, generation, switch.json());
         self.switches.push(switch);
         Ok(())
@@ -363,16 +438,27 @@ impl Conductor {
         generation: u32,
     ) -> Result<(), String> {
         let since = Instant::now();
+        let slot = usize::from(role != Role::Controller);
         loop {
             self.poll();
-            let states = match role {
-                Role::Controller => &self.controller_states,
-                _ => &self.observer_states,
-            };
-            while let Ok(Some(h)) = states.receive() {
-                if h.generation == generation && h.shadow != 0 {
-                    return Ok(());
-                }
+            if self.shadows_seen.contains(&(role, generation)) {
+                return Ok(());
+            }
+            // A replacement for a dead instance takes over its last state,
+            // which the dead publisher can no longer hand over itself.
+            if let Some(last) = self.last_active[slot]
+                && running
+                    .children
+                    .iter()
+                    .filter(|c| c.role == role && c.generation == last.generation)
+                    .all(|c| c.exit.is_some())
+            {
+                let _ = self.states_out[slot].publish(|h| *h = last);
+            }
+            if flexloop_runtime::shutdown::requested()
+                || running.child(Role::Plant).is_some_and(|p| p.exit.is_some())
+            {
+                return Err("the run ended before the replacement followed it".into());
             }
             running.reap();
             if let Some(c) = running
@@ -413,8 +499,15 @@ impl Conductor {
     ) -> Result<Switch, String> {
         self.poll();
         let now_seq = self.last_seq.unwrap_or(0);
-        // Far enough ahead that every process sees the announcement first.
-        let margin = ((self.scenario.timing.rate_hz * 0.05) as u64).max(50);
+        // Far enough ahead that every process sees the announcement first:
+        // 50 ms at the loop's real pace (lockstep runs faster than its rate).
+        let observed = match (self.pace.front(), self.pace.back()) {
+            (Some((t0, s0)), Some((t1, s1))) if t1 > t0 => {
+                (s1 - s0) as f64 / t1.duration_since(*t0).as_secs_f64()
+            }
+            _ => 0.0,
+        };
+        let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
         let from_seq = now_seq + margin;
         let mut next = self.current;
         match role {
@@ -431,16 +524,16 @@ impl Conductor {
             }
         }
         next.published_ns = flexloop_runtime::monotonic_ns();
+        self.activation_out
+            .publish(|a| *a = next)
+            .map_err(|e| e.to_string())?;
+        self.current = next;
         if let Some(pid) = old
             && let Some(c) = running.children.iter_mut().find(|c| c.pid == pid)
         {
             // Its exit after the boundary is the plan, not a crash.
             c.settled = true;
         }
-        self.activation_out
-            .publish(|a| *a = next)
-            .map_err(|e| e.to_string())?;
-        self.current = next;
         let since = Instant::now();
         loop {
             self.poll();
@@ -456,8 +549,10 @@ impl Conductor {
             if passed && old_gone {
                 break;
             }
-            if running.child(Role::Plant).is_some_and(|p| p.exit.is_some()) {
-                return Err("the plant ended before the switch".into());
+            if running.child(Role::Plant).is_some_and(|p| p.exit.is_some())
+                || flexloop_runtime::shutdown::requested()
+            {
+                return Err("the run ended before the switch".into());
             }
             if since.elapsed() > DRAIN_TIMEOUT {
                 if let Some(pid) = old {

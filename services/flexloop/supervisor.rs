@@ -301,7 +301,7 @@ impl RunningLoop {
     pub fn failure_report(&self) -> String {
         let mut out = String::new();
         for c in &self.children {
-            let path = self.plan.run_dir.join(format!("{}.stderr", c.role.name()));
+            let path = self.plan.run_dir.join(stderr_name(c.role, c.generation));
             let text = std::fs::read_to_string(&path).unwrap_or_default();
             let code = c.exit.map_or("running".to_string(), |e| e.code.to_string());
             if !text.trim().is_empty() || c.exit.is_some_and(|e| e.code != 0) {

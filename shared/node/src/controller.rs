@@ -165,7 +165,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     .find(older.seq)
                     .or_else(|| ring.newest_before(older.seq))
                 {
-                    takeover.follow(&mut core, &handovers, older.seq);
+                    takeover.follow(&mut core, &handovers, older.seq, false);
                     core.step(older, e, &mut shadow_command);
                     takeover.shadow_u = shadow_command.u;
                     takeover.shadow_seq = older.seq;
@@ -174,7 +174,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         }
         if !active {
             // Shadow: follow the active instance, compute, publish nothing.
-            takeover.follow(&mut core, &handovers, m.seq);
+            takeover.follow(&mut core, &handovers, m.seq, true);
             core.step(&m, estimate, &mut shadow_command);
             takeover.shadow_u = shadow_command.u;
             takeover.shadow_seq = m.seq;
@@ -186,6 +186,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 &shadow_command.u[..design.n_inputs],
                 |h| core.save(h),
             )?;
+            // A shadow ends with the run like everyone else.
+            done = m.flags & flags::END_OF_RUN != 0;
             continue;
         }
         if !takeover.was_active {
@@ -347,18 +349,29 @@ struct Takeover {
 }
 
 impl Takeover {
-    fn follow(&mut self, core: &mut ControllerCore, handovers: &HandoverRing, seq: u64) {
-        let before = seq.checked_sub(1).and_then(|s| handovers.find(s));
-        // A restart finds no state for the sample before (the old instance
-        // is dead): it takes the newest there is, once.
-        let from = before.or(if self.copied {
-            None
-        } else {
-            handovers.newest()
-        });
-        if let Some(h) = from
+    /// Before sample `seq`: copy the active state after `seq − 1`. With
+    /// `newest_too` (the newest sample of a wake-up only), a restart, which
+    /// finds no such state (the old instance is dead), takes the newest there
+    /// is, once, and replays its feedforward from there.
+    fn follow(
+        &mut self,
+        core: &mut ControllerCore,
+        handovers: &HandoverRing,
+        seq: u64,
+        newest_too: bool,
+    ) {
+        if let Some(h) = seq.checked_sub(1).and_then(|s| handovers.find(s)) {
+            self.copied |= core.load(h);
+            return;
+        }
+        if self.copied || !newest_too {
+            return;
+        }
+        if let Some(h) = handovers.newest()
+            && h.seq < seq
             && core.load(h)
         {
+            core.fast_forward(seq);
             self.copied = true;
         }
     }

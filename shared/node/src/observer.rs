@@ -129,6 +129,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 publish_state(&states_out, m.seq, args.generation, true, &[], |h| {
                     core.save(h)
                 })?;
+                done |= m.flags & flags::END_OF_RUN != 0;
                 continue;
             }
             was_active = true;

@@ -52,6 +52,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     commands.connect()?;
     measurements.connect()?;
+    let mut activation = ActivationView::open(&node)?;
+    activation.connect()?;
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
     let _scheduling = realtime::apply(Role::Plant.name(), &rt.scheduling_part());
 
@@ -60,7 +62,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         scenario.supervision.command_watchdog_ticks,
         scenario.supervision.safe_action,
     );
-    let mut activation = ActivationView::open(&node)?;
     core.set_activation(activation.refresh()?);
     let mut last_command = std::time::Instant::now();
     let lockstep = scenario.timing.mode == Mode::Lockstep;

@@ -188,11 +188,13 @@ pub fn pin_to_cpu(cpu: usize) -> Result<(), String> {
 /// the loop for milliseconds (measured at every swap before this). Best
 /// effort: each step that fails is skipped.
 pub fn step_down(loop_cpu: Option<usize>) {
-    let _ = thread_priority::set_thread_priority_and_policy(
-        thread_priority::thread_native_id(),
-        ThreadPriority::Crossplatform(ThreadPriorityValue::try_from(0u8).unwrap_or_default()),
-        ThreadSchedulePolicy::Normal(thread_priority::NormalThreadSchedulePolicy::Other),
-    );
+    // SCHED_OTHER at nice 0 (the crate's portable priority 0 would be nice 19).
+    // SAFETY: plain syscalls on the calling thread with a valid parameter.
+    unsafe {
+        let param = libc::sched_param { sched_priority: 0 };
+        libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
+        libc::setpriority(libc::PRIO_PROCESS, 0, 0);
+    }
     // Off the loop's CPU at once (a mask without the current CPU migrates
     // the process now), then unlock there.
     let _ = match loop_cpu {
