@@ -56,13 +56,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     measurements.connect()?;
     estimates.connect()?;
+    // The command port opens last: its appearance tells the plant that the
+    // chain is ready for tick 0 (a replacement for a controller that died
+    // before tick 0 thereby lets the loop start, and takes over from it).
+    let commands = Outlet::<Command>::open(&node, &COMMAND)?;
+    commands.connect()?;
     if args.join && !catch_up_with_loop(&mut core, &measurements)? {
         return Ok(());
     }
-    // The command port opens last: its appearance tells the plant that the
-    // chain is ready for tick 0.
-    let commands = Outlet::<Command>::open(&node, &COMMAND)?;
-    commands.connect()?;
     states_in.connect()?;
     activation.connect()?;
     // Priority and CPU only now, every port open and connected: creating a
