@@ -72,8 +72,9 @@ pub struct Conductor {
     controller_states: Inlet<Handover>,
     observer_states: Inlet<Handover>,
     commands: Inlet<Command>,
-    estimates: Inlet<Estimate>,
-    _node: LoopNode,
+    /// Opened once the loop runs: the observer counts its readers at start-up.
+    estimates: Option<Inlet<Estimate>>,
+    node: LoopNode,
     domain: Domain,
     current: Activation,
     scenario: Scenario,
@@ -114,7 +115,6 @@ impl Conductor {
         let commands =
             Inlet::<Command>::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)
                 .map_err(err)?;
-        let estimates = Inlet::<Estimate>::open_polling(&node, &ESTIMATE, 16).map_err(err)?;
         let states_out = [
             Outlet::<Handover>::open(&node, &CONTROLLER_STATE).map_err(err)?,
             Outlet::<Handover>::open(&node, &OBSERVER_STATE).map_err(err)?,
@@ -132,8 +132,8 @@ impl Conductor {
             controller_states,
             observer_states,
             commands,
-            estimates,
-            _node: node,
+            estimates: None,
+            node,
             domain,
             current,
             scenario: scenario.clone(),
@@ -161,9 +161,14 @@ impl Conductor {
         // updates its connections: a replacement must learn the activation.
         let _ = self.activation_out.connect();
         // Estimates too: when the controller is dead they still show the pace.
-        while let Ok(Some(e)) = self.estimates.receive() {
-            let seq = e.seq.saturating_sub(1);
-            self.last_seq = Some(self.last_seq.map_or(seq, |s| s.max(seq)));
+        if self.estimates.is_none() && self.last_seq.is_some() {
+            self.estimates = Inlet::<Estimate>::open_polling(&self.node, &ESTIMATE, 16).ok();
+        }
+        if let Some(estimates) = &self.estimates {
+            while let Ok(Some(e)) = estimates.receive() {
+                let seq = e.seq.saturating_sub(1);
+                self.last_seq = Some(self.last_seq.map_or(seq, |s| s.max(seq)));
+            }
         }
         for (slot, role) in [(0, Role::Controller), (1, Role::Observer)] {
             let inlet = match role {
