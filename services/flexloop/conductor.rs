@@ -330,6 +330,16 @@ impl Conductor {
         let generation = self.next_generation(running, role);
         let start_seq = self.last_seq.unwrap_or(0);
         let pid = running.start_replacement(role, &scenario, generation)?;
+        if self.last_seq.is_none() && role != Role::Logger {
+            // Before tick 0 there is nothing to take over: the replacement
+            // owns every sample and starts the loop as the first one would.
+            if let Err(e) = self.announce(role, generation, 0) {
+                running.terminate(pid);
+                return Err(e);
+            }
+            self.event("restart", role, generation, json!({"before_tick_0": true}));
+            return Ok(());
+        }
         if role == Role::Logger {
             // It only listens: nothing to hand over, no boundary to announce.
             self.event(
@@ -514,25 +524,7 @@ impl Conductor {
         };
         let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
         let from_seq = now_seq + margin;
-        let mut next = self.current;
-        match role {
-            Role::Controller => {
-                next.previous_controller_generation =
-                    next.controller_for(from_seq.saturating_sub(1));
-                next.controller_generation = generation;
-                next.controller_from_seq = from_seq;
-            }
-            _ => {
-                next.previous_observer_generation = next.observer_for(from_seq.saturating_sub(1));
-                next.observer_generation = generation;
-                next.observer_from_seq = from_seq;
-            }
-        }
-        next.published_ns = flexloop_runtime::monotonic_ns();
-        self.activation_out
-            .publish(|a| *a = next)
-            .map_err(|e| e.to_string())?;
-        self.current = next;
+        self.announce(role, generation, from_seq)?;
         if let Some(pid) = old
             && let Some(c) = running.children.iter_mut().find(|c| c.pid == pid)
         {
@@ -579,6 +571,30 @@ impl Conductor {
             du_before,
             du_after,
         })
+    }
+
+    /// Publishes that `generation` of `role` owns the samples from `from_seq` on.
+    fn announce(&mut self, role: Role, generation: u32, from_seq: u64) -> Result<(), String> {
+        let mut next = self.current;
+        match role {
+            Role::Controller => {
+                next.previous_controller_generation =
+                    next.controller_for(from_seq.saturating_sub(1));
+                next.controller_generation = generation;
+                next.controller_from_seq = from_seq;
+            }
+            _ => {
+                next.previous_observer_generation = next.observer_for(from_seq.saturating_sub(1));
+                next.observer_generation = generation;
+                next.observer_from_seq = from_seq;
+            }
+        }
+        next.published_ns = flexloop_runtime::monotonic_ns();
+        self.activation_out
+            .publish(|a| *a = next)
+            .map_err(|e| e.to_string())?;
+        self.current = next;
+        Ok(())
     }
 
     /// The command's step at `from_seq` and the largest ordinary steps

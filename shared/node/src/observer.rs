@@ -60,7 +60,17 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         &crate::controller::shadow_scheduling(&rt, args),
     );
     let mut priority_raised = !args.join;
-    if !args.join {
+    // A replacement for an observer that died before tick 0 must start the
+    // loop like the first one did: no wake-up from the plant for 200 ms
+    // means the loop has not started (a first estimate that turns out not
+    // to be needed is refused by the controller: its generation does not
+    // own sample 0).
+    let loop_running = args.join
+        && matches!(
+            wait_readable(&[measurements.fd()], 200_000_000),
+            Ok(flexloop_runtime::wait::Readiness::Ready(_))
+        );
+    if !loop_running {
         let expected_readers = 1 + usize::from(scenario.logger.enabled);
         if !await_peers(
             || Ok(estimates.subscribers() >= expected_readers),
