@@ -317,3 +317,39 @@ fn swaps_at_a_modest_realtime_rate_lose_no_sample() {
     assert_eq!(generations.len(), 2, "controllers 0 and 1: {generations:?}");
     assert_clean(&dir);
 }
+
+#[test]
+fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
+    for role in ["controller", "observer"] {
+        let dir = temp_dir(&format!("swap-early-{role}"));
+        let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
+        // Kill it as soon as it exists: usually before tick 0 (the test holds
+        // either way, a later kill is an ordinary restart).
+        let binary = format!("flexloop-{role}");
+        let needle = dir.display().to_string();
+        let since = Instant::now();
+        let pid = loop {
+            let found: Vec<i32> = processes_mentioning(&needle)
+                .into_iter()
+                .filter(|p| p.contains(&binary))
+                .filter_map(|p| p.split(':').next()?.parse().ok())
+                .collect();
+            if let Some(pid) = found.first() {
+                break *pid;
+            }
+            assert!(since.elapsed() < Duration::from_secs(60), "no {binary}");
+            std::thread::sleep(Duration::from_millis(2));
+        };
+        // SAFETY: a pid of a process this test started (through flexloop).
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+        wait_for_log(&dir, 200_000);
+        stop(&prefix, child);
+        let restarted = events(&dir)
+            .iter()
+            .any(|e| e["kind"] == "restart" && e["role"] == role);
+        assert!(restarted, "{role}: {:?}", events(&dir));
+        let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+        assert!(log.measurements().last().unwrap().flags & flags::END_OF_RUN != 0);
+        assert_clean(&dir);
+    }
+}
