@@ -250,14 +250,10 @@ impl Conductor {
                 {
                     return Some(Outcome::ChildFailed(role, -1));
                 }
-                self.restarts[slot] += 1;
+                let backoff = self.next_backoff(slot);
                 self.pending.push(PendingRestart {
                     role,
-                    due: Instant::now()
-                        + Duration::from_millis(
-                            self.scenario.supervision.restart_backoff_ms
-                                << self.restarts[slot].min(10),
-                        ),
+                    due: Instant::now() + backoff,
                 });
             }
         }
@@ -295,10 +291,7 @@ impl Conductor {
             // The dead node's shared memory, now that no live process uses
             // it; never from inside the loop.
             let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
-            let backoff = Duration::from_millis(
-                self.scenario.supervision.restart_backoff_ms << self.restarts[slot].min(10),
-            );
-            self.restarts[slot] += 1;
+            let backoff = self.next_backoff(slot);
             self.event(
                 "crash",
                 role,
@@ -310,6 +303,14 @@ impl Conductor {
                 due: Instant::now() + backoff,
             });
         }
+    }
+
+    /// Counts one more restart of the role in `slot` and returns its wait:
+    /// the configured back-off, doubled for each restart before.
+    fn next_backoff(&mut self, slot: usize) -> Duration {
+        let wait = self.scenario.supervision.restart_backoff_ms << self.restarts[slot].min(10);
+        self.restarts[slot] += 1;
+        Duration::from_millis(wait)
     }
 
     fn next_generation(&self, running: &RunningLoop, role: Role) -> u32 {

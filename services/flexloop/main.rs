@@ -210,21 +210,22 @@ fn scenario_dirs() -> Vec<PathBuf> {
     dirs
 }
 
+/// The value of the option just parsed, as text.
+fn string_value(parser: &mut lexopt::Parser) -> Result<String, String> {
+    Ok(parser
+        .value()
+        .map_err(|e| e.to_string())?
+        .to_string_lossy()
+        .into_owned())
+}
+
 fn prefix_arg(args: Vec<OsString>) -> Result<Option<String>, String> {
     use lexopt::prelude::*;
     let mut parser = lexopt::Parser::from_args(args);
     let mut prefix = None;
     while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
         match arg {
-            Long("prefix") => {
-                prefix = Some(
-                    parser
-                        .value()
-                        .map_err(|e| e.to_string())?
-                        .to_string_lossy()
-                        .into_owned(),
-                )
-            }
+            Long("prefix") => prefix = Some(string_value(&mut parser)?),
             other => return Err(other.unexpected().to_string()),
         }
     }
@@ -388,15 +389,7 @@ fn swap(args: Vec<OsString>) -> Result<i32, String> {
     let (mut role, mut scenario, mut prefix) = (None, None, None);
     while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
         match arg {
-            Long("prefix") => {
-                prefix = Some(
-                    parser
-                        .value()
-                        .map_err(|e| e.to_string())?
-                        .to_string_lossy()
-                        .into_owned(),
-                )
-            }
+            Long("prefix") => prefix = Some(string_value(&mut parser)?),
             Value(v) if role.is_none() => role = Some(v.to_string_lossy().into_owned()),
             Value(v) if scenario.is_none() => scenario = Some(PathBuf::from(v)),
             other => return Err(other.unexpected().to_string()),

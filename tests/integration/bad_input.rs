@@ -101,30 +101,8 @@ fn supervision_settings_are_checked() {
 #[test]
 fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
     let dir = temp_dir("bad-swap");
-    let mut cmd = flexloop();
-    cmd.arg("up")
-        .arg(scenario("lecture-double-integrator"))
-        .args([
-            "--no-realtime",
-            "--rate",
-            "1000",
-            "--duration",
-            "0",
-            "--run-dir",
-        ])
-        .arg(&dir)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped());
-    let child = cmd.spawn().unwrap();
-    let prefix = format!("flx{}_", child.id());
-    let since = std::time::Instant::now();
-    while !dir.join("samples.flxlog").is_file() {
-        assert!(
-            since.elapsed() < Duration::from_secs(60),
-            "loop did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
+    wait_for_log(&dir, 1);
     let mut swap = flexloop();
     swap.args(["swap", "controller"])
         .arg(scenario("thesis-original"))
@@ -136,10 +114,6 @@ fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
         err.contains("thesis-original.toml") && err.contains("plant"),
         "{err}"
     );
-    let mut down = flexloop();
-    down.args(["down", "--prefix", &prefix]);
-    assert!(run_bounded(down, Duration::from_secs(60)).status.success());
-    let out = wait_bounded(child, Duration::from_secs(60));
-    assert!(out.status.success(), "{}", describe(&out));
+    stop(&prefix, child);
     assert_clean(&dir);
 }

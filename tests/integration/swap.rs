@@ -9,35 +9,7 @@ use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, Outlet};
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
-
-/// `flexloop up` until stopped, in the background.
-fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Child, String) {
-    let mut cmd = flexloop();
-    cmd.arg("up")
-        .arg(scenario(scenario_name))
-        .args(["--no-realtime", "--duration", "0", "--run-dir"])
-        .arg(dir)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    let child = cmd.spawn().unwrap();
-    let prefix = format!("flx{}_", child.id());
-    (child, prefix)
-}
-
-/// Waits (bounded) until the logger has recorded `bytes` of samples.
-fn wait_for_log(dir: &Path, bytes: u64) {
-    let since = Instant::now();
-    while std::fs::metadata(dir.join("samples.flxlog")).map_or(0, |m| m.len()) < bytes {
-        assert!(
-            since.elapsed() < Duration::from_secs(90),
-            "loop did not run"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 fn swap(prefix: &str, role: &str, scenario_file: &Path) -> String {
     let out = run_bounded(
@@ -52,28 +24,6 @@ fn swap(prefix: &str, role: &str, scenario_file: &Path) -> String {
     );
     assert!(out.status.success(), "{}", describe(&out));
     String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn stop(prefix: &str, child: Child) {
-    let down = run_bounded(
-        {
-            let mut c = flexloop();
-            c.args(["down", "--prefix", prefix]);
-            c
-        },
-        Duration::from_secs(60),
-    );
-    assert!(down.status.success(), "{}", describe(&down));
-    let out = wait_bounded(child, Duration::from_secs(60));
-    assert!(out.status.success(), "{}", describe(&out));
-}
-
-fn events(dir: &Path) -> Vec<Value> {
-    std::fs::read_to_string(dir.join("events.jsonl"))
-        .unwrap_or_default()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
 }
 
 fn counter(summary: &Value, name: &str) -> u64 {
@@ -187,7 +137,9 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
     wait_for_log(&dir, 500_000);
     for role in ["controller", "observer", "logger"] {
-        let pid = pid_of(&dir, role);
+        let pid = *pids_of(&dir, role)
+            .last()
+            .unwrap_or_else(|| panic!("no {role} running"));
         // SAFETY: a pid of a process this test started (through flexloop).
         unsafe { libc::kill(pid, libc::SIGKILL) };
         let since = Instant::now();
@@ -275,21 +227,6 @@ fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
     assert_clean(&dir);
 }
 
-/// The pid of the current instance of `role` in the run at `dir`.
-fn pid_of(dir: &Path, role: &str) -> i32 {
-    let needle = dir.display().to_string();
-    let binary = format!("flexloop-{role}");
-    let mut found: Vec<i32> = processes_mentioning(&needle)
-        .into_iter()
-        .filter(|p| p.contains(&binary))
-        .filter_map(|p| p.split(':').next()?.parse().ok())
-        .collect();
-    found.sort();
-    *found
-        .last()
-        .unwrap_or_else(|| panic!("no {binary} running"))
-}
-
 #[test]
 fn swaps_at_a_modest_realtime_rate_lose_no_sample() {
     let dir = temp_dir("swap-realtime");
@@ -325,19 +262,12 @@ fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
         let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
         // Kill it as soon as it exists: usually before tick 0 (the test holds
         // either way, a later kill is an ordinary restart).
-        let binary = format!("flexloop-{role}");
-        let needle = dir.display().to_string();
         let since = Instant::now();
         let pid = loop {
-            let found: Vec<i32> = processes_mentioning(&needle)
-                .into_iter()
-                .filter(|p| p.contains(&binary))
-                .filter_map(|p| p.split(':').next()?.parse().ok())
-                .collect();
-            if let Some(pid) = found.first() {
+            if let Some(pid) = pids_of(&dir, role).first() {
                 break *pid;
             }
-            assert!(since.elapsed() < Duration::from_secs(60), "no {binary}");
+            assert!(since.elapsed() < Duration::from_secs(60), "no {role}");
             std::thread::sleep(Duration::from_millis(2));
         };
         // SAFETY: a pid of a process this test started (through flexloop).

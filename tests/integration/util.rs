@@ -1,5 +1,6 @@
 //! Helpers: temp run directories, bounded process waits, leftover checks.
 
+use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -101,4 +102,65 @@ pub fn assert_clean(run_dir: &Path) {
         files.is_empty(),
         "shared memory left for {prefix}: {files:?}"
     );
+}
+
+/// `flexloop up` until stopped, in the background.
+pub fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Child, String) {
+    let mut cmd = flexloop();
+    cmd.arg("up")
+        .arg(scenario(scenario_name))
+        .args(["--no-realtime", "--duration", "0", "--run-dir"])
+        .arg(dir)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let child = cmd.spawn().unwrap();
+    let prefix = format!("flx{}_", child.id());
+    (child, prefix)
+}
+
+/// Waits (bounded) until the logger has recorded `bytes` of samples.
+pub fn wait_for_log(dir: &Path, bytes: u64) {
+    let since = Instant::now();
+    while std::fs::metadata(dir.join("samples.flxlog")).map_or(0, |m| m.len()) < bytes {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "loop did not run"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+pub fn stop(prefix: &str, child: Child) {
+    let down = run_bounded(
+        {
+            let mut c = flexloop();
+            c.args(["down", "--prefix", prefix]);
+            c
+        },
+        Duration::from_secs(60),
+    );
+    assert!(down.status.success(), "{}", describe(&down));
+    let out = wait_bounded(child, Duration::from_secs(60));
+    assert!(out.status.success(), "{}", describe(&out));
+}
+
+pub fn events(dir: &Path) -> Vec<Value> {
+    std::fs::read_to_string(dir.join("events.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// Pids of the running instances of `role` in the run at `dir`, oldest first.
+pub fn pids_of(dir: &Path, role: &str) -> Vec<i32> {
+    let binary = format!("flexloop-{role}");
+    let mut found: Vec<i32> = processes_mentioning(&dir.display().to_string())
+        .into_iter()
+        .filter(|p| p.contains(&binary))
+        .filter_map(|p| p.split(':').next()?.parse().ok())
+        .collect();
+    found.sort();
+    found
 }

@@ -1,7 +1,9 @@
 //! The controller process: wakes on y(k), publishes u(k).
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
-use crate::handover::{ActivationView, HandoverRing, publish_state};
+use crate::handover::{
+    ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
+};
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
@@ -234,28 +236,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         );
     }
     Ok(())
-}
-
-/// A replacement follows in shadow at the lowest real-time priority, so that
-/// stepping through its backlog never delays the active loop on their
-/// shared CPU; it takes the loop's priority once it is named for a boundary.
-pub(crate) fn shadow_scheduling(
-    rt: &flexloop_runtime::realtime::RealtimeSettings,
-    args: &ServiceArgs,
-) -> flexloop_runtime::realtime::RealtimeSettings {
-    let mut scheduling = rt.scheduling_part();
-    if args.join {
-        scheduling.fifo_priority = scheduling.fifo_priority.map(|_| 1);
-    }
-    scheduling
-}
-
-pub(crate) fn raise_priority(rt: &flexloop_runtime::realtime::RealtimeSettings) {
-    if let Some(priority) = rt.fifo_priority
-        && let Err(e) = realtime::set_fifo_priority(priority)
-    {
-        eprintln!("flexloop: priority {priority} refused ({e}); running on");
-    }
 }
 
 /// A replacement joining a running loop replays its feedforward block up to

@@ -2,9 +2,10 @@
 //! activation as every process sees it, and the active instance's recent
 //! states as a replacement sees them.
 
-use crate::NodeError;
+use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::ACTIVATION;
 use flexloop_protocol::{Activation, Handover};
+use flexloop_runtime::realtime::{self, RealtimeSettings};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 
 /// The newest activation (polled each sample: no syscall, no wake-up).
@@ -106,4 +107,23 @@ pub fn publish_state(
         h.u[..u.len()].copy_from_slice(u);
     })?;
     Ok(())
+}
+
+/// A replacement follows in shadow at the lowest real-time priority, so that
+/// stepping through its backlog never delays the active loop on their
+/// shared CPU; it takes the loop's priority once it is named for a boundary.
+pub fn shadow_scheduling(rt: &RealtimeSettings, args: &ServiceArgs) -> RealtimeSettings {
+    let mut scheduling = rt.scheduling_part();
+    if args.join {
+        scheduling.fifo_priority = scheduling.fifo_priority.map(|_| 1);
+    }
+    scheduling
+}
+
+pub fn raise_priority(rt: &RealtimeSettings) {
+    if let Some(priority) = rt.fifo_priority
+        && let Err(e) = realtime::set_fifo_priority(priority)
+    {
+        eprintln!("flexloop: priority {priority} refused ({e}); running on");
+    }
 }

@@ -1,7 +1,9 @@
 //! The observer process: wakes on y(k), publishes the estimate for tick k+1.
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
-use crate::handover::{ActivationView, HandoverRing, publish_state};
+use crate::handover::{
+    ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
+};
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
@@ -55,10 +57,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     activation.connect()?;
     // Priority and CPU only now, every port open and connected: see
     // `RealtimeSettings::scheduling_part` and the controller.
-    let _scheduling = realtime::apply(
-        Role::Observer.name(),
-        &crate::controller::shadow_scheduling(&rt, args),
-    );
+    let _scheduling = realtime::apply(Role::Observer.name(), &shadow_scheduling(&rt, args));
     let mut priority_raised = !args.join;
     // A replacement for an observer that died before tick 0 must start the
     // loop like the first one did: no wake-up from the plant for 200 ms
@@ -118,7 +117,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 && (activation.current().observer_generation == args.generation
                     || owner == args.generation)
             {
-                crate::controller::raise_priority(&rt);
+                raise_priority(&rt);
                 priority_raised = true;
             }
             if owner != args.generation {
