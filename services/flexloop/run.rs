@@ -96,15 +96,28 @@ impl RunReport {
 
     pub fn print(&self) {
         let m = &self.metrics;
-        let nm = |v: f64| v * 1e9;
+        let d = &self.design;
+        // Errors in nm (or µrad), as the thesis reports them.
+        let (scale, small) = match d.output_unit {
+            "rad" => (1e6, "µrad"),
+            _ => (1e9, "nm"),
+        };
+        let nm = |v: f64| v * scale;
+        let (y_unit, u_unit) = (d.output_unit, d.input_unit);
         println!();
         println!(
-            "control ({} ticks, output y{}):",
-            m.ticks, self.scenario.plant.output
+            "control ({} ticks, output {}{}):",
+            m.ticks,
+            d.output_names.first().map_or("?", String::as_str),
+            if d.n_outputs > 1 {
+                format!(", first of {} (all axes below)", d.n_outputs)
+            } else {
+                String::new()
+            }
         );
         match m.rms_e_true_scan {
             Some(rms) => println!(
-                "  rms e_true over the scan{}      {:>10.3} nm",
+                "  rms e_true over the scan{}      {:>10.3} {small}",
                 if m.scans.len() > 1 { "s" } else { " " },
                 nm(rms)
             ),
@@ -112,7 +125,7 @@ impl RunReport {
         }
         for (i, s) in m.scans.iter().enumerate().take(8) {
             println!(
-                "  scan {} [{:.3}, {:.3}] s: rms {:.3} nm, peak {:.3} nm, max |MA| {:.3} nm, max MSD {:.3} nm",
+                "  scan {} [{:.3}, {:.3}] s: rms {:.3} {small}, peak {:.3} {small}, max |MA| {:.3} {small}, max MSD {:.3} {small}",
                 i + 1,
                 s.start_s,
                 s.end_s,
@@ -123,17 +136,47 @@ impl RunReport {
             );
         }
         println!(
-            "  peak |e_true| over the run      {:>10.3} nm",
+            "  peak |e_true| over the run      {:>10.3} {small}",
             nm(m.e_true.peak)
         );
         println!(
-            "  effort: u rms {:.2} N (peak {:.1} N); parts rms: feedback {:.3} N, feedforward {:.2} N, damping {:.3} N",
+            "  effort: u rms {:.4} {u_unit} (peak {:.4} {u_unit}); parts rms: feedback {:.4} {u_unit}, feedforward {:.4} {u_unit}, damping {:.4} {u_unit}",
             m.u.rms, m.u.peak, m.u_fb.rms, m.u_ff.rms, m.u_d.rms
         );
         println!(
-            "  innovation: mean {:.3e} m, std {:.3e} m, lag-1 autocorrelation {:.3}",
+            "  innovation: mean {:.3e} {y_unit}, std {:.3e} {y_unit}, lag-1 autocorrelation {:.3}",
             m.innovation.mean, m.innovation.std, m.innovation.lag1_autocorrelation
         );
+        if d.n_outputs > 1 || d.n_inputs > 1 {
+            println!("  per axis:");
+            println!(
+                "    {:<24} {:>14} {:>14} {:>14} {:>16}",
+                "output",
+                format!("scan rms [{small}]"),
+                format!("rms [{small}]"),
+                format!("peak [{small}]"),
+                format!("settled [{small}]")
+            );
+            let opt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{:.3}", nm(x)));
+            for (name, a) in d.output_names.iter().zip(&m.axes) {
+                println!(
+                    "    {:<24} {:>14} {:>14.3} {:>14.3} {:>16.3}",
+                    name,
+                    opt(a.rms_e_true_scan),
+                    nm(a.e_true.rms),
+                    nm(a.e_true.peak),
+                    nm(a.settled_peak_e_true)
+                );
+            }
+            for (i, u) in m.inputs.iter().enumerate() {
+                println!(
+                    "    input {:<18} rms {:.4} {u_unit}, peak {:.4} {u_unit}",
+                    i + 1,
+                    u.rms,
+                    u.peak
+                );
+            }
+        }
         if !self.damping.is_empty() {
             println!("  modal damping (flexible modes):");
             println!(
@@ -195,6 +238,9 @@ impl RunReport {
     pub fn to_json(&self) -> Value {
         json!({
             "scenario": self.scenario.name,
+            "outputs": self.design.output_names,
+            "output_unit": self.design.output_unit,
+            "input_unit": self.design.input_unit,
             "mode": self.summary["mode"],
             "rate_hz": self.summary["rate_hz"],
             "loop_delay_samples": self.design.loop_delay_samples,
@@ -217,6 +263,7 @@ fn ring_down_window(design: &LoopDesign, end_s: f64) -> (f64, f64) {
             setpoint,
             start_s,
             repeat_s,
+            ..
         } => {
             let next = if *repeat_s > 0.0 {
                 start_s + repeat_s
@@ -245,6 +292,16 @@ pub fn tune_ff(args: Vec<OsString>) -> Result<i32, String> {
     }
     let run_dir = run_dir.ok_or("usage: flexloop tune-ff RUN_DIR [--into SCENARIO]")?;
     let report = RunReport::load(&run_dir)?;
+    if report.design.n_inputs != 1 || report.design.n_outputs != 1 {
+        return Err(format!(
+            "{}: tune-ff fits the four-gain feedforward of a loop with one input and one \
+             output; `{}` has {} and {} (it uses the rigid-body feedforward)",
+            run_dir.display(),
+            report.scenario.plant.model,
+            report.design.n_inputs,
+            report.design.n_outputs
+        ));
+    }
     let fit = fit_from_run(&report.design, &report.trace)
         .map_err(|e| format!("{}: cannot fit the feedforward: {e}", run_dir.display()))?;
     let target = match into {

@@ -117,3 +117,133 @@ fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
     stop(&prefix, child);
     assert_clean(&dir);
 }
+
+/// A variant of the shipped scenario `name` with `from` replaced by `to`.
+fn variant_of(dir: &std::path::Path, name: &str, from: &str, to: &str) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(scenario(name)).unwrap();
+    assert!(text.contains(from), "{name} has no `{from}`");
+    let path = dir.join(format!("bad-{name}.toml"));
+    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+    path
+}
+
+/// `flexloop up` refuses the file with exit status 2 and a message naming the
+/// file, the field and every fragment of the reason; nothing starts.
+fn refused(dir: &std::path::Path, path: &std::path::Path, field: &str, reason: &[&str]) {
+    let out = up_with(path, &dir.join("run"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    let file = path.file_name().unwrap().to_string_lossy();
+    assert!(
+        err.contains(file.as_ref()) && err.contains(field),
+        "{field}: {err}"
+    );
+    for r in reason {
+        assert!(err.contains(r), "{field}: no `{r}` in {err}");
+    }
+    assert!(processes_mentioning(&dir.display().to_string()).is_empty());
+    assert!(!dir.join("run").join("samples.flxlog").exists());
+}
+
+#[test]
+fn mimo_settings_on_a_siso_plant_are_refused_before_anything_starts() {
+    let dir = temp_dir("bad-mimo-on-siso");
+    // A reference direction for two outputs on the one-output thesis chain.
+    let path = variant_of(
+        &dir,
+        "thesis-original",
+        "shape = \"scan\"",
+        "shape = \"scan\"\ndirection = [1.0, 0.0]",
+    );
+    refused(
+        &dir,
+        &path,
+        "reference.direction",
+        &["2 entries", "1 output"],
+    );
+    // Encoder selection belongs to the OAT-like model.
+    let path = variant_of(
+        &dir,
+        "lecture-double-integrator",
+        "mass_kg = 1.0",
+        "mass_kg = 1.0\nencoders = [1, 2, 4]",
+    );
+    refused(&dir, &path, "plant.encoders", &["OAT"]);
+    // The MIMO models measure every sensor: one `output` is a mistake.
+    let path = variant_of(
+        &dir,
+        "mimo-example",
+        "input_limit",
+        "output = 1\ninput_limit",
+    );
+    refused(&dir, &path, "plant.output", &["reference.direction"]);
+}
+
+#[test]
+fn an_observer_model_larger_than_the_plant_is_refused() {
+    let dir = temp_dir("bad-observer-model");
+    // The two-inertia setup has one flexible mode; the observer cannot keep three.
+    let path = variant_of(
+        &dir,
+        "two-inertia",
+        "design = \"kalman\"",
+        "design = \"kalman\"\nflexible_modes = 3",
+    );
+    refused(
+        &dir,
+        &path,
+        "observer.flexible_modes",
+        &["1 flexible mode", "3"],
+    );
+    // Nor can the MIMO example's observer keep four of its three.
+    let path = variant_of(
+        &dir,
+        "mimo-example",
+        "design = \"kalman\"",
+        "design = \"kalman\"\nflexible_modes = 4",
+    );
+    refused(
+        &dir,
+        &path,
+        "observer.flexible_modes",
+        &["3 flexible modes"],
+    );
+}
+
+#[test]
+fn an_unstable_mimo_design_is_refused() {
+    let dir = temp_dir("bad-unstable-mimo");
+    let path = variant_of(
+        &dir,
+        "mimo-example",
+        "bandwidth_hz = 30.0",
+        "bandwidth_hz = 400.0",
+    );
+    refused(&dir, &path, "controller.bandwidth_hz", &["unstable"]);
+    let path = variant_of(
+        &dir,
+        "oat-like",
+        "bandwidth_hz = 20.0",
+        "bandwidth_hz = 400.0",
+    );
+    refused(&dir, &path, "controller.bandwidth_hz", &["unstable"]);
+}
+
+#[test]
+fn a_mimo_trajectory_beyond_an_actuator_is_refused() {
+    let dir = temp_dir("bad-limit-mimo");
+    let path = variant_of(
+        &dir,
+        "mimo-example",
+        "input_limit = 2000.0",
+        "input_limit = 100.0",
+    );
+    refused(&dir, &path, "plant.input_limit", &["on input", "100 N"]);
+    let path = variant_of(
+        &dir,
+        "two-inertia",
+        "input_limit = 1.0",
+        "input_limit = 0.001",
+    );
+    refused(&dir, &path, "plant.input_limit", &["0.001 A"]);
+}

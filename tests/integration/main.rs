@@ -6,7 +6,9 @@
 
 mod bad_input;
 mod loop_processes;
+mod mimo;
 mod positions;
+mod sensor_scan;
 mod swap;
 mod thesis;
 mod util;

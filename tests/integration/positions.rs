@@ -30,9 +30,13 @@ fn a_sensor_between_masses_runs_through_the_processes_as_in_process() {
         .arg(&dir);
     let out = run_bounded(cmd, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
+    // The metrics name the sensor measured, not the y5 of the files it came from.
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(report.contains("output sensor at 4.25"), "{report}");
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
     assert_clean(&dir);
+    assert_eq!(metrics["outputs"][0], "sensor at 4.25");
     let run = metrics["control"]["rms_e_true_scan"].as_f64().unwrap();
 
     let mut cmd = flexloop();

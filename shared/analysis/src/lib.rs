@@ -6,6 +6,8 @@
 //!   control effort and its parts, innovation statistics.
 //! - [`modal_damping`]: the damping the loop achieves on each flexible mode,
 //!   from the closed-loop model and identified from the run's ring-down.
+//! - [`loop_report`]: the design report of any scenario's loop (modes,
+//!   observer poles, stability, per-output sensitivity peaks).
 //! - [`feedforward_fit`]: least-squares feedforward gains from a recorded run.
 //! - [`positions`]: Table 4.1, the scan with the sensor at positions along
 //!   the chain (min / mean / max rms of e_true).
@@ -15,6 +17,7 @@
 //! Offline code: it allocates freely and never runs inside the loop.
 
 pub mod feedforward_fit;
+pub mod loop_report;
 pub mod metrics;
 pub mod modal_damping;
 pub mod positions;

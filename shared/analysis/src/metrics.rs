@@ -71,6 +71,18 @@ pub struct InnovationStats {
     pub lag1_autocorrelation: f64,
 }
 
+/// Tracking of one output (MIMO loops: one per axis).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AxisMetrics {
+    /// rms of e_true over all scan windows (None without a scan).
+    pub rms_e_true_scan: Option<f64>,
+    /// Over the whole run.
+    pub e_true: SignalStats,
+    /// Largest |e_true| over the last tenth of the run: what is left once
+    /// the motion has settled.
+    pub settled_peak_e_true: f64,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ControlMetrics {
     pub ticks: usize,
@@ -86,6 +98,10 @@ pub struct ControlMetrics {
     pub innovation: InnovationStats,
     pub held_ticks: usize,
     pub stale_estimates: usize,
+    /// Every output (the first is the one above), and the command of every
+    /// input; empty when the trace has no per-axis columns.
+    pub axes: Vec<AxisMetrics>,
+    pub inputs: Vec<SignalStats>,
 }
 
 impl ControlMetrics {
@@ -121,7 +137,10 @@ impl ControlMetrics {
                 max_msd,
             });
         }
+        let (axes, inputs) = axis_metrics(trace, windows);
         Self {
+            axes,
+            inputs,
             ticks: rows.len(),
             scans,
             rms_e_true_scan: (total_n > 0).then(|| (total_sq / total_n as f64).sqrt()),
@@ -135,6 +154,44 @@ impl ControlMetrics {
             stale_estimates: rows.iter().filter(|r| r.stale_estimate).count(),
         }
     }
+}
+
+/// Per-output tracking and per-input effort from the trace's axis columns.
+fn axis_metrics(trace: &RunTrace, windows: &[(f64, f64)]) -> (Vec<AxisMetrics>, Vec<SignalStats>) {
+    let rows = &trace.rows;
+    let (ny, nu) = (trace.n_outputs, trace.n_inputs);
+    if ny == 0
+        || trace.e_true_axes.len() != rows.len() * ny
+        || trace.u_axes.len() != rows.len() * nu
+    {
+        return (Vec::new(), Vec::new());
+    }
+    let eps = 1e-9 * trace.ts;
+    let in_scan = |t: f64| windows.iter().any(|&(a, b)| t >= a - eps && t <= b + eps);
+    let settled_from = rows.len() - rows.len().div_ceil(10);
+    let axes = (0..ny)
+        .map(|j| {
+            let e = |i: usize| trace.e_true_axes[i * ny + j];
+            let (mut sq, mut n) = (0.0, 0usize);
+            for (i, r) in rows.iter().enumerate() {
+                if in_scan(trace.time(r)) {
+                    sq += e(i) * e(i);
+                    n += 1;
+                }
+            }
+            AxisMetrics {
+                rms_e_true_scan: (n > 0).then(|| (sq / n as f64).sqrt()),
+                e_true: SignalStats::of((0..rows.len()).map(e)),
+                settled_peak_e_true: (settled_from..rows.len())
+                    .map(|i| e(i).abs())
+                    .fold(0.0, f64::max),
+            }
+        })
+        .collect();
+    let inputs = (0..nu)
+        .map(|j| SignalStats::of((0..rows.len()).map(|i| trace.u_axes[i * nu + j])))
+        .collect();
+    (axes, inputs)
 }
 
 /// Largest |MA| and MSD over windows of `exposure_s` that fit inside `e`

@@ -1,5 +1,6 @@
-//! A run as columns per tick (first output and first input: the SISO loops
-//! the thesis studies), aligned by sequence number.
+//! A run as columns per tick, aligned by sequence number: the first output
+//! and first input in [`TickRow`] (the SISO loops the thesis studies), and
+//! e_true and u of every axis beside them (MIMO loops).
 //!
 //! Row k holds y(k) as the plant published it, u(k) as the controller
 //! computed it from y(k), and the estimate the controller used at tick k
@@ -51,6 +52,12 @@ pub struct RunTrace {
     /// x̂(k|k−1) per row, `n_states` values each.
     pub x_hat: Vec<f64>,
     pub n_states: usize,
+    /// e_true = r − y_true of every output per row, `n_outputs` values each.
+    pub e_true_axes: Vec<f64>,
+    pub n_outputs: usize,
+    /// The command u of every input per row, `n_inputs` values each.
+    pub u_axes: Vec<f64>,
+    pub n_inputs: usize,
     /// Ticks with a measurement but no command or estimate in the log.
     pub incomplete_ticks: u64,
     /// The plant's own counters at the end of the run.
@@ -77,12 +84,28 @@ impl RunTrace {
         &self.x_hat[i * self.n_states..(i + 1) * self.n_states]
     }
 
+    /// e_true of every output at row `i`.
+    pub fn e_true_of(&self, i: usize) -> &[f64] {
+        &self.e_true_axes[i * self.n_outputs..(i + 1) * self.n_outputs]
+    }
+
+    /// u of every input at row `i`.
+    pub fn u_of(&self, i: usize) -> &[f64] {
+        &self.u_axes[i * self.n_inputs..(i + 1) * self.n_inputs]
+    }
+
     /// Appends the messages of one tick.
     pub fn push(&mut self, m: &Measurement, c: &Command, used: &Estimate, next: Option<&Estimate>) {
         let n = used.n_states as usize;
         if self.rows.is_empty() {
             self.n_states = n;
+            self.n_outputs = (m.n_outputs as usize).clamp(1, m.y.len());
+            self.n_inputs = (c.n_inputs as usize).clamp(1, c.u.len());
         }
+        for i in 0..self.n_outputs {
+            self.e_true_axes.push(c.r[i] - m.y_true[i]);
+        }
+        self.u_axes.extend_from_slice(&c.u[..self.n_inputs]);
         self.rows.push(TickRow {
             seq: m.seq,
             r: c.r[0],

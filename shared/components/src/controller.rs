@@ -26,6 +26,8 @@ pub struct ControllerCore {
     /// [u0; r] for the modified block.
     feedforward_input: [f64; MAX_INPUTS + MAX_OUTPUTS],
     reference: Reference,
+    /// Output i follows direction[i] · r (1 for a SISO loop: r itself).
+    direction: [f64; MAX_OUTPUTS],
     ts: f64,
     loop_delay_samples: u32,
     n_outputs: usize,
@@ -66,6 +68,14 @@ impl ControllerCore {
         for gains in &design.feedforward {
             fingerprint = gains.iter().fold(fingerprint, |f, g| f.number(*g));
         }
+        let mut direction = [0.0; MAX_OUTPUTS];
+        for (dst, src) in direction.iter_mut().zip(&design.reference_direction) {
+            *dst = *src;
+        }
+        fingerprint = design
+            .reference_direction
+            .iter()
+            .fold(fingerprint, |f, d| f.number(*d));
         let bumpless_shift = design
             .feedback
             .as_ref()
@@ -80,6 +90,7 @@ impl ControllerCore {
             feedforward_input: [0.0; MAX_INPUTS + MAX_OUTPUTS],
             feedforward,
             reference: design.reference.clone(),
+            direction,
             ts: design.ts,
             loop_delay_samples: design.loop_delay_samples,
             n_outputs: design.n_outputs,
@@ -208,7 +219,7 @@ impl ControllerCore {
             self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
         }
         for i in 0..ny {
-            self.feedforward_input[nu + i] = r_applied[0];
+            self.feedforward_input[nu + i] = self.direction[i] * r_applied[0];
         }
         r_applied
     }
@@ -270,8 +281,9 @@ impl ControllerCore {
         self.fill_feedforward_input(m.seq);
         for i in 0..ny {
             let y_comp = m.y[i] - self.observer_output[i];
-            out.r[i] = r_now[0];
-            self.error[i] = r_now[0] - y_comp;
+            let r = self.direction[i] * r_now[0];
+            out.r[i] = r;
+            self.error[i] = r - y_comp;
             out.e_meas[i] = self.error[i];
         }
         let u_fb: &[f64] = match &mut self.feedback {

@@ -24,12 +24,7 @@ pub struct InProcessLoop {
 
 impl InProcessLoop {
     pub fn new(design: &LoopDesign) -> Result<Self, ObserverSizeError> {
-        let mut observer = ObserverCore::new(
-            &design.observer,
-            &design.output_prediction,
-            design.n_outputs,
-            design.n_inputs,
-        )?;
+        let mut observer = ObserverCore::for_design(design)?;
         let mut estimate = Estimate::default();
         observer.initial(&mut estimate);
         Ok(Self {

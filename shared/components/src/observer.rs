@@ -7,14 +7,32 @@
 
 use crate::handover::Fingerprint;
 use flexloop_control::lti::LtiRunner;
+use flexloop_control::scheduled_observer::ScheduledObserver;
 use flexloop_protocol::{
     Estimate, Handover, MAX_HANDOVER_STATES, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES,
     Measurement,
 };
+use flexloop_scenario::LoopDesign;
 use flexloop_scenario::design::{ObserverBlock, OutputPrediction};
+use flexloop_scenario::reference::Reference;
+use flexloop_scenario::sensor_scan::SensorScan;
 use nalgebra::{DMatrix, DVector, DVectorView};
 
+/// The observer of a sensor the structure scans past: its gain follows the
+/// position of each tick (control.md §1.4).
+struct Scheduled {
+    observer: ScheduledObserver,
+    scan: SensorScan,
+    reference: Reference,
+    ts: f64,
+    /// Block state [x̂; w] for hand-overs.
+    state: Vec<f64>,
+    /// Ticks whose gain could not be scheduled (the previous one stayed).
+    errors: u64,
+}
+
 pub struct ObserverCore {
+    scheduled: Option<Scheduled>,
     block: LtiRunner,
     estimate_map: DMatrix<f64>,
     x_hat: DVector<f64>,
@@ -45,6 +63,56 @@ impl std::fmt::Display for ObserverSizeError {
 impl std::error::Error for ObserverSizeError {}
 
 impl ObserverCore {
+    /// The observer the design runs: the fixed block, or the one scheduled
+    /// on a scanned sensor's position.
+    pub fn for_design(design: &LoopDesign) -> Result<Self, ObserverSizeError> {
+        let mut core = Self::new(
+            &design.observer,
+            &design.output_prediction,
+            design.n_outputs,
+            design.n_inputs,
+        )?;
+        if let Some(scan) = &design.sensor_scan
+            && let Some(o) = &scan.observer
+        {
+            let p0 = scan.position_of_tick(&design.reference, 0, design.ts);
+            let observer = ScheduledObserver::new(o.clone(), p0)
+                .map_err(|e| ObserverSizeError(format!("scheduled observer: {e}")))?;
+            if o.block_states() > MAX_STATES || o.block_inputs() != core.n_block_inputs {
+                return Err(ObserverSizeError(format!(
+                    "scheduled observer has {} states and {} inputs (at most {MAX_STATES}; the loop has {})",
+                    o.block_states(),
+                    o.block_inputs(),
+                    core.n_block_inputs
+                )));
+            }
+            core.design_hash = Fingerprint::default()
+                .bytes(&core.design_hash.to_le_bytes())
+                .matrix(o.schedule.models().a())
+                .number(scan.from)
+                .number(scan.to)
+                .number(o.schedule.models().grid().step())
+                .number(f64::from(u8::from(
+                    o.gains == flexloop_control::scheduled_observer::GainScheduling::TimeVarying,
+                )))
+                .value();
+            core.scheduled = Some(Scheduled {
+                state: vec![0.0; o.block_states()],
+                observer,
+                scan: scan.clone(),
+                reference: design.reference.clone(),
+                ts: design.ts,
+                errors: 0,
+            });
+        }
+        Ok(core)
+    }
+
+    /// Ticks whose scheduled gain could not be updated (0 for a fixed observer).
+    pub fn schedule_errors(&self) -> u64 {
+        self.scheduled.as_ref().map_or(0, |s| s.errors)
+    }
+
     pub fn new(
         block: &ObserverBlock,
         prediction: &OutputPrediction,
@@ -104,6 +172,7 @@ impl ObserverCore {
             .matrix(&prediction.d)
             .value();
         Ok(Self {
+            scheduled: None,
             design_hash,
             x_hat: DVector::zeros(n_est),
             prediction: prediction.clone(),
@@ -133,6 +202,27 @@ impl ObserverCore {
         if self.n_block_inputs > ny + nu {
             self.input[ny + nu..ny + 2 * nu].copy_from_slice(&m.u_pending[..nu]);
         }
+        if let Some(sched) = &mut self.scheduled {
+            let next = sched
+                .scan
+                .position_of_tick(&sched.reference, m.seq + 1, sched.ts);
+            if sched
+                .observer
+                .advance(
+                    &self.input[..self.n_block_inputs],
+                    next,
+                    self.innovation.as_mut_slice(),
+                )
+                .is_err()
+            {
+                sched.errors += 1;
+            }
+            self.fill(m.seq + 1, out);
+            out.innovation[..ny].copy_from_slice(self.innovation.as_slice());
+            out.source_tick_ns = m.tick_ns;
+            out.source_published_ns = m.published_ns;
+            return;
+        }
         // Innovation of y(k) against x̂(k|k−1), which `x_hat` holds from the last fill.
         let u_applied = DVectorView::from_slice(&m.u_applied[..nu], nu);
         self.innovation
@@ -156,7 +246,10 @@ impl ObserverCore {
 
     /// Writes the block state into `out` (none if it is too large to hand over).
     pub fn save(&self, out: &mut Handover) {
-        let x = self.block.state();
+        let x = match &self.scheduled {
+            Some(sched) => sched.state.as_slice(),
+            None => self.block.state(),
+        };
         out.design_hash = self.design_hash;
         if x.len() > MAX_HANDOVER_STATES {
             out.n_states = 0;
@@ -171,6 +264,23 @@ impl ObserverCore {
     /// Takes over the block state of an identical design, whose next estimate
     /// is for `from.seq + 1`; false (and nothing changed) otherwise.
     pub fn load(&mut self, from: &Handover) -> bool {
+        if let Some(sched) = &mut self.scheduled {
+            let n = sched.state.len();
+            if from.design_hash != self.design_hash
+                || from.n_states as usize != n
+                || n > MAX_HANDOVER_STATES
+                || from.state[..n].iter().any(|v| !v.is_finite())
+            {
+                return false;
+            }
+            sched.observer.set_state(&from.state[..n]);
+            sched.state.copy_from_slice(&from.state[..n]);
+            let n = self.x_hat.len();
+            let x = sched.observer.estimate();
+            self.x_hat.as_mut_slice().copy_from_slice(&x[..n]);
+            self.next_seq = from.seq + 1;
+            return true;
+        }
         let n = self.block.state().len();
         if from.design_hash != self.design_hash
             || from.n_states as usize != n
@@ -198,6 +308,19 @@ impl ObserverCore {
         out.n_outputs = self.n_outputs as u32;
         out.n_inputs = self.n_inputs as u32;
         out.n_states = self.x_hat.len() as u32;
+        if let Some(sched) = &mut self.scheduled {
+            // Free part and direct gain at this tick's position.
+            sched
+                .observer
+                .outputs(&mut out.free[..n_out], &mut out.direct, MAX_OBSERVER_INPUTS);
+            sched.observer.write_state(&mut sched.state);
+            let n = self.x_hat.len();
+            let x = sched.observer.estimate();
+            self.x_hat.as_mut_slice().copy_from_slice(&x[..n]);
+            out.x_hat[..self.x_hat.len()].copy_from_slice(self.x_hat.as_slice());
+            self.next_seq = seq + 1;
+            return;
+        }
         let free = self.block.free_output();
         out.free[..n_out].copy_from_slice(&free[..n_out]);
         out.direct = self.direct;

@@ -13,7 +13,9 @@ use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{Activation, Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
 use flexloop_scenario::LoopDesign;
+use flexloop_scenario::reference::Reference;
 use flexloop_scenario::schema::SafeAction;
+use flexloop_scenario::sensor_scan::SensorScan;
 
 /// What the plant did with one command it received.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,8 +49,18 @@ pub struct PlantCounters {
     pub fallback_ticks: u64,
 }
 
+/// A sensor the structure scans past: the output row follows the reference.
+struct ScannedSensor {
+    scan: SensorScan,
+    reference: Reference,
+    ts: f64,
+    /// The output row at this tick's position.
+    row: Vec<f64>,
+}
+
 pub struct PlantCore {
     model: LtiRunner,
+    scanned: Option<ScannedSensor>,
     n_outputs: usize,
     n_inputs: usize,
     input_limit: f64,
@@ -80,8 +92,15 @@ pub struct PlantCore {
 
 impl PlantCore {
     pub fn new(design: &LoopDesign) -> Self {
+        let scanned = design.sensor_scan.clone().map(|scan| ScannedSensor {
+            row: vec![0.0; design.plant.states()],
+            scan,
+            reference: design.reference.clone(),
+            ts: design.ts,
+        });
         Self {
             model: LtiRunner::new(design.plant.clone()),
+            scanned,
             n_outputs: design.n_outputs,
             n_inputs: design.n_inputs,
             input_limit: design.input_limit,
@@ -218,8 +237,26 @@ impl PlantCore {
         self.previous_tick_stalled = stalled;
         self.counters.ticks += 1;
 
-        let y = self.model.output(&self.model_input);
-        self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
+        match &mut self.scanned {
+            // The one output of a scanned sensor: its row at this tick's
+            // position (the full model has no feedthrough).
+            Some(sensor) => {
+                let p = sensor
+                    .scan
+                    .position_of_tick(&sensor.reference, k, sensor.ts);
+                sensor.scan.plant_row(p, &mut sensor.row);
+                self.y_true[0] = sensor
+                    .row
+                    .iter()
+                    .zip(self.model.state())
+                    .map(|(c, x)| c * x)
+                    .sum();
+            }
+            None => {
+                let y = self.model.output(&self.model_input);
+                self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
+            }
+        }
 
         out.seq = k;
         out.tick_ns = tick_ns;

@@ -33,6 +33,7 @@ pub mod observer_block;
 pub mod pid;
 pub mod placement;
 pub mod report;
+pub mod scheduled_observer;
 pub mod scheduling;
 pub mod setpoint;
 pub mod step_error;

@@ -15,13 +15,8 @@ use flexloop_transport::{Domain, Inlet, Outlet};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, design) = args.load()?;
-    let mut core = ObserverCore::new(
-        &design.observer,
-        &design.output_prediction,
-        design.n_outputs,
-        design.n_inputs,
-    )
-    .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
+    let mut core = ObserverCore::for_design(&design)
+        .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Observer);
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());

@@ -8,12 +8,15 @@
 use crate::ScenarioError;
 use crate::reference::{Derivatives, Reference};
 use crate::schema::{FeedforwardSection, Scenario};
+use crate::sensor_scan::{SensorScan, design_sensor_scan};
 use flexloop_control::closed_loop::{LoopSpec, assemble_loop, discrete_modes};
 use flexloop_control::continuous::ContinuousStateSpace;
 use flexloop_control::damping::DampingMethod;
 use flexloop_control::discretise::zoh;
+use flexloop_control::kalman::KalmanWeights;
 use flexloop_control::lecture::{place, place_observer};
 use flexloop_control::lti::DiscreteStateSpace;
+use flexloop_control::modal::{ModalModel, ReducedModel};
 use flexloop_control::modified_feedforward::modified_feedforward;
 use flexloop_control::observer_block::{
     DampingOptions, ModalObserverOptions, design_modal_observer, state_feedback_observer_block,
@@ -21,7 +24,7 @@ use flexloop_control::observer_block::{
 use flexloop_control::pid::PidTuning;
 use flexloop_control::setpoint::{Setpoint, SetpointParams};
 use flexloop_control::{linalg, models};
-use nalgebra::{Complex, DMatrix};
+use nalgebra::{Complex, DMatrix, DVector};
 use std::f64::consts::PI;
 
 pub use flexloop_control::observer_block::ObserverBlock;
@@ -40,6 +43,12 @@ pub struct LoopDesign {
     pub ts: f64,
     pub n_outputs: usize,
     pub n_inputs: usize,
+    /// What each output measures ("y5", "sensor at 4.25", "θ1", …), for reports.
+    pub output_names: Vec<String>,
+    /// SI units of the outputs and inputs: "m" and "N", or "rad" and "A"
+    /// for the two-inertia setup.
+    pub output_unit: &'static str,
+    pub input_unit: &'static str,
     /// Inputs `[u; w]` (command, then force disturbance), outputs the true y.
     pub plant: DiscreteStateSpace,
     /// Inputs `[y; u_a]` (plus `u_pending` with extra delay), outputs `[ŷ_flex; u_d]`.
@@ -47,12 +56,15 @@ pub struct LoopDesign {
     pub output_prediction: OutputPrediction,
     /// e_meas → u_fb (absent when the observer block closes the loop by state feedback).
     pub feedback: Option<DiscreteStateSpace>,
-    /// u0,i = gains_i · derivatives of r_i, evaluated at the tick the command applies.
+    /// u0,i = gains_i · derivatives of the reference profile, evaluated at
+    /// the tick the command applies (one entry per input).
     pub feedforward: Vec<Derivatives>,
     /// Appendix A's modified feedforward, inputs [u0; r] (both at the tick the
     /// command applies), output u_ff; None: u_ff = u0.
     pub modified_feedforward: Option<DiscreteStateSpace>,
+    /// The profile r(t); output i follows `reference_direction[i] · r(t)`.
     pub reference: Reference,
+    pub reference_direction: Vec<f64>,
     pub input_limit: f64,
     pub force_noise: f64,
     pub sensor_noise: f64,
@@ -68,6 +80,39 @@ pub struct LoopDesign {
     /// Poles of the observer's error dynamics, (frequency Hz, damping), so
     /// that an analysis of the closed loop can tell them from structural modes.
     pub observer_modes: Vec<(f64, f64)>,
+    /// A sensor the structure scans past (`plant.sensor_scan`): the plant's
+    /// output row and the observer follow the position every tick. The
+    /// blocks above are then the design frozen at the scan's start.
+    pub sensor_scan: Option<SensorScan>,
+}
+
+/// How the PID of `controller.feedback = "pid"` is put on the plant.
+enum FeedbackPlan {
+    /// One PID tuned on 1/(m s²) (the SISO models).
+    Mass(f64),
+    /// One PID per rigid-body-decoupled axis (control.md (4.12)): each axis
+    /// is 1/s² in modal units, u = Γ diag(C_fb) Υ e.
+    Decoupled {
+        gamma: DMatrix<f64>,
+        upsilon: DMatrix<f64>,
+    },
+}
+
+/// The feedforward a model gets when the file gives no gains.
+enum FeedforwardPlan {
+    /// Gains on the profile's derivatives, for the model's single input.
+    Siso(Derivatives),
+    /// The model's inverse to second order, u0 = Γ Υ d r̈ − Γ Υ T Γ Υ d r⁗
+    /// (d: the reference direction; T: the static compliance of every
+    /// flexible mode): exact for the decoupled rigid body, and the snap term
+    /// takes out the deflection the acceleration causes (the thesis' snap
+    /// gain −m² T for one input).
+    RigidBody {
+        /// Γ Υ (n_u × n_y).
+        inverse: DMatrix<f64>,
+        /// Γ Υ T Γ Υ (n_u × n_y).
+        compliance: DMatrix<f64>,
+    },
 }
 
 /// The parts every model branch produces.
@@ -75,7 +120,9 @@ struct Parts {
     plant_u: DiscreteStateSpace,
     observer: ObserverBlock,
     output_prediction: OutputPrediction,
-    feedforward: Derivatives,
+    feedforward: FeedforwardPlan,
+    feedback: FeedbackPlan,
+    output_names: Vec<String>,
     flexible_modes: Vec<(f64, f64)>,
     observer_modes: Vec<(f64, f64)>,
 }
@@ -89,31 +136,39 @@ impl LoopDesign {
         let parts = match s.plant.model.as_str() {
             "double-integrator" => double_integrator(s, ts, extra_delay)?,
             "thesis-chain" => thesis_chain(s, ts, extra_delay)?,
+            "mimo-example" | "oat-like" | "two-inertia" => modal_stand_in(s, ts, extra_delay)?,
             other => {
                 return Err(err(
                     "plant.model",
-                    format!("unknown model `{other}` (expected double-integrator or thesis-chain)"),
+                    format!(
+                        "unknown model `{other}` (expected one of {})",
+                        crate::schema::MODELS.join(", ")
+                    ),
                 ));
             }
         };
+        let (n_outputs, n_inputs) = (parts.plant_u.outputs(), parts.plant_u.inputs());
+        check_protocol_limits(s, &parts)?;
+        let reference_direction = match &s.reference.direction {
+            Some(d) if d.len() != n_outputs => {
+                return Err(err(
+                    "reference.direction",
+                    format!(
+                        "has {} entries, the plant `{}` has {n_outputs} output{}",
+                        d.len(),
+                        s.plant.model,
+                        if n_outputs == 1 { "" } else { "s" }
+                    ),
+                ));
+            }
+            Some(d) => d.clone(),
+            None => (0..n_outputs)
+                .map(|i| if i == 0 { 1.0 } else { 0.0 })
+                .collect(),
+        };
         let feedback = match s.controller.feedback.as_str() {
             "none" => None,
-            "pid" => {
-                let mass = match s.plant.model.as_str() {
-                    "thesis-chain" => models::CHAIN_MASS,
-                    _ => s.plant.mass_kg,
-                };
-                let notches: Vec<f64> = s
-                    .controller
-                    .notches_hz
-                    .iter()
-                    .map(|hz| 2.0 * PI * hz)
-                    .collect();
-                let pid = PidTuning::single_parameter(mass, s.controller.bandwidth_hz)
-                    .and_then(|t| t.with_notches(&notches).discrete(ts))
-                    .map_err(|e| err("controller.bandwidth_hz", format!("PID design: {e}")))?;
-                Some(pid)
-            }
+            "pid" => Some(pid_feedback(s, ts, &parts.feedback)?),
             other => {
                 return Err(err(
                     "controller.feedback",
@@ -121,17 +176,44 @@ impl LoopDesign {
                 ));
             }
         };
-        let feedforward = match s.controller.feedforward {
-            Some(FeedforwardSection {
-                snap,
-                jerk,
-                acc,
-                vel,
-            }) => [0.0, vel, acc, jerk, snap],
-            None => parts.feedforward,
+        let feedforward: Vec<Derivatives> = match (s.controller.feedforward, &parts.feedforward) {
+            (Some(_), _) if n_inputs != 1 => {
+                return Err(err(
+                    "controller.feedforward",
+                    format!(
+                        "the four-gain feedforward is for one input; `{}` has {n_inputs} \
+                         and gets the rigid-body feedforward Γ Υ d r̈",
+                        s.plant.model
+                    ),
+                ));
+            }
+            (
+                Some(FeedforwardSection {
+                    snap,
+                    jerk,
+                    acc,
+                    vel,
+                }),
+                _,
+            ) => vec![[0.0, vel, acc, jerk, snap]],
+            (None, FeedforwardPlan::Siso(gains)) => vec![*gains],
+            (
+                None,
+                FeedforwardPlan::RigidBody {
+                    inverse,
+                    compliance,
+                },
+            ) => {
+                let d = DVector::from_column_slice(&reference_direction);
+                let (acc, snap) = (inverse * &d, compliance * &d);
+                acc.iter()
+                    .zip(snap.iter())
+                    .map(|(a, s)| [0.0, 0.0, *a, 0.0, -*s])
+                    .collect()
+            }
         };
         let loop_delay_samples = 1 + s.controller.extra_delay_samples;
-        let zero_controller = DiscreteStateSpace::gain(DMatrix::zeros(1, 1), ts)
+        let zero_controller = DiscreteStateSpace::gain(DMatrix::zeros(n_inputs, n_outputs), ts)
             .map_err(|e| err("controller", e.to_string()))?;
         let closed_loop = assemble_loop(&LoopSpec {
             plant: &parts.plant_u,
@@ -157,6 +239,13 @@ impl LoopDesign {
             ));
         }
         check_actuator_limit(s, &reference, &feedforward, loop_delay_samples, ts)?;
+        let sensor_scan = design_sensor_scan(
+            s,
+            ts,
+            extra_delay,
+            &reference,
+            feedback.as_ref().unwrap_or(&zero_controller),
+        )?;
         let modified_feedforward = match s.controller.feedforward_form.as_str() {
             "plain" => None,
             "modified" => Some(
@@ -180,6 +269,8 @@ impl LoopDesign {
             }
         };
 
+        // The two-inertia setup turns (rad) and is driven by a current (A).
+        let rotary = s.plant.model == "two-inertia";
         let b_u = parts.plant_u.b.clone();
         let mut b_plant = DMatrix::zeros(b_u.nrows(), 2 * b_u.ncols());
         b_plant.columns_mut(0, b_u.ncols()).copy_from(&b_u);
@@ -198,15 +289,19 @@ impl LoopDesign {
 
         Ok(LoopDesign {
             ts,
-            n_outputs: parts.plant_u.outputs(),
-            n_inputs: parts.plant_u.inputs(),
+            n_outputs,
+            n_inputs,
+            output_names: parts.output_names,
+            output_unit: if rotary { "rad" } else { "m" },
+            input_unit: if rotary { "A" } else { "N" },
             plant,
             observer: parts.observer,
             output_prediction: parts.output_prediction,
             feedback,
-            feedforward: vec![feedforward],
+            feedforward,
             modified_feedforward,
             reference,
+            reference_direction,
             input_limit: s.plant.input_limit,
             force_noise: s.plant.force_noise,
             sensor_noise: s.plant.sensor_noise,
@@ -216,7 +311,85 @@ impl LoopDesign {
             closed_loop,
             flexible_modes: parts.flexible_modes,
             observer_modes: parts.observer_modes,
+            sensor_scan,
         })
+    }
+}
+
+/// The PID of `controller.feedback = "pid"` (Table 3.3 single-parameter
+/// tuning, notches, Tustin), on one axis or on every decoupled axis.
+fn pid_feedback(
+    s: &Scenario,
+    ts: f64,
+    plan: &FeedbackPlan,
+) -> Result<DiscreteStateSpace, ScenarioError> {
+    let err =
+        |reason: String| ScenarioError::new(&s.source, Some("controller.bandwidth_hz"), reason);
+    let notches: Vec<f64> = s
+        .controller
+        .notches_hz
+        .iter()
+        .map(|hz| 2.0 * PI * hz)
+        .collect();
+    let axis = |mass: f64| {
+        PidTuning::single_parameter(mass, s.controller.bandwidth_hz)
+            .and_then(|t| t.with_notches(&notches).discrete(ts))
+            .map_err(|e| err(format!("PID design: {e}")))
+    };
+    match plan {
+        FeedbackPlan::Mass(mass) => axis(*mass),
+        FeedbackPlan::Decoupled { gamma, upsilon } => {
+            // Every decoupled axis is 1/s² in modal units: the same PID on each.
+            let one = axis(1.0)?;
+            let axes = upsilon.nrows();
+            let ns = one.states();
+            let mut a = DMatrix::zeros(axes * ns, axes * ns);
+            let mut b = DMatrix::zeros(axes * ns, axes);
+            let mut c = DMatrix::zeros(axes, axes * ns);
+            let mut d = DMatrix::zeros(axes, axes);
+            for i in 0..axes {
+                a.view_mut((i * ns, i * ns), (ns, ns)).copy_from(&one.a);
+                b.view_mut((i * ns, i), (ns, 1)).copy_from(&one.b);
+                c.view_mut((i, i * ns), (1, ns)).copy_from(&one.c);
+                d[(i, i)] = one.d[(0, 0)];
+            }
+            DiscreteStateSpace::new(a, b * upsilon, gamma * c, gamma * d * upsilon, ts)
+                .map_err(|e| err(format!("decoupled PID: {e}")))
+        }
+    }
+}
+
+/// The design must fit the loop's fixed-size messages.
+fn check_protocol_limits(s: &Scenario, parts: &Parts) -> Result<(), ScenarioError> {
+    use flexloop_protocol::{MAX_INPUTS, MAX_OUTPUTS, MAX_STATES};
+    let (ny, nu) = (parts.plant_u.outputs(), parts.plant_u.inputs());
+    let n_est = parts.observer.estimate_map.nrows();
+    let reason = if ny > MAX_OUTPUTS {
+        Some(format!(
+            "{ny} outputs, the loop carries at most {MAX_OUTPUTS}"
+        ))
+    } else if nu > MAX_INPUTS {
+        Some(format!(
+            "{nu} inputs, the loop carries at most {MAX_INPUTS}"
+        ))
+    } else if n_est > MAX_STATES {
+        Some(format!(
+            "an observer of {n_est} states, the loop carries at most {MAX_STATES}"
+        ))
+    } else {
+        None
+    };
+    match reason {
+        Some(r) => Err(ScenarioError::new(
+            &s.source,
+            Some(if n_est > MAX_STATES {
+                "observer.flexible_modes"
+            } else {
+                "plant.model"
+            }),
+            format!("the design has {r}"),
+        )),
+        None => Ok(()),
     }
 }
 
@@ -260,10 +433,18 @@ fn reference(s: &Scenario) -> Result<Reference, ScenarioError> {
                     ),
                 ));
             }
+            // `amplitude` 0: the thesis' stroke, as the profile has it.
+            let stroke = setpoint.evaluate(setpoint.duration()).r;
+            let scale = if r.amplitude == 0.0 {
+                1.0
+            } else {
+                r.amplitude / stroke
+            };
             Reference::Scan {
                 setpoint: Box::new(setpoint),
                 start_s: r.start_s,
                 repeat_s: r.repeat_s,
+                scale,
             }
         }
         other => {
@@ -281,7 +462,7 @@ fn reference(s: &Scenario) -> Result<Reference, ScenarioError> {
 fn check_actuator_limit(
     s: &Scenario,
     reference: &Reference,
-    gains: &Derivatives,
+    gains: &[Derivatives],
     delay: u32,
     ts: f64,
 ) -> Result<(), ScenarioError> {
@@ -291,22 +472,36 @@ fn check_actuator_limit(
         (None, None) => 10.0,
     };
     let samples = ((horizon / ts).ceil() as u64).min(10_000_000);
-    let mut peak: (f64, f64) = (0.0, 0.0);
+    // (|u|, t, input)
+    let mut peak: (f64, f64, usize) = (0.0, 0.0, 0);
     for k in 0..=samples {
         let t = k as f64 * ts;
         let d = reference.sample(t);
-        let u: f64 = gains.iter().zip(&d).map(|(g, v)| g * v).sum();
-        if u.abs() > peak.0 {
-            peak = (u.abs(), t);
+        for (input, g) in gains.iter().enumerate() {
+            let u: f64 = g.iter().zip(&d).map(|(g, v)| g * v).sum();
+            if u.abs() > peak.0 {
+                peak = (u.abs(), t, input);
+            }
         }
     }
     if peak.0 > s.plant.input_limit {
+        // The two-inertia setup is driven by a motor current.
+        let unit = if s.plant.model == "two-inertia" {
+            "A"
+        } else {
+            "N"
+        };
+        let which = if gains.len() > 1 {
+            format!(" on input {}", peak.2 + 1)
+        } else {
+            String::new()
+        };
         return Err(ScenarioError::new(
             &s.source,
             Some("plant.input_limit"),
             format!(
-                "the trajectory needs {:.1} N of feedforward at t = {:.4} s, beyond the \
-                 actuator limit of {} N: slow the trajectory or raise the limit",
+                "the trajectory needs {:.1} {unit} of feedforward{which} at t = {:.4} s, beyond \
+                 the actuator limit of {} {unit}: slow the trajectory or raise the limit",
                 peak.0, peak.1, s.plant.input_limit
             ),
         ));
@@ -390,7 +585,9 @@ fn double_integrator(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts,
         },
         observer: block,
         // u = −L(x̂ − x_ref) + m r̈: track r with zero lag in the nominal case.
-        feedforward: [l[(0, 0)], l[(0, 1)], m, 0.0, 0.0],
+        feedforward: FeedforwardPlan::Siso([l[(0, 0)], l[(0, 1)], m, 0.0, 0.0]),
+        feedback: FeedbackPlan::Mass(m),
+        output_names: vec!["y".into()],
         plant_u: plant,
         flexible_modes: Vec::new(),
         observer_modes,
@@ -411,33 +608,80 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
         .filter(|f| *f > 0.0)
         .map(|f| (f, models::CHAIN_ZETA))
         .collect();
-    let o = &s.observer;
-    let (observer, output_prediction, observer_modes) = match o.design.as_str() {
-        "kalman" => {
-            // Output position dependency only (control.md §1.4): C_t and
-            // T_DC follow the sensor, B_t does not, so the AD gain K (from
-            // φ_a) is the same everywhere while the Kalman gain, which
-            // depends on C, is designed for this position.
+    // Output position dependency only (control.md §1.4): C_t and T_DC
+    // follow the sensor, B_t does not, so the AD gain K (from φ_a) is the
+    // same everywhere while the Kalman gain, which depends on C, is designed
+    // for this position. Retained modes: rigid + 3 flexible by default, T_DC
+    // of the discarded ones up to mode 6; mode 7 stays unknown.
+    let (observer, output_prediction, observer_modes) =
+        modal_observer(s, ts, extra_delay, 1, 1, || {
+            let keep = flexible_modes_kept(s, 3, 7)?;
+            let compensate: Vec<usize> = (1 + keep..7).collect();
             let reduced = modal
-                .truncate(4, &[4, 5, 6])
+                .truncate(1 + keep, &compensate)
                 .map_err(|e| err(sensor_field(s), e.to_string()))?;
-            let q_nu = match o.q_nu {
-                Some(0.0) => None,
-                Some(q) => Some(q),
-                None => Some(if o.ad { 1e3 } else { 0.03 }),
-            };
-            let options = ModalObserverOptions {
-                ts,
-                mc: o.mc,
-                damping: o.ad.then(|| DampingOptions {
-                    increase: vec![o.damping_increase; reduced.modal.modes() - 1],
-                    method: DampingMethod::Automated,
-                    bandpass_q: (o.bandpass_q > 0.0).then_some(o.bandpass_q),
-                }),
-                q_nu,
-                weights: None,
-                extra_delay_samples: extra_delay,
-            };
+            Ok((reduced, None))
+        })?;
+    let output_names = vec![match (s.plant.sensor_position, s.plant.sensor_scan) {
+        (Some(p), _) => format!("sensor at {p}"),
+        (_, Some([from, to])) => format!("sensor scanned {from} -> {to}"),
+        _ => format!("y{}", s.plant.output),
+    }];
+    Ok(Parts {
+        plant_u: plant,
+        observer,
+        output_prediction,
+        feedforward: FeedforwardPlan::Siso([0.0, 0.0, models::CHAIN_MASS, 0.0, 0.0]),
+        feedback: FeedbackPlan::Mass(models::CHAIN_MASS),
+        output_names,
+        flexible_modes,
+        observer_modes,
+    })
+}
+
+/// `observer.flexible_modes`, or the model's `default`, checked against the
+/// `available` flexible modes of the plant.
+pub(crate) fn flexible_modes_kept(
+    s: &Scenario,
+    default: usize,
+    available: usize,
+) -> Result<usize, ScenarioError> {
+    let keep = s.observer.flexible_modes.unwrap_or(default);
+    if keep > available {
+        return Err(ScenarioError::new(
+            &s.source,
+            Some("observer.flexible_modes"),
+            format!(
+                "the plant `{}` has {available} flexible mode{}; the observer cannot keep {keep}",
+                s.plant.model,
+                if available == 1 { "" } else { "s" }
+            ),
+        ));
+    }
+    Ok(keep)
+}
+
+/// An observer block, its output prediction and its error poles (Hz, ζ).
+pub(crate) type ObserverParts = (ObserverBlock, OutputPrediction, Vec<(f64, f64)>);
+
+/// The observer of a modal model with `n_y` outputs and `n_u` inputs:
+/// `kalman` on the reduced model (and Kalman weights, None for the thesis')
+/// that `reduced` builds, with MC, AD and the noise model as the scenario
+/// says, or `none`.
+pub(crate) fn modal_observer(
+    s: &Scenario,
+    ts: f64,
+    extra_delay: usize,
+    n_y: usize,
+    n_u: usize,
+    reduced: impl FnOnce() -> Result<(ReducedModel, Option<KalmanWeights>), ScenarioError>,
+) -> Result<ObserverParts, ScenarioError> {
+    let err = |field: &str, reason: String| ScenarioError::new(&s.source, Some(field), reason);
+    let o = &s.observer;
+    match o.design.as_str() {
+        "kalman" => {
+            let (reduced, weights) = reduced()?;
+            let options = kalman_options(s, ts, extra_delay, &reduced, weights)?;
             let designed = design_modal_observer(&reduced, &options)
                 .map_err(|e| err("observer", format!("Kalman observer: {e}")))?;
             let model = &designed.design.model;
@@ -447,7 +691,7 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
                 c: model.c.clone(),
                 d: model.d.clone(),
             };
-            (designed.block, prediction, modes)
+            Ok((designed.block, prediction, modes))
         }
         "none" => {
             if o.mc || o.ad {
@@ -456,36 +700,225 @@ fn thesis_chain(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scen
                     "MC and AD need an observer: use design = \"kalman\"".into(),
                 ));
             }
-            (
-                empty_observer(ts, extra_delay)
+            Ok((
+                empty_observer(ts, n_y, n_u, extra_delay)
                     .map_err(|e| err("observer", format!("observer block: {e}")))?,
                 OutputPrediction {
-                    c: DMatrix::zeros(1, 0),
-                    d: DMatrix::zeros(1, 1),
+                    c: DMatrix::zeros(n_y, 0),
+                    d: DMatrix::zeros(n_y, n_u),
                 },
                 Vec::new(),
+            ))
+        }
+        other => Err(err(
+            "observer.design",
+            format!(
+                "unknown design `{other}` for `{}` (expected kalman or none)",
+                s.plant.model
+            ),
+        )),
+    }
+}
+
+/// The options of the scenario's Kalman observer on `reduced`.
+pub(crate) fn kalman_options(
+    s: &Scenario,
+    ts: f64,
+    extra_delay: usize,
+    reduced: &ReducedModel,
+    weights: Option<KalmanWeights>,
+) -> Result<ModalObserverOptions, ScenarioError> {
+    let o = &s.observer;
+    let (n_y, n_u) = (reduced.modal.outputs(), reduced.modal.inputs());
+    let q_nu = match o.q_nu {
+        Some(0.0) => None,
+        Some(q) => Some(q),
+        None => Some(if o.ad { 1e3 } else { 0.03 }),
+    };
+    // The noise model adds one integrator per input; the sensors must see
+    // them all (control.md §4.2: dim ν ≤ n_sens).
+    if o.mc && q_nu.is_some() && n_u > n_y {
+        return Err(ScenarioError::new(
+            &s.source,
+            Some("observer.q_nu"),
+            format!(
+                "a noise model on {n_u} inputs is not observable from {n_y} sensors; set q_nu = 0"
+            ),
+        ));
+    }
+    let modal = &reduced.modal;
+    let increase: Vec<f64> = (modal.n_rigid..modal.modes())
+        .map(|i| match o.damping_target {
+            Some(target) => (target - modal.zeta[i]).max(0.0),
+            None => o.damping_increase,
+        })
+        .collect();
+    Ok(ModalObserverOptions {
+        ts,
+        mc: o.mc,
+        damping: o.ad.then(|| DampingOptions {
+            increase,
+            method: DampingMethod::Automated,
+            bandpass_q: (o.bandpass_q > 0.0).then_some(o.bandpass_q),
+        }),
+        q_nu,
+        weights,
+        extra_delay_samples: extra_delay,
+    })
+}
+
+/// The stand-ins for the models whose data the thesis leaves incomplete
+/// (control.md §1.5, §1.7, §1.8; `models` documents what is invented): the
+/// full modal model under exact ZOH for the plant, a Kalman observer on its
+/// reduced model (T_DC of the discarded modes), and one PID per
+/// rigid-body-decoupled axis (control.md (4.12)); the feedforward inverts
+/// the rigid body and the static compliance of the flexible modes.
+fn modal_stand_in(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
+    let model_err = |e: flexloop_control::modal::ModelError| {
+        ScenarioError::new(&s.source, Some("plant.model"), e.to_string())
+    };
+    let (full, output_names, default_keep) = match s.plant.model.as_str() {
+        "mimo-example" => (
+            models::mimo_example().map_err(model_err)?,
+            vec![
+                "y1 (x = -0.25 m)".to_string(),
+                "y2 (x = +0.25 m)".to_string(),
+            ],
+            2,
+        ),
+        "oat-like" => {
+            let encoders = s.plant.oat_encoders();
+            let picked = [encoders[0] - 1, encoders[1] - 1, encoders[2] - 1];
+            let corner = ["-x -y", "+x -y", "+x +y", "-x +y"];
+            (
+                models::oat_like(picked).map_err(|e| {
+                    ScenarioError::new(&s.source, Some("plant.encoders"), e.to_string())
+                })?,
+                picked
+                    .iter()
+                    .map(|&e| format!("encoder {} ({})", e + 1, corner[e]))
+                    .collect(),
+                models::OAT_FREQ_HZ.len(),
             )
         }
-        other => {
-            return Err(err(
-                "observer.design",
-                format!("unknown design `{other}` for the thesis chain (expected kalman or none)"),
-            ));
+        _ => {
+            let output = s.plant.two_inertia_output();
+            let both = ModalModel::from_nodal(&models::two_inertia()).map_err(model_err)?;
+            let name = if output == 1 {
+                "θ1 (load)"
+            } else {
+                "θ2 (motor)"
+            };
+            (
+                both.select_outputs(&[output - 1]).map_err(model_err)?,
+                vec![name.to_string()],
+                1,
+            )
         }
     };
+    let (n_y, n_u) = (full.outputs(), full.inputs());
+    let plant = zoh(&full.state_space(), ts)
+        .map_err(|e| ScenarioError::new(&s.source, Some("plant"), format!("ZOH: {e}")))?;
+    let f_hz = full.frequencies_hz();
+    let flexible_modes = (full.n_rigid..full.modes())
+        .map(|i| (f_hz[i], full.zeta[i]))
+        .collect();
+    let (_, gamma, upsilon) = full.rigid_body_decoupled().map_err(model_err)?;
+    let inverse = &gamma * &upsilon;
+    let compliance = full
+        .compliance(&(full.n_rigid..full.modes()).collect::<Vec<_>>())
+        .map_err(model_err)?;
+    let n_flex = full.modes() - full.n_rigid;
+    let (observer, output_prediction, observer_modes) =
+        modal_observer(s, ts, extra_delay, n_y, n_u, || {
+            let keep = flexible_modes_kept(s, default_keep, n_flex)?;
+            let compensate: Vec<usize> = (full.n_rigid + keep..full.modes()).collect();
+            let reduced = full
+                .truncate(full.n_rigid + keep, &compensate)
+                .map_err(|e| {
+                    ScenarioError::new(&s.source, Some("observer.flexible_modes"), e.to_string())
+                })?;
+            let weights = stand_in_weights(s, &reduced, ts)?;
+            Ok((reduced, weights))
+        })?;
     Ok(Parts {
         plant_u: plant,
         observer,
         output_prediction,
-        feedforward: [0.0, 0.0, models::CHAIN_MASS, 0.0, 0.0],
+        feedforward: FeedforwardPlan::RigidBody {
+            compliance: &inverse * &compliance * &inverse,
+            inverse,
+        },
+        feedback: FeedbackPlan::Decoupled { gamma, upsilon },
+        output_names,
         flexible_modes,
         observer_modes,
     })
 }
 
+/// Kalman weights of the stand-ins (None: the thesis' σ_w, σ_v, σ_d).
+/// OAT (control.md §4.4): Q = 10⁻⁴ I on the inputs, R = 10⁻¹⁸ I. Two-inertia
+/// (§1.7, Table 3.8's setup): the continuous Q = diag(0.1, 0.1, 1, 1) on the
+/// physical state [θ1, θ2, θ̇1, θ̇2] and R = 5·10⁻⁵, brought to the modal
+/// state by η = Φᵀ M q and to per-sample weights as the thesis' are
+/// (G = T Ts, see the kalman module's note on units).
+fn stand_in_weights(
+    s: &Scenario,
+    reduced: &ReducedModel,
+    ts: f64,
+) -> Result<Option<KalmanWeights>, ScenarioError> {
+    let (n_y, n_u) = (reduced.modal.outputs(), reduced.modal.inputs());
+    match s.plant.model.as_str() {
+        "oat-like" => {
+            let base = zoh(&reduced.state_space(), ts).map_err(|e| {
+                ScenarioError::new(&s.source, Some("observer"), format!("ZOH: {e}"))
+            })?;
+            Ok(Some(KalmanWeights {
+                g: base.b.clone(),
+                q: DMatrix::identity(n_u, n_u) * 1e-4,
+                r: DMatrix::identity(n_y, n_y) * 1e-18,
+            }))
+        }
+        "two-inertia" => {
+            let nodal = models::two_inertia();
+            let shapes = ModalModel::from_nodal(&nodal)
+                .ok()
+                .and_then(|m| m.shapes)
+                .ok_or_else(|| {
+                    ScenarioError::new(&s.source, Some("plant.model"), "no mode shapes")
+                })?;
+            let to_modal = shapes.transpose() * &nodal.mass;
+            let (modes, nodes) = to_modal.shape();
+            let n = 2 * modes;
+            if reduced.modal.modes() != modes || 2 * nodes != 4 {
+                return Err(ScenarioError::new(
+                    &s.source,
+                    Some("observer.flexible_modes"),
+                    "the two-inertia weights are for the full model (1 rigid + 1 flexible mode)",
+                ));
+            }
+            let mut g = DMatrix::zeros(n, 2 * nodes);
+            for i in 0..modes {
+                for j in 0..nodes {
+                    g[(2 * i, j)] = to_modal[(i, j)] * ts;
+                    g[(2 * i + 1, nodes + j)] = to_modal[(i, j)] * ts;
+                }
+            }
+            Ok(Some(KalmanWeights {
+                g,
+                q: DMatrix::from_diagonal(&DVector::from_column_slice(&[0.1, 0.1, 1.0, 1.0])),
+                r: DMatrix::identity(n_y, n_y) * 5e-5,
+            }))
+        }
+        _ => Ok(None),
+    }
+}
+
 /// The field that places the thesis chain's sensor.
-fn sensor_field(s: &Scenario) -> &'static str {
-    if s.plant.sensor_position.is_some() {
+pub(crate) fn sensor_field(s: &Scenario) -> &'static str {
+    if s.plant.sensor_scan.is_some() {
+        "plant.sensor_scan"
+    } else if s.plant.sensor_position.is_some() {
         "plant.sensor_position"
     } else {
         "plant.output"
@@ -505,7 +938,12 @@ fn thesis_chain_seen_by_sensor(
     let err = |e: flexloop_control::modal::ModelError| {
         ScenarioError::new(&s.source, Some(field), e.to_string())
     };
-    match s.plant.sensor_position {
+    // A scanned sensor: the design frozen where the scan starts.
+    match s
+        .plant
+        .sensor_position
+        .or(s.plant.sensor_scan.map(|[from, _]| from))
+    {
         Some(p) => models::thesis_chain_modal()
             .and_then(|m| m.with_sensor_positions(&[p]))
             .map_err(err),
@@ -514,22 +952,24 @@ fn thesis_chain_seen_by_sensor(
 }
 
 /// A block without states whose outputs are zero: the loop without an observer.
-fn empty_observer(
+pub(crate) fn empty_observer(
     ts: f64,
+    n_y: usize,
+    n_u: usize,
     extra_delay: usize,
 ) -> Result<ObserverBlock, flexloop_control::lti::StateSpaceError> {
-    let inputs = 2 + extra_delay;
+    let inputs = n_y + n_u * (1 + extra_delay);
     Ok(ObserverBlock {
         system: DiscreteStateSpace::new(
             DMatrix::zeros(0, 0),
             DMatrix::zeros(0, inputs),
-            DMatrix::zeros(2, 0),
-            DMatrix::zeros(2, inputs),
+            DMatrix::zeros(n_y + n_u, 0),
+            DMatrix::zeros(n_y + n_u, inputs),
             ts,
         )?,
         estimate_map: DMatrix::zeros(0, 0),
-        n_y: 1,
-        n_u: 1,
+        n_y,
+        n_u,
         extra_delay_samples: extra_delay,
     })
 }
@@ -732,6 +1172,238 @@ start_s = 0.01
         assert_eq!(s.plant.sensor_node(), 5.0);
         let d = LoopDesign::from_scenario(&s).unwrap();
         assert_eq!(d.plant, design(THESIS).unwrap().plant);
+    }
+
+    fn shipped(name: &str) -> Scenario {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../scenarios")
+            .join(format!("{name}.toml"));
+        Scenario::load(&path, &Overrides::default()).unwrap()
+    }
+
+    fn shipped_text(name: &str) -> String {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../scenarios")
+            .join(format!("{name}.toml"));
+        std::fs::read_to_string(path).unwrap()
+    }
+
+    #[test]
+    fn stand_in_models_have_their_dimensions_and_a_decoupled_pid() {
+        for (name, ny, nu, flexible, observer_states) in [
+            // rigid + 2 flexible modes, noise model on 2 inputs
+            ("mimo-example", 2, 2, 3, 10),
+            // 3 rigid + 8 flexible, noise model on 3 inputs
+            ("oat-like", 3, 3, 8, 25),
+            // 1 rigid + 1 flexible, noise model on 1 input
+            ("two-inertia", 1, 1, 1, 5),
+        ] {
+            let d = LoopDesign::from_scenario(&shipped(name)).unwrap();
+            assert_eq!((d.n_outputs, d.n_inputs), (ny, nu), "{name}");
+            assert_eq!(d.output_names.len(), ny);
+            assert_eq!(d.reference_direction.len(), ny);
+            assert_eq!(d.flexible_modes.len(), flexible, "{name}");
+            assert_eq!(d.observer.estimate_map.nrows(), observer_states, "{name}");
+            let fb = d.feedback.as_ref().unwrap();
+            assert_eq!((fb.inputs(), fb.outputs()), (ny, nu));
+            assert_eq!(d.feedforward.len(), nu);
+            assert!(d.modified_feedforward.is_some());
+        }
+    }
+
+    #[test]
+    fn the_decoupled_pid_is_one_pid_per_rigid_axis() {
+        // Υ P Γ has the identity over s² as its rigid part, so Υ⁻¹… no: the
+        // controller seen through the decoupling, Γ⁻¹ C Υ⁻¹, must be the
+        // single-parameter PID on 1/s² on every axis and zero across.
+        let s = shipped("mimo-example");
+        let d = LoopDesign::from_scenario(&s).unwrap();
+        let full = models::mimo_example().unwrap();
+        let (_, gamma, upsilon) = full.rigid_body_decoupled().unwrap();
+        let one = PidTuning::single_parameter(1.0, s.controller.bandwidth_hz)
+            .unwrap()
+            .discrete(d.ts)
+            .unwrap();
+        let fb = d.feedback.unwrap();
+        for hz in [1.0, 30.0, 300.0] {
+            let w = 2.0 * PI * hz;
+            let c = flexloop_control::freq::freq_response_discrete(&fb, w).unwrap();
+            let to_c = |m: &DMatrix<f64>| m.map(|v| Complex::new(v, 0.0));
+            let seen = to_c(&gamma.clone().try_inverse().unwrap())
+                * c
+                * to_c(&upsilon.clone().try_inverse().unwrap());
+            let want = flexloop_control::freq::freq_response_discrete(&one, w).unwrap()[(0, 0)];
+            for i in 0..2 {
+                for j in 0..2 {
+                    let expect = if i == j { want } else { Complex::new(0.0, 0.0) };
+                    assert!(
+                        (seen[(i, j)] - expect).norm() < 1e-9 * want.norm(),
+                        "{hz} Hz"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_rigid_body_feedforward_moves_the_direction_and_holds_the_rest() {
+        // u0 = Γ Υ d r̈ drives the rigid body exactly: through the rigid part
+        // of the plant (φ_s,rig φ_a,rigᵀ) it gives d r̈.
+        let d = LoopDesign::from_scenario(&shipped("mimo-example")).unwrap();
+        let full = models::mimo_example().unwrap();
+        let acc = DVector::from_iterator(2, d.feedforward.iter().map(|g| g[2]));
+        let rigid = full.phi_s.columns(0, 2) * full.phi_a.rows(0, 2);
+        let moved = rigid * acc;
+        assert!(
+            (moved[0] - 1.0).abs() < 1e-12 && moved[1].abs() < 1e-12,
+            "{moved}"
+        );
+        // The snap gain takes out the flexible modes' static compliance.
+        assert!(
+            d.feedforward
+                .iter()
+                .all(|g| g[4] != 0.0 && g[1] == 0.0 && g[3] == 0.0)
+        );
+    }
+
+    #[test]
+    fn mimo_settings_that_do_not_fit_the_plant_name_their_field() {
+        let cases = [
+            // A MIMO reference on the SISO chain.
+            (
+                THESIS.replace("start_s = 0.01", "start_s = 0.01\ndirection = [1.0, 0.0]"),
+                "reference.direction",
+                "1 output",
+            ),
+            // An observer keeping more flexible modes than the plant has.
+            (
+                shipped_text("two-inertia").replace(
+                    "design = \"kalman\"",
+                    "design = \"kalman\"\nflexible_modes = 2",
+                ),
+                "observer.flexible_modes",
+                "1 flexible mode",
+            ),
+            // Four-gain feedforward on a two-input plant.
+            (
+                format!(
+                    "{}\n[controller.feedforward]\nacc = 10.0\n",
+                    shipped_text("mimo-example")
+                ),
+                "controller.feedforward",
+                "rigid-body",
+            ),
+            // Three output directions on two outputs.
+            (
+                shipped_text("mimo-example")
+                    .replace("direction = [1.0, 0.0]", "direction = [1.0, 0.0, 0.0]"),
+                "reference.direction",
+                "2 outputs",
+            ),
+        ];
+        for (text, field, fragment) in cases {
+            let err = design(&text).unwrap_err();
+            assert_eq!(err.field.as_deref(), Some(field), "{err}");
+            assert!(err.reason.contains(fragment), "{err}");
+        }
+        // Schema-level: encoders on another model, output on a MIMO model,
+        // a two-inertia output that does not exist, a zero direction.
+        for (text, field) in [
+            (
+                THESIS.replace("input_limit", "encoders = [1, 2, 3]\ninput_limit"),
+                "plant.encoders",
+            ),
+            (
+                shipped_text("oat-like").replace("encoders = [1, 2, 3]", "encoders = [1, 2, 2]"),
+                "plant.encoders",
+            ),
+            (
+                shipped_text("mimo-example").replace("input_limit", "output = 1\ninput_limit"),
+                "plant.output",
+            ),
+            (
+                shipped_text("two-inertia").replace("output = 1", "output = 3"),
+                "plant.output",
+            ),
+            (
+                shipped_text("mimo-example")
+                    .replace("direction = [1.0, 0.0]", "direction = [0.0, 0.0]"),
+                "reference.direction",
+            ),
+        ] {
+            let err = design(&text).unwrap_err();
+            assert_eq!(err.field.as_deref(), Some(field), "{err}");
+        }
+    }
+
+    #[test]
+    fn a_mimo_design_checks_stability_and_every_actuator() {
+        let text = shipped_text("mimo-example");
+        let err = design(&text.replace("bandwidth_hz = 30.0", "bandwidth_hz = 400.0")).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("controller.bandwidth_hz"));
+        assert!(err.reason.contains("unstable"), "{err}");
+        // Without MC and AD the 30 Hz loop cannot live with the 161 Hz mode.
+        let bare = text
+            .replace("design = \"kalman\"", "design = \"none\"")
+            .replace("mc = true", "mc = false")
+            .replace("ad = true", "ad = false")
+            .replace("\"modified\"", "\"plain\"");
+        assert!(design(&bare).unwrap_err().reason.contains("unstable"));
+        let err = design(&text.replace("input_limit = 2000.0", "input_limit = 100.0")).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("plant.input_limit"));
+        assert!(err.reason.contains("on input 1"), "{err}");
+    }
+
+    #[test]
+    fn a_scanned_sensor_is_designed_and_checked() {
+        let d = LoopDesign::from_scenario(&shipped("thesis-sensor-scan-ad")).unwrap();
+        let scan = d.sensor_scan.as_ref().unwrap();
+        // 29 grid points over the chain; the position follows the reference.
+        let o = scan.observer.as_ref().unwrap();
+        assert_eq!(o.schedule.models().grid().points(), 29);
+        assert_eq!(scan.position_at(scan.r_start), 0.0);
+        assert_eq!(scan.position_at(scan.r_end), 7.0);
+        assert!((scan.position_at(0.5 * (scan.r_start + scan.r_end)) - 3.5).abs() < 1e-12);
+        // The plant row at a node is that node's output row.
+        let mut row = vec![0.0; d.plant.states()];
+        scan.plant_row(5.0, &mut row);
+        let y5 = models::thesis_plant(5).unwrap().state_space().c;
+        assert!((DMatrix::from_row_slice(1, row.len(), &row) - y5).amax() < 1e-15);
+        // Bad scans name the field.
+        let text = shipped_text("thesis-sensor-scan-ad");
+        for (from, to, field) in [
+            (
+                "sensor_scan = [0.0, 7.0]",
+                "sensor_scan = [0.0, 7.5]",
+                "plant.sensor_scan",
+            ),
+            (
+                "sensor_scan = [0.0, 7.0]",
+                "sensor_scan = [2.0, 2.0]",
+                "plant.sensor_scan",
+            ),
+            (
+                "sensor_scan = [0.0, 7.0]",
+                "sensor_scan = [0.0, 7.0]\noutput = 5",
+                "plant.sensor_scan",
+            ),
+            ("shape = \"scan\"", "shape = \"sine\"", "plant.sensor_scan"),
+            (
+                "feedforward_form = \"plain\"",
+                "feedforward_form = \"modified\"",
+                "controller.feedforward_form",
+            ),
+            (
+                "\nscheduling = \"interpolated\"",
+                "\nscheduling = \"nearest\"",
+                "observer.scheduling",
+            ),
+        ] {
+            let Err(err) = design(&text.replacen(from, to, 1)) else {
+                panic!("{to}: accepted");
+            };
+            assert_eq!(err.field.as_deref(), Some(field), "{to}: {err}");
+        }
     }
 
     #[test]

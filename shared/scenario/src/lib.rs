@@ -6,11 +6,14 @@
 //! - [`design`]: turns a validated scenario into the loop's discrete blocks
 //!   (plant, observer block, feedback, reference), identically in every process.
 //! - [`reference`]: set-point profiles evaluated per sample without allocating.
+//! - [`sensor_scan`]: a sensor the structure scans past, and the observer
+//!   scheduled on its position.
 
 pub mod design;
 pub mod error;
 pub mod reference;
 pub mod schema;
+pub mod sensor_scan;
 
 pub use design::{LoopDesign, ObserverBlock};
 pub use error::ScenarioError;

@@ -31,6 +31,9 @@ pub enum Reference {
         setpoint: Box<Setpoint>,
         start_s: f64,
         repeat_s: f64,
+        /// The profile times this (1: the thesis' 0.17 m stroke), with the
+        /// same timing: a shorter stroke at a proportionally lower speed.
+        scale: f64,
     },
 }
 
@@ -68,6 +71,7 @@ impl Reference {
                 ref setpoint,
                 start_s,
                 repeat_s,
+                scale,
             } => {
                 // Ticks fall exactly on the profile's switching times (every
                 // 5 ms); 1 ps forward makes each one resolve to the segment that
@@ -75,12 +79,17 @@ impl Reference {
                 // side costs one sample of a 13 N snap feedforward step).
                 let (index, local) = scan_index(t - start_s + SWITCH_NUDGE_S, repeat_s);
                 let p = setpoint.evaluate(local);
-                if index % 2 == 0 {
+                let d = if index % 2 == 0 {
                     [p.r, p.v, p.a, p.j, p.s]
                 } else {
                     // Back: from the end position to the start.
                     let end = setpoint.evaluate(setpoint.duration()).r;
                     [end - p.r, -p.v, -p.a, -p.j, -p.s]
+                };
+                if scale == 1.0 {
+                    d
+                } else {
+                    d.map(|v| scale * v)
                 }
             }
         }
@@ -94,6 +103,7 @@ impl Reference {
                 setpoint,
                 start_s,
                 repeat_s,
+                ..
             } => {
                 let (a, b) = setpoint.scan_window();
                 let mut windows = Vec::new();
@@ -121,6 +131,7 @@ impl Reference {
                 setpoint,
                 start_s,
                 repeat_s,
+                ..
             } => (*repeat_s <= 0.0).then(|| start_s + setpoint.duration()),
         }
     }
@@ -163,6 +174,7 @@ mod tests {
             setpoint: Box::new(setpoint),
             start_s: 0.01,
             repeat_s: 0.25,
+            scale: 1.0,
         };
         let end = r.sample(0.01 + 0.2)[0];
         assert!((end - 0.17).abs() < 1e-9, "{end}");

@@ -85,19 +85,31 @@ fn default_duration() -> f64 {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlantSection {
-    /// Built-in model: `double-integrator` or `thesis-chain`.
+    /// Built-in model: `double-integrator`, `thesis-chain`, `mimo-example`,
+    /// `oat-like` or `two-inertia` (see [`MODELS`]).
     pub model: String,
     /// Mass of the double integrator.
     #[serde(default = "one")]
     pub mass_kg: f64,
-    /// Thesis chain: the measured mass y1..y7 (control.md §1.3; y5 in the thesis runs).
+    /// Thesis chain: the measured mass y1..y7 (control.md §1.3; y5 in the
+    /// thesis runs). Two-inertia setup: 1 = θ1 (the load), 2 = θ2 (the
+    /// motor side); absent: 1. The other models measure every sensor.
     #[serde(default = "default_output")]
     pub output: usize,
+    /// OAT-like model: which three of the four out-of-plane encoders
+    /// (1..=4) are read, the thesis' "position" (control.md §1.8).
+    pub encoders: Option<Vec<usize>>,
     /// Thesis chain: a world-fixed sensor at this position along the
     /// structure in node units, 0 = ma, 1 = m1 … 7 = m7; between nodes the
     /// mass-normalised mode-shape rows are interpolated linearly (control.md
     /// §1.4). Replaces `output`: an integer position is the same sensor.
     pub sensor_position: Option<f64>,
+    /// Thesis chain: a world-fixed sensor that the structure scans past:
+    /// at the first position (node units) when the scan's reference is at
+    /// its start, at the second when it is at its end, linearly in between
+    /// (control.md §1.4). Plant and observer follow it every tick; the
+    /// observer schedules its Kalman gain (`observer.scheduling`).
+    pub sensor_scan: Option<[f64; 2]>,
     /// Whether the file named `output` (not part of the format): `output`
     /// has a default, so only the text tells a given one from the default.
     #[serde(skip)]
@@ -122,11 +134,36 @@ pub struct PlantSection {
 /// The last node of the thesis chain (m7), in sensor-position units.
 pub const SENSOR_POSITION_MAX: f64 = 7.0;
 
+/// The built-in plant models.
+pub const MODELS: [&str; 5] = [
+    "double-integrator",
+    "thesis-chain",
+    "mimo-example",
+    "oat-like",
+    "two-inertia",
+];
+
+/// OAT-like model: the encoders read when the file names none.
+pub const DEFAULT_ENCODERS: [usize; 3] = [1, 2, 3];
+
 impl PlantSection {
     /// The thesis chain's sensor in node units: `sensor_position`, or the
     /// node of `output` (y_i sits on node i).
     pub fn sensor_node(&self) -> f64 {
         self.sensor_position.unwrap_or(self.output as f64)
+    }
+
+    /// Two-inertia setup: the measured angle, 1 (θ1, the load) unless the
+    /// file names one.
+    pub fn two_inertia_output(&self) -> usize {
+        if self.output_given { self.output } else { 1 }
+    }
+
+    /// OAT-like model: the three encoders read (1..=4).
+    pub fn oat_encoders(&self) -> Vec<usize> {
+        self.encoders
+            .clone()
+            .unwrap_or_else(|| DEFAULT_ENCODERS.to_vec())
     }
 }
 
@@ -173,9 +210,33 @@ pub struct ObserverSection {
     /// Increase of modal damping AD aims for on each retained flexible mode.
     #[serde(default = "default_damping_increase")]
     pub damping_increase: f64,
+    /// The modal damping AD aims for on every retained flexible mode; when
+    /// given, it replaces `damping_increase` (each mode gets the increase
+    /// from its own open-loop damping, none if it is already damped more).
+    pub damping_target: Option<f64>,
+    /// Flexible modes the observer's reduced model keeps (the rest enter as
+    /// T_DC); absent: the model's default (thesis chain 3, MIMO example 2,
+    /// OAT-like 8, two-inertia 1). The thesis chain's mode 7 stays unknown.
+    pub flexible_modes: Option<usize>,
     /// Q of the per-mode band-pass filters of AD; 0: no band-pass.
     #[serde(default = "default_bandpass_q")]
     pub bandpass_q: f64,
+    /// With `plant.sensor_scan`: `interpolated` (steady-state Kalman gains on
+    /// a position grid, interpolated) or `time-varying` (the Riccati
+    /// recursion every tick).
+    #[serde(default = "default_scheduling")]
+    pub scheduling: String,
+    /// With `plant.sensor_scan`: the largest spacing of the interpolation
+    /// grid in node units (0.25: the thesis' 29 points over the chain).
+    #[serde(default = "default_scheduling_step")]
+    pub scheduling_step: f64,
+}
+
+fn default_scheduling() -> String {
+    "interpolated".into()
+}
+fn default_scheduling_step() -> f64 {
+    0.25
 }
 
 fn default_damping_increase() -> f64 {
@@ -277,6 +338,9 @@ pub struct ReferenceSection {
     /// sample of rest first: its feedforward is issued ahead of the motion).
     #[serde(default)]
     pub start_s: f64,
+    /// How the profile drives the outputs: r_i = direction_i · r. Absent:
+    /// the profile on the first output, every other output held at 0.
+    pub direction: Option<Vec<f64>>,
 }
 
 impl Default for ReferenceSection {
@@ -287,6 +351,7 @@ impl Default for ReferenceSection {
             frequency_hz: default_frequency(),
             repeat_s: 0.0,
             start_s: 0.0,
+            direction: None,
         }
     }
 }
@@ -550,12 +615,17 @@ impl Scenario {
                 return Err(self.err(field, "must be at least 1 tick"));
             }
         }
-        if !(1..=7).contains(&self.plant.output) {
+        if !MODELS.contains(&self.plant.model.as_str()) {
             return Err(self.err(
-                "plant.output",
-                format!("the chain has outputs 1..=7, got {}", self.plant.output),
+                "plant.model",
+                format!(
+                    "unknown model `{}` (expected one of {})",
+                    self.plant.model,
+                    MODELS.join(", ")
+                ),
             ));
         }
+        self.validate_outputs()?;
         if let Some(p) = self.plant.sensor_position {
             let field = "plant.sensor_position";
             if self.plant.model != "thesis-chain" {
@@ -586,7 +656,16 @@ impl Scenario {
         if let Some(q) = self.observer.q_nu {
             non_negative("observer.q_nu", q)?;
         }
+        self.validate_sensor_scan()?;
         non_negative("observer.damping_increase", self.observer.damping_increase)?;
+        if let Some(z) = self.observer.damping_target
+            && !(z.is_finite() && z > 0.0 && z < 1.0)
+        {
+            return Err(self.err(
+                "observer.damping_target",
+                format!("a modal damping ratio must lie in (0, 1), got {z}"),
+            ));
+        }
         non_negative("observer.bandpass_q", self.observer.bandpass_q)?;
         positive("controller.bandwidth_hz", self.controller.bandwidth_hz)?;
         for (i, hz) in self.controller.notches_hz.iter().enumerate() {
@@ -648,6 +727,20 @@ impl Scenario {
         positive("reference.frequency_hz", self.reference.frequency_hz)?;
         non_negative("reference.start_s", self.reference.start_s)?;
         non_negative("reference.repeat_s", self.reference.repeat_s)?;
+        if let Some(direction) = &self.reference.direction {
+            if let Some((i, v)) = direction.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(self.err(
+                    &format!("reference.direction[{i}]"),
+                    format!("must be finite, got {v}"),
+                ));
+            }
+            if direction.iter().all(|v| *v == 0.0) {
+                return Err(self.err(
+                    "reference.direction",
+                    "needs at least one non-zero entry (the profile drives no output)",
+                ));
+            }
+        }
         for (field, p) in [
             ("realtime.plant.priority", &self.realtime.plant),
             ("realtime.observer.priority", &self.realtime.observer),
@@ -660,6 +753,137 @@ impl Scenario {
                 return Err(self.err(
                     field,
                     format!("SCHED_FIFO priority must be 1..=99, got {prio}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A sensor the structure scans past: the thesis chain, a scan, two
+    /// positions on it, no other way of placing the sensor.
+    fn validate_sensor_scan(&self) -> Result<(), ScenarioError> {
+        let o = &self.observer;
+        if !matches!(o.scheduling.as_str(), "interpolated" | "time-varying") {
+            return Err(self.err(
+                "observer.scheduling",
+                format!(
+                    "unknown scheduling `{}` (expected interpolated or time-varying)",
+                    o.scheduling
+                ),
+            ));
+        }
+        if !(o.scheduling_step.is_finite() && o.scheduling_step > 0.0 && o.scheduling_step <= 7.0) {
+            return Err(self.err(
+                "observer.scheduling_step",
+                format!("must lie in (0, 7] node units, got {}", o.scheduling_step),
+            ));
+        }
+        let Some([from, to]) = self.plant.sensor_scan else {
+            return Ok(());
+        };
+        let field = "plant.sensor_scan";
+        if self.plant.model != "thesis-chain" {
+            return Err(self.err(
+                field,
+                format!(
+                    "only the thesis chain has a sensor to scan past, not `{}`",
+                    self.plant.model
+                ),
+            ));
+        }
+        if self.plant.output_given || self.plant.sensor_position.is_some() {
+            return Err(self.err(
+                field,
+                "give one of plant.output, plant.sensor_position and plant.sensor_scan",
+            ));
+        }
+        for p in [from, to] {
+            if !(p.is_finite() && (0.0..=SENSOR_POSITION_MAX).contains(&p)) {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "positions must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {p}"
+                    ),
+                ));
+            }
+        }
+        if from == to {
+            return Err(self.err(
+                field,
+                format!("the sensor does not move ({from} to {to}): use plant.sensor_position"),
+            ));
+        }
+        if self.reference.shape != "scan" {
+            return Err(self.err(
+                field,
+                format!(
+                    "the sensor follows a scan; reference.shape is `{}`",
+                    self.reference.shape
+                ),
+            ));
+        }
+        if self.controller.feedforward_form == "modified" {
+            return Err(self.err(
+                "controller.feedforward_form",
+                "the modified feedforward copies a fixed observer; with plant.sensor_scan \
+                 use `plain`",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Which sensors the model reads: `output`, `sensor_position` and
+    /// `encoders` each belong to one model.
+    fn validate_outputs(&self) -> Result<(), ScenarioError> {
+        let model = self.plant.model.as_str();
+        let output = self.plant.output;
+        match model {
+            "two-inertia" => {
+                if !(1..=2).contains(&output) {
+                    return Err(self.err(
+                        "plant.output",
+                        format!("the two-inertia setup measures θ1 (1) or θ2 (2), got {output}"),
+                    ));
+                }
+            }
+            "mimo-example" | "oat-like" => {
+                if self.plant.output_given {
+                    return Err(self.err(
+                        "plant.output",
+                        format!(
+                            "`{model}` measures all its sensors; reference.direction says \
+                             which outputs the reference moves"
+                        ),
+                    ));
+                }
+            }
+            _ => {
+                if !(1..=7).contains(&output) {
+                    return Err(self.err(
+                        "plant.output",
+                        format!("the chain has outputs 1..=7, got {output}"),
+                    ));
+                }
+            }
+        }
+        if let Some(encoders) = &self.plant.encoders {
+            let field = "plant.encoders";
+            if model != "oat-like" {
+                return Err(self.err(
+                    field,
+                    format!("only the OAT-like model selects encoders, not `{model}`"),
+                ));
+            }
+            let mut sorted = encoders.clone();
+            sorted.sort_unstable();
+            sorted.dedup();
+            if encoders.len() != 3
+                || sorted.len() != 3
+                || sorted.iter().any(|e| !(1..=4).contains(e))
+            {
+                return Err(self.err(
+                    field,
+                    format!("three different encoders of 1..=4, got {encoders:?}"),
                 ));
             }
         }
