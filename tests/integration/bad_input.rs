@@ -216,14 +216,14 @@ fn an_unstable_mimo_design_is_refused() {
     let path = variant_of(
         &dir,
         "mimo-example",
-        "bandwidth_hz = 30.0",
+        "bandwidth_hz = 37.0",
         "bandwidth_hz = 400.0",
     );
     refused(&dir, &path, "controller.bandwidth_hz", &["unstable"]);
     let path = variant_of(
         &dir,
         "oat-like",
-        "bandwidth_hz = 20.0",
+        "bandwidth_hz = 26.0",
         "bandwidth_hz = 400.0",
     );
     refused(&dir, &path, "controller.bandwidth_hz", &["unstable"]);

@@ -9,7 +9,7 @@
 //! `flexloop_control::report`; this one describes the single design a
 //! scenario runs, whatever the model.
 
-use crate::modal_damping::modal_damping;
+use flexloop_control::closed_loop::closed_loop_modes;
 use flexloop_control::freq::{freq_response_discrete, log_grid_hz};
 use flexloop_control::linalg::spectral_radius;
 use flexloop_control::lti::DiscreteStateSpace;
@@ -29,8 +29,12 @@ const GRID_POINTS: usize = 600;
 pub struct FlexibleModeRow {
     pub frequency_hz: f64,
     pub open_loop: f64,
-    /// Least-damped closed-loop pole within 5 % (observer poles left out).
+    /// Damping and frequency of the closed-loop pole that is this mode: the
+    /// least damped within 5 % (as `modal_damping`), or where the loop moved
+    /// it further (a low mode under a loop of similar bandwidth) the nearest
+    /// within 30 %; observer error poles left out.
     pub closed_loop: Option<f64>,
+    pub closed_loop_hz: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -136,12 +140,36 @@ pub fn loop_report(scenario: &Scenario, design: &LoopDesign) -> Result<LoopRepor
         && axes
             .iter()
             .all(|a| a.peak_si_db <= PEAK_LIMIT_DB && a.peak_so_db <= PEAK_LIMIT_DB);
-    let flexible_modes = modal_damping(design, None, 0.0, 0.0)
+    let poles: Vec<(f64, f64)> = closed_loop_modes(cl)
+        .unwrap_or_default()
         .into_iter()
-        .map(|m| FlexibleModeRow {
-            frequency_hz: m.frequency_hz,
-            open_loop: m.open_loop,
-            closed_loop: m.closed_loop_model,
+        .filter(|(f, z)| {
+            f.is_finite()
+                && z.is_finite()
+                && !design
+                    .observer_modes
+                    .iter()
+                    .any(|(fo, zo)| (f - fo).abs() < 0.2 && (z - zo).abs() < 1e-3)
+        })
+        .collect();
+    let flexible_modes = design
+        .flexible_modes
+        .iter()
+        .map(|&(fm, open_loop)| {
+            let near = |tolerance: f64| {
+                poles
+                    .iter()
+                    .filter(move |(f, _)| (f - fm).abs() < tolerance * fm)
+            };
+            let pole = near(0.05)
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .or_else(|| near(0.3).min_by(|a, b| (a.0 - fm).abs().total_cmp(&(b.0 - fm).abs())));
+            FlexibleModeRow {
+                frequency_hz: fm,
+                open_loop,
+                closed_loop: pole.map(|p| p.1),
+                closed_loop_hz: pole.map(|p| p.0),
+            }
         })
         .collect();
     let mut observer_poles = design.observer_modes.clone();
@@ -246,17 +274,18 @@ impl LoopReport {
             let _ = writeln!(s, "\nFlexible modes of the plant");
             let _ = writeln!(
                 s,
-                "  {:>4} {:>10} {:>10} {:>12}",
-                "mode", "f [Hz]", "open loop", "closed loop"
+                "  {:>4} {:>10} {:>10} {:>12} {:>14}",
+                "mode", "f [Hz]", "open loop", "closed loop", "at [Hz]"
             );
             for (i, m) in self.flexible_modes.iter().enumerate() {
                 let _ = writeln!(
                     s,
-                    "  {:>4} {:>10.1} {:>10.4} {:>12}",
+                    "  {:>4} {:>10.1} {:>10.4} {:>12} {:>14}",
                     i + 1,
                     m.frequency_hz,
                     m.open_loop,
-                    m.closed_loop.map_or("-".into(), |z| format!("{z:.4}"))
+                    m.closed_loop.map_or("-".into(), |z| format!("{z:.4}")),
+                    m.closed_loop_hz.map_or("-".into(), |f| format!("{f:.1}"))
                 );
             }
         }

@@ -25,7 +25,8 @@ struct Scheduled {
     scan: SensorScan,
     reference: Reference,
     ts: f64,
-    /// Block state [x̂; w] for hand-overs.
+    /// Running state [x̂; w; P] for hand-overs (a design whose state does
+    /// not fit a hand-over message hands over nothing).
     state: Vec<f64>,
     /// Ticks whose gain could not be scheduled (the previous one stayed).
     errors: u64,
@@ -97,7 +98,7 @@ impl ObserverCore {
                 )))
                 .value();
             core.scheduled = Some(Scheduled {
-                state: vec![0.0; o.block_states()],
+                state: vec![0.0; observer.state_len()],
                 observer,
                 scan: scan.clone(),
                 reference: design.reference.clone(),
@@ -273,7 +274,12 @@ impl ObserverCore {
             {
                 return false;
             }
-            sched.observer.set_state(&from.state[..n]);
+            let next = sched
+                .scan
+                .position_of_tick(&sched.reference, from.seq + 1, sched.ts);
+            if sched.observer.set_state(&from.state[..n], next).is_err() {
+                return false;
+            }
             sched.state.copy_from_slice(&from.state[..n]);
             let n = self.x_hat.len();
             let x = sched.observer.estimate();

@@ -87,3 +87,42 @@ fn the_per_sample_path_does_not_allocate() {
         }
     });
 }
+
+/// A scheduled observer (a sensor the chain scans past) hands its state to a
+/// replacement as the fixed one does (with the covariance of the
+/// time-varying gain): the replacement's estimates from then on are the
+/// original's, bit for bit.
+#[test]
+fn a_scheduled_observer_hands_over_its_state() {
+    use flexloop_components::ObserverCore;
+    use flexloop_protocol::{Estimate, Handover};
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/thesis-sensor-scan-ad.toml");
+    for scheduling in ["interpolated", "time-varying"] {
+        let mut s = Scenario::load(&path, &Overrides::default()).unwrap();
+        s.observer.scheduling = scheduling.into();
+        let d = LoopDesign::from_scenario(&s).unwrap();
+        let mut l = InProcessLoop::new(&d).unwrap();
+        for _ in 0..1200 {
+            l.tick();
+        }
+        let mut state = Box::<Handover>::default();
+        l.observer.save(&mut state);
+        state.seq = l.measurement.seq;
+        assert!(state.n_states > 0, "{scheduling}");
+        let mut replacement = ObserverCore::for_design(&d).unwrap();
+        assert!(replacement.load(&state), "{scheduling}");
+        let mut theirs = Box::<Estimate>::default();
+        for _ in 0..300 {
+            l.tick();
+            replacement.step(&l.measurement, &mut theirs);
+            assert_eq!(theirs.seq, l.estimate.seq);
+            assert_eq!(theirs.free, l.estimate.free, "{scheduling}");
+            assert_eq!(theirs.direct, l.estimate.direct, "{scheduling}");
+            assert_eq!(theirs.x_hat, l.estimate.x_hat, "{scheduling}");
+        }
+        // A fixed observer of the same chain is another design: no hand-over.
+        let fixed = ObserverCore::new(&d.observer, &d.output_prediction, 1, 1).unwrap();
+        assert_ne!(fixed.design_hash(), replacement.design_hash());
+    }
+}

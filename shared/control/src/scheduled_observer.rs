@@ -30,7 +30,7 @@ use crate::design_error::{DesignError, check_matrix};
 use crate::kalman::steady_state_kalman;
 use crate::lti::DiscreteStateSpace;
 use crate::scheduling::{KalmanSchedule, ScheduledMatrices};
-use crate::step_error::StepError;
+use crate::step_error::{StepError, check_slice};
 use nalgebra::{DMatrix, DVector, DVectorView};
 
 /// How the Kalman gain follows the position.
@@ -187,19 +187,31 @@ impl ScheduledObserver {
         self.x.as_slice()
     }
 
-    /// The block state [x̂; w].
-    pub fn write_state(&self, out: &mut [f64]) {
-        let n = self.x.len();
-        out[..n].copy_from_slice(self.x.as_slice());
-        out[n..n + self.w.len()].copy_from_slice(self.w.as_slice());
+    /// Values [`Self::write_state`] writes: x̂, the K(z) state and, for the
+    /// time-varying gain, the covariance P (column-major).
+    pub fn state_len(&self) -> usize {
+        self.x.len() + self.w.len() + self.p.len()
     }
 
-    /// Takes over a block state [x̂; w] (a hand-over between instances); the
-    /// time-varying covariance stays this instance's own.
-    pub fn set_state(&mut self, state: &[f64]) {
+    /// The running state [x̂; w; P] into `out` (`state_len` values).
+    pub fn write_state(&self, out: &mut [f64]) {
         let (n, nw) = (self.x.len(), self.w.len());
+        out[..n].copy_from_slice(self.x.as_slice());
+        out[n..n + nw].copy_from_slice(self.w.as_slice());
+        out[n + nw..n + nw + self.p.len()].copy_from_slice(self.p.as_slice());
+    }
+
+    /// Takes over a state [x̂; w; P] written by an identical design (a
+    /// hand-over between instances) whose next tick is at `position`.
+    pub fn set_state(&mut self, state: &[f64], position: f64) -> Result<(), StepError> {
+        check_slice(state, "observer state", self.state_len())?;
+        let (n, nw, np) = (self.x.len(), self.w.len(), self.p.len());
         self.x.as_mut_slice().copy_from_slice(&state[..n]);
         self.w.as_mut_slice().copy_from_slice(&state[n..n + nw]);
+        self.p
+            .as_mut_slice()
+            .copy_from_slice(&state[n + nw..n + nw + np]);
+        self.prepare(position)
     }
 
     /// The predictor gain in use at the prepared tick.

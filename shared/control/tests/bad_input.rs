@@ -346,3 +346,84 @@ fn mismatched_dimensions() {
     );
     says(&err, &["y has 2 entries but must have 1"]);
 }
+
+// --- MIMO pieces that do not fit together ------------------------------------
+
+#[test]
+fn a_mimo_observer_on_a_siso_plant_is_refused() {
+    use flexloop_control::closed_loop::{LoopSpec, assemble_loop};
+    use flexloop_control::observer_block::{ModalObserverOptions, design_modal_observer};
+    // The 2x2 example's observer (rigid + 2 flexible, T_DC of the third)
+    // closed around the SISO thesis chain.
+    let mimo = mimo_example().unwrap();
+    let reduced = mimo.truncate(4, &[4]).unwrap();
+    let mut options = ModalObserverOptions::thesis_mc_ad(TS_10KHZ, 2);
+    options.damping.as_mut().unwrap().increase = vec![0.045; 2];
+    let observer = design_modal_observer(&reduced, &options).unwrap();
+    let plant = zoh(
+        &thesis_chain_modal()
+            .unwrap()
+            .select_outputs(&[4])
+            .unwrap()
+            .state_space(),
+        TS_10KHZ,
+    )
+    .unwrap();
+    let err = assemble_loop(&LoopSpec {
+        plant: &plant,
+        observer: Some(&observer.block),
+        controller: &thesis_pid(35.5, TS_10KHZ).unwrap(),
+        loop_delay: 1,
+    })
+    .unwrap_err();
+    assert!(
+        matches!(err, DesignError::DimensionMismatch { .. }),
+        "{err:?}"
+    );
+    says(&err, &["observer block (n_y, n_u)", "2x2 but must be 1x1"]);
+    // Rigid-body decoupling needs as many actuators and sensors as rigid modes.
+    let err = thesis_chain_modal()
+        .unwrap()
+        .rigid_body_decoupled()
+        .unwrap_err();
+    says(&err, &["rigid-body decoupling", "1x7 but must be 1x1"]);
+}
+
+#[test]
+fn a_scheduled_observer_with_a_foreign_damping_map_is_refused() {
+    use flexloop_control::scheduled_observer::{
+        GainScheduling, ScheduledObserver, ScheduledObserverDesign,
+    };
+    let model = thesis_model();
+    let grid = PositionGrid::new(0.0, 0.5, 3).unwrap();
+    let models =
+        ModelSchedule::new(grid, KalmanWeights::thesis(&model), |_| Ok(model.clone())).unwrap();
+    let design = ScheduledObserverDesign {
+        schedule: KalmanSchedule::design(models).unwrap(),
+        flexible_columns: Some(2..8),
+        // K(z) for two inputs on a one-input model.
+        feedback: Some(DiscreteStateSpace::gain(DMatrix::zeros(2, 8), TS_10KHZ).unwrap()),
+        extra_delay_samples: 0,
+        gains: GainScheduling::Interpolated,
+    };
+    let err = ScheduledObserver::new(design.clone(), 0.0).unwrap_err();
+    says(&err, &["K(z)", "2x8 but must be 1x8"]);
+    // Columns for MC beyond the state, and a start off the grid.
+    let wide = ScheduledObserverDesign {
+        feedback: None,
+        flexible_columns: Some(2..9),
+        ..design.clone()
+    };
+    says(
+        &ScheduledObserver::new(wide, 0.0).unwrap_err(),
+        &["flexible columns"],
+    );
+    let fine = ScheduledObserverDesign {
+        feedback: None,
+        ..design
+    };
+    says(
+        &ScheduledObserver::new(fine, 2.0).unwrap_err(),
+        &["scheduling position 2", "[0, 1]"],
+    );
+}

@@ -1339,10 +1339,10 @@ start_s = 0.01
     #[test]
     fn a_mimo_design_checks_stability_and_every_actuator() {
         let text = shipped_text("mimo-example");
-        let err = design(&text.replace("bandwidth_hz = 30.0", "bandwidth_hz = 400.0")).unwrap_err();
+        let err = design(&text.replace("bandwidth_hz = 37.0", "bandwidth_hz = 400.0")).unwrap_err();
         assert_eq!(err.field.as_deref(), Some("controller.bandwidth_hz"));
         assert!(err.reason.contains("unstable"), "{err}");
-        // Without MC and AD the 30 Hz loop cannot live with the 161 Hz mode.
+        // Without MC and AD the 37 Hz loop cannot live with the 161 Hz mode.
         let bare = text
             .replace("design = \"kalman\"", "design = \"none\"")
             .replace("mc = true", "mc = false")
