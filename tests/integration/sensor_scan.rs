@@ -7,7 +7,7 @@
 use crate::mimo::{assert_scan_tracks, run_file};
 use crate::util::*;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
-use flexloop_components::InProcessLoop;
+use flexloop_components::{InProcessLoop, ObserverCore};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 
 #[test]
@@ -68,4 +68,24 @@ fn a_scanned_sensor_schedules_the_observer_across_the_processes() {
     let held = ControlMetrics::compute(&trace, &windows, &MetricsOptions::default());
     let (c, d) = (held.e_true.rms, m_int.e_true.rms);
     assert!((c - d).abs() > 0.1 * d, "held {c:e} vs scanned {d:e}");
+
+    // The schedule matters: the same scan with the observer frozen where the
+    // scan starts (its fixed block) predicts the moving sensor far worse.
+    let design = &interpolated.design;
+    let mut frozen = InProcessLoop::new(design).unwrap();
+    frozen.observer = ObserverCore::new(
+        &design.observer,
+        &design.output_prediction,
+        design.n_outputs,
+        design.n_inputs,
+    )
+    .unwrap();
+    let trace = RunTrace::simulate(&mut frozen, design.ts, interpolated.ticks as u64);
+    let windows = design.reference.scan_windows(1.0);
+    let frozen = ControlMetrics::compute(&trace, &windows, &MetricsOptions::default());
+    let (scheduled_std, frozen_std) = (m_int.innovation.std, frozen.innovation.std);
+    assert!(
+        frozen_std > 10.0 * scheduled_std,
+        "innovation std: scheduled {scheduled_std:e}, frozen {frozen_std:e}"
+    );
 }
