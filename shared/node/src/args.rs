@@ -138,7 +138,7 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
         lock_memory: rt.lock_memory && is_loop,
         timer_slack_ns: Some(rt.timer_slack_ns),
         hold_cpu_dma_latency: rt.hold_cpu_dma_latency && role == Role::Plant,
-        stop_locking_future: false,
+        prefault_private: false,
         // Start-up work stays off the CPU of the plant's clock (the loop's).
         avoid_cpu: rt.plant.cpu,
     }
