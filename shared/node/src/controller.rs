@@ -129,7 +129,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         }
 
         ring.take(&estimates, activation.current())?;
-        if active && ring.find(m.seq).is_none() {
+        // A standby's command may be applied: it waits for the estimate too.
+        if (active || args.standby) && ring.find(m.seq).is_none() {
             let deadline = if lockstep {
                 received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
             } else {
@@ -189,6 +190,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             core.step(&m, estimate, &mut shadow_command);
             takeover.shadow_u = shadow_command.u;
             takeover.shadow_seq = m.seq;
+            if args.standby {
+                commands.publish(|c| {
+                    *c = shadow_command;
+                    c.flags |= flags::STANDBY;
+                    c.received_ns = received_ns;
+                    c.published_ns = monotonic_ns();
+                })?;
+            }
             publish_state(
                 &states_out,
                 m.seq,

@@ -113,10 +113,15 @@ pub fn publish_state(
 /// priority, so that stepping through its backlog never competes with the
 /// active loop; it moves to the loop's CPU and priority once it is named
 /// for a boundary ([`raise_priority`]).
+///
+/// A standby controller keeps its real-time priority on the other CPU: its
+/// commands are the plant's safe action and must be on time.
 pub fn shadow_scheduling(rt: &RealtimeSettings, args: &ServiceArgs) -> RealtimeSettings {
     let mut scheduling = rt.scheduling_part();
     if args.join {
-        scheduling.fifo_priority = None;
+        if !args.standby {
+            scheduling.fifo_priority = None;
+        }
         scheduling.avoid_cpu = scheduling.cpu.take();
     }
     scheduling
