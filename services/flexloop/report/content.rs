@@ -22,7 +22,7 @@ pub fn document(data: &RunData) -> Document {
     doc.push(Block::Paragraph(format!(
         "{description}Run directory `{}`: {} mode at {} Hz for {} s, {} ticks logged, one-sample \
          budget {:.0} µs. Sources: `summary.json` (timing tables), `latency.hlog` (latency \
-         distributions), the sample log (traces and control metrics), `events.jsonl` (events), \
+         distributions), `{}` (traces and control metrics), `events.jsonl` (events), \
          `scenario.toml` (the scenario as it ran).",
         data.dir.display(),
         s["mode"].as_str().unwrap_or("?"),
@@ -30,14 +30,8 @@ pub fn document(data: &RunData) -> Document {
         s["duration_s"].as_f64().unwrap_or(f64::NAN),
         s["ticks"],
         data.period_ns as f64 / 1e3,
+        flexloop_node::logger::SAMPLES_FILE,
     )));
-    let mut plots = figures::all(data).into_iter();
-    let mut next_plot = |doc: &mut Document| {
-        if let Some(plot) = plots.next() {
-            doc.push(figure(plot));
-        }
-    };
-
     doc.push(Block::Heading("Timing".into()));
     doc.push(Block::Paragraph(verdict(s, data.lockstep)));
     doc.push(Block::Subheading("Latency [µs]".into()));
@@ -51,17 +45,18 @@ pub fn document(data: &RunData) -> Document {
     doc.push(Block::Paragraph(hlog_check(data)));
     doc.push(Block::Subheading("Counters".into()));
     doc.push(Block::Table(counters_table(data)));
-    for _ in 0..3 {
-        next_plot(&mut doc);
-    }
+    doc.push(figure(figures::latency_hops(data)));
+    doc.push(figure(figures::latency_end_to_end(data)));
+    doc.push(figure(figures::tick_timing(data)));
 
     doc.push(Block::Heading("Control".into()));
     doc.push(Block::Paragraph(format!(
         "From the sample log, {} complete ticks (output y{}), as `flexloop run` computes them: \
-         e_true = r − y_true (noise-free output); MA and MSD over an exposure time of 5 ms \
+         e_true = r − y_true (noise-free output); MA and MSD over an exposure time of {} ms \
          (control.md §8).{}",
         run.metrics.ticks,
         run.scenario.plant.output,
+        flexloop_analysis::MetricsOptions::default().exposure_s * 1e3,
         if run.trace.incomplete_ticks > 0 {
             format!(
                 " {} ticks lack a command or an estimate in the log and are left out.",
@@ -80,17 +75,18 @@ pub fn document(data: &RunData) -> Document {
         doc.push(Block::Subheading("Modal damping".into()));
         doc.push(Block::Table(damping_table(data)));
     }
-    for _ in 0..4 {
-        next_plot(&mut doc);
-    }
+    doc.push(figure(figures::tracking_error(data, false)));
+    doc.push(figure(figures::tracking_error(data, true)));
+    doc.push(figure(figures::command(data, false)));
+    doc.push(figure(figures::command(data, true)));
     doc.push(Block::Subheading(
         "Estimated against true flexible output".into(),
     ));
     if let Ok(c) = &data.flexible {
         doc.push(Block::Table(flexible_table(c)));
     }
-    next_plot(&mut doc);
-    next_plot(&mut doc);
+    doc.push(figure(figures::flexible(data)));
+    doc.push(figure(figures::flexible_error(data)));
 
     doc.push(Block::Heading("Events".into()));
     if data.events.is_empty() {
@@ -161,6 +157,7 @@ fn flexible_table(c: &FlexibleComparison) -> Table {
 
 fn figure(plot: Plot) -> Block {
     Block::Figure(FigureBlock {
+        title: plot.figure.title.clone(),
         file: plot.file.to_string(),
         svg: plot.figure.to_svg(),
         caption: plot.caption,

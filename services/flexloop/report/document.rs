@@ -20,6 +20,7 @@ pub struct Table {
 }
 
 pub struct FigureBlock {
+    pub title: String,
     /// File name of the SVG beside the Markdown.
     pub file: String,
     pub svg: String,
@@ -74,7 +75,12 @@ impl Document {
                     }
                 }
                 Block::Figure(f) => {
-                    out.push_str(&format!("![{}]({})\n\n*{}*\n", f.file, f.file, f.caption));
+                    out.push_str(&format!(
+                        "![{}]({})\n\n*{}*\n",
+                        f.title.replace(['[', ']'], ""),
+                        f.file,
+                        f.caption
+                    ));
                 }
             }
         }
@@ -171,6 +177,7 @@ mod tests {
             numeric_from: 1,
         }));
         d.push(Block::Figure(FigureBlock {
+            title: "A [figure]".into(),
             file: "f.svg".into(),
             svg: "<svg xmlns=\"http://www.w3.org/2000/svg\"></svg>".into(),
             caption: "what it shows".into(),
@@ -186,7 +193,7 @@ mod tests {
             md.contains("| name | p50 |\n|---|---:|\n| a\\|b | 1.0 |\n"),
             "{md}"
         );
-        assert!(md.contains("![f.svg](f.svg)"));
+        assert!(md.contains("![A figure](f.svg)"));
     }
 
     #[test]

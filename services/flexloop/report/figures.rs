@@ -7,7 +7,7 @@ use flexloop_analysis::latency_log::percentile_distribution;
 use flexloop_plot::{Axis, Figure};
 use flexloop_runtime::latency::Metric;
 
-pub const RED: &str = "#d62728";
+const RED: &str = "#d62728";
 const BLACK: &str = "#222222";
 const GREEN: &str = "#2ca02c";
 const PURPLE: &str = "#9467bd";
@@ -29,7 +29,7 @@ const LOG_NOTE: &str = " The y axis is logarithmic because the maximum is far ab
      percentile; values below 0.1 µs are drawn on its floor.";
 
 /// The hops of one sample through the processes.
-pub const HOPS: [Metric; 7] = [
+const HOPS: [Metric; 7] = [
     Metric::TickLateness,
     Metric::PlantPublish,
     Metric::PlantToObserver,
@@ -40,37 +40,30 @@ pub const HOPS: [Metric; 7] = [
 ];
 
 /// The end-to-end latencies the one-sample budget applies to (or bounds).
-pub const END_TO_END: [Metric; 3] = [
+const END_TO_END: [Metric; 3] = [
     Metric::RoundTrip,
     Metric::TickToCommand,
     Metric::ObserverDone,
 ];
 
-/// Every figure of the report, in the order the report shows them.
-pub fn all(data: &RunData) -> Vec<Plot> {
-    vec![
-        latency(
-            data,
-            "latency-hops",
-            "Latency per hop: percentile distribution",
-            &HOPS,
-            false,
-        ),
-        latency(
-            data,
-            "latency-end-to-end",
-            "Round trip and the one-sample budget: percentile distribution",
-            &END_TO_END,
-            true,
-        ),
-        tick_timing(data),
-        tracking_error(data, false),
-        tracking_error(data, true),
-        command(data, false),
-        command(data, true),
-        flexible(data),
-        flexible_error(data),
-    ]
+pub fn latency_hops(data: &RunData) -> Plot {
+    latency(
+        data,
+        "latency-hops",
+        "Latency per hop: percentile distribution",
+        &HOPS,
+        false,
+    )
+}
+
+pub fn latency_end_to_end(data: &RunData) -> Plot {
+    latency(
+        data,
+        "latency-end-to-end",
+        "Round trip and the one-sample budget: percentile distribution",
+        &END_TO_END,
+        true,
+    )
 }
 
 fn latency(
@@ -155,6 +148,27 @@ fn latency(
     }
 }
 
+/// (time, value) per item, with a NaN wherever ticks are missing between
+/// two items, so that a line breaks at a gap in the log instead of bridging it.
+fn per_tick<T>(
+    items: &[T],
+    seq: impl Fn(&T) -> u64,
+    ts: f64,
+    value: impl Fn(&T) -> f64,
+) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(items.len());
+    let mut previous: Option<u64> = None;
+    for item in items {
+        let k = seq(item);
+        if previous.is_some_and(|p| k > p + 1) {
+            out.push(((k - 1) as f64 * ts, f64::NAN));
+        }
+        out.push((k as f64 * ts, value(item)));
+        previous = Some(k);
+    }
+    out
+}
+
 fn add_events(figure: &mut Figure, events: &[Event]) {
     for e in events {
         let color = match e.kind.as_str() {
@@ -166,7 +180,7 @@ fn add_events(figure: &mut Figure, events: &[Event]) {
     }
 }
 
-fn tick_timing(data: &RunData) -> Plot {
+pub fn tick_timing(data: &RunData) -> Plot {
     let trace = &data.run.trace;
     let t = |seq: u64| seq as f64 * trace.ts;
     let timing = &trace.timing;
@@ -178,22 +192,16 @@ fn tick_timing(data: &RunData) -> Plot {
     );
     figure.line(
         "tick lateness (plant awake)",
-        timing
-            .iter()
-            .map(|k| (t(k.seq), k.lateness_ns as f64 / 1e3))
-            .collect(),
+        per_tick(timing, |k| k.seq, trace.ts, |k| k.lateness_ns as f64 / 1e3),
     );
     figure.line(
         "u(k) published (tick_to_command)",
-        timing
-            .iter()
-            .map(|k| {
-                (
-                    t(k.seq),
-                    k.command_ns.map_or(f64::NAN, |ns| ns as f64 / 1e3),
-                )
-            })
-            .collect(),
+        per_tick(
+            timing,
+            |k| k.seq,
+            trace.ts,
+            |k| k.command_ns.map_or(f64::NAN, |ns| ns as f64 / 1e3),
+        ),
     );
     let budget_us = data.period_ns as f64 / 1e3;
     figure.hline(
@@ -250,7 +258,7 @@ fn tick_timing(data: &RunData) -> Plot {
     }
 }
 
-fn tracking_error(data: &RunData, zoom: bool) -> Plot {
+pub fn tracking_error(data: &RunData, zoom: bool) -> Plot {
     let trace = &data.run.trace;
     let scans = &data.run.metrics.scans;
     let window = scans.first().map(|s| (s.start_s, s.end_s));
@@ -268,11 +276,7 @@ fn tracking_error(data: &RunData, zoom: bool) -> Plot {
         )
     };
     let mut x = Axis::linear("time [s]");
-    let mut points: Vec<(f64, f64)> = trace
-        .rows
-        .iter()
-        .map(|r| (trace.time(r), r.e_true() * 1e9))
-        .collect();
+    let mut points = per_tick(&trace.rows, |r| r.seq, trace.ts, |r| r.e_true() * 1e9);
     if zoom {
         match window {
             Some((a, b)) => {
@@ -314,10 +318,10 @@ fn tracking_error(data: &RunData, zoom: bool) -> Plot {
     }
 }
 
-fn command(data: &RunData, small_parts: bool) -> Plot {
+pub fn command(data: &RunData, small_parts: bool) -> Plot {
     let trace = &data.run.trace;
     let series = |f: fn(&flexloop_analysis::trace::TickRow) -> f64| -> Vec<(f64, f64)> {
-        trace.rows.iter().map(|r| (trace.time(r), f(r))).collect()
+        per_tick(&trace.rows, |r| r.seq, trace.ts, f)
     };
     let (id, title, file) = if small_parts {
         (
@@ -365,7 +369,7 @@ fn command(data: &RunData, small_parts: bool) -> Plot {
     }
 }
 
-fn flexible(data: &RunData) -> Plot {
+pub fn flexible(data: &RunData) -> Plot {
     let mut figure = Figure::new(
         "flexible-output",
         "Flexible output at the sensor: estimated against true",
@@ -405,7 +409,7 @@ fn flexible(data: &RunData) -> Plot {
     }
 }
 
-fn flexible_error(data: &RunData) -> Plot {
+pub fn flexible_error(data: &RunData) -> Plot {
     let mut figure = Figure::new(
         "flexible-error",
         "Estimation error of the flexible output",
@@ -484,4 +488,20 @@ fn flexible_caption(c: &FlexibleComparison) -> String {
             String::new()
         }
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_gap_in_the_ticks_breaks_the_line() {
+        let seqs = [0u64, 1, 2, 5, 6];
+        let points = per_tick(&seqs, |k| *k, 0.5, |k| *k as f64);
+        assert_eq!(points.len(), 6);
+        assert_eq!(points[2], (1.0, 2.0));
+        assert_eq!(points[3].0, 2.0);
+        assert!(points[3].1.is_nan(), "a break before tick 5");
+        assert_eq!(points[4], (2.5, 5.0));
+    }
 }
