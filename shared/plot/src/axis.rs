@@ -255,7 +255,7 @@ pub fn format_linear(v: f64, step: f64) -> String {
 }
 
 fn format_log(v: f64) -> String {
-    if (1e-3..1e5).contains(&v) {
+    if (1e-3..1e6).contains(&v) {
         let decimals = (-(v.log10() + 1e-9).floor()).max(0.0) as usize;
         format!("{v:.decimals$}")
     } else {
