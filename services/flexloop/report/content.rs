@@ -55,7 +55,14 @@ pub fn document(data: &RunData) -> Document {
          e_true = r − y_true (noise-free output); MA and MSD over an exposure time of {} ms \
          (control.md §8).{}",
         run.metrics.ticks,
-        run.design.output_names.join(", "),
+        match run.design.output_names.as_slice() {
+            [one] => one.clone(),
+            names => format!(
+                "{}, the first of {}; `flexloop run` and metrics.json give every axis",
+                names.first().map_or("?", String::as_str),
+                names.len()
+            ),
+        },
         flexloop_analysis::MetricsOptions::default().exposure_s * 1e3,
         if run.trace.incomplete_ticks > 0 {
             format!(
