@@ -7,6 +7,7 @@
 mod bad_input;
 mod loop_processes;
 mod positions;
+mod recording;
 mod swap;
 mod thesis;
 mod util;

@@ -1,10 +1,15 @@
-//! The logger process: polls every channel, records every sample, counts
-//! gaps, keeps the latency histograms and publishes telemetry.
+//! The logger process: polls every channel, records every sample into the
+//! MCAP sample file (with the supervisor's events and those the samples
+//! show), counts gaps, keeps the latency histograms and publishes telemetry.
 //!
 //! It polls on its own 2 ms clock instead of waking on events, so the loop
-//! processes never pay a notification for it; its queues hold 51 ms.
+//! processes never pay a notification for it; its queues hold 51 ms. It
+//! hands the file a chunk every 100 ms; a write error (a full disk) stops
+//! the recording, closes the file at its last complete chunk and is
+//! reported, while the counting, the histograms and the loop go on.
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::run_metadata::run_metadata;
 use crate::summary::{run_summary, write_json_atomically};
 use crate::{NodeError, await_peers};
 use flexloop_components::Recorder;
@@ -16,17 +21,26 @@ use flexloop_runtime::{monotonic_ns, realtime, shutdown, usage};
 use flexloop_transport::{Domain, Inlet, Outlet};
 use hdrhistogram::serialization::V2DeflateSerializer;
 use hdrhistogram::serialization::interval_log::{IntervalLogWriterBuilder, Tag};
-use std::path::Path;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
 const POLL_NS: u64 = 2_000_000;
 const INTERVAL_NS: u64 = 1_000_000_000;
+/// How often the sample file gets a chunk: at most this much is lost when
+/// the logger is killed.
+const FLUSH_NS: u64 = 100_000_000;
+/// How often the supervisor's events file is read.
+const EVENTS_POLL_NS: u64 = 50_000_000;
 /// After the last measurement, how long to wait for its command and estimate.
 const END_GRACE_NS: u64 = 500_000_000;
 
-pub const SAMPLES_FILE: &str = "samples.flxlog";
+pub const SAMPLES_FILE: &str = "samples.mcap";
 pub const HISTOGRAM_LOG: &str = "latency.hlog";
 pub const SUMMARY_FILE: &str = "summary.json";
+/// The supervisor's events (swap, crash, restart, ...), one JSON object a
+/// line; the logger copies them into the sample file.
+pub const EVENTS_FILE: &str = "events.jsonl";
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> NodeError + '_ {
     move |error| NodeError::Io {
@@ -38,40 +52,38 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> NodeError + '_ {
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, _design) = args.load()?;
     let period_ns = scenario.period_ns();
+    // A file-size limit then fails a write (handled like a full disk)
+    // instead of killing the logger.
+    // SAFETY: ignoring a signal has no preconditions.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     // Files first: an unwritable run directory fails before the loop starts.
     // A restarted logger (generation > 0) never touches its predecessor's
-    // files, which may end in a torn record.
-    let samples_path = args
-        .run_dir
-        .join(generation_file(SAMPLES_FILE, args.generation));
+    // files, which may end in a torn chunk.
+    let samples_name = generation_file(SAMPLES_FILE, args.generation);
+    let samples_path = args.run_dir.join(&samples_name);
     let hlog_path = args
         .run_dir
         .join(generation_file(HISTOGRAM_LOG, args.generation));
-    let metadata = serde_json::json!({
-        "scenario": scenario.name,
-        "scenario_file": scenario.source.display().to_string(),
-        "mode": scenario.timing.mode.as_str(),
-        "rate_hz": scenario.timing.rate_hz,
-        "prefix": args.prefix,
-        "version": env!("CARGO_PKG_VERSION"),
-    });
+    let log_time_offset_ns = wall_clock_ns().saturating_sub(monotonic_ns());
     let mut recorder =
-        Recorder::create(&samples_path, &metadata.to_string()).map_err(io_err(&samples_path))?;
+        Recorder::create(&samples_path, log_time_offset_ns).map_err(io_err(&samples_path))?;
     let mut hlog_file = std::fs::File::create(&hlog_path).map_err(io_err(&hlog_path))?;
     let mut serializer = V2DeflateSerializer::new();
-    let mut hlog = IntervalLogWriterBuilder::new()
-        .add_comment(&format!(
-            "flexloop {} latencies in ns, scenario {}",
-            env!("CARGO_PKG_VERSION"),
-            scenario.name
-        ))
-        .with_base_time(SystemTime::now())
-        .begin_log_with(&mut hlog_file, &mut serializer)
-        .map_err(io_err(&hlog_path))?;
+    let mut hlog = Some(
+        IntervalLogWriterBuilder::new()
+            .add_comment(&format!(
+                "flexloop {} latencies in ns, scenario {}",
+                env!("CARGO_PKG_VERSION"),
+                scenario.name
+            ))
+            .with_base_time(SystemTime::now())
+            .begin_log_with(&mut hlog_file, &mut serializer)
+            .map_err(io_err(&hlog_path))?,
+    );
 
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Logger);
-    let _memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
+    let memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
     let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
@@ -101,42 +113,85 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     )?;
     measurements.connect()?;
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
+    let scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
+    recorder.metadata(run_metadata(
+        args,
+        &scenario,
+        log_time_offset_ns,
+        &[&memory, &scheduling],
+    ));
+    recorder.event(
+        monotonic_ns(),
+        &format!(
+            r#"{{"source":"logger","kind":"recording-start","generation":{},"file":"{samples_name}"}}"#,
+            args.generation
+        ),
+    );
+    recorder.flush();
+    let mut supervisor_events = EventsTail::new(args.run_dir.join(EVENTS_FILE));
 
     let start_ns = monotonic_ns();
     let mut previous = LoopLatencies::new();
     let mut next_interval_ns = start_ns + INTERVAL_NS;
+    let mut next_flush_ns = start_ns + FLUSH_NS;
+    let mut next_events_ns = start_ns;
     let mut interval_start = Duration::ZERO;
     let mut end_seq: Option<u64> = None;
     let mut end_seen_ns = 0u64;
     let mut next_poll = start_ns;
     loop {
         let stopping = shutdown::requested();
-        let write = |r: std::io::Result<()>| r.map_err(io_err(&samples_path));
         while let Some(m) = measurements.receive()? {
-            write(recorder.measurement(&m))?;
+            recorder.measurement(&m);
             if m.flags & flags::END_OF_RUN != 0 && end_seq.is_none() {
                 end_seq = Some(m.seq);
                 end_seen_ns = monotonic_ns();
             }
         }
         while let Some(e) = estimates.receive()? {
-            write(recorder.estimate(&e))?;
+            recorder.estimate(&e);
         }
         while let Some(c) = commands.receive()? {
-            write(recorder.command(&c))?;
+            recorder.command(&c);
         }
         let now = monotonic_ns();
-        if now >= next_interval_ns || stopping || end_seq.is_some() {
+        let ending = stopping || end_seq.is_some();
+        if now >= next_events_ns || ending {
+            supervisor_events.read(|line| recorder.event(now, &supervisor_event(line)));
+            next_events_ns = now + EVENTS_POLL_NS;
+        }
+        if now >= next_flush_ns || ending {
+            recorder.flush();
+            next_flush_ns = now + FLUSH_NS;
+        }
+        if let Some(failure) = recorder.new_failure() {
+            eprintln!(
+                "flexloop-logger: {}: {}; recording stopped, the file ends at its last complete chunk ({}); the loop goes on",
+                samples_path.display(),
+                failure.error,
+                match &failure.closed {
+                    Ok(c) => format!("{} messages kept", c.messages),
+                    Err(e) => format!("could not close it: {e}"),
+                }
+            );
+        }
+        if now >= next_interval_ns || ending {
             let elapsed = Duration::from_nanos(now - start_ns);
-            write_interval(
-                &mut hlog,
-                &recorder.latencies,
-                &previous,
-                interval_start,
-                elapsed - interval_start,
-            )
-            .map_err(io_err(&hlog_path))?;
+            if let Some(writer) = &mut hlog
+                && let Err(e) = write_interval(
+                    writer,
+                    &recorder.latencies,
+                    &previous,
+                    interval_start,
+                    elapsed - interval_start,
+                )
+            {
+                eprintln!(
+                    "flexloop-logger: {}: {e}; latency log stopped (summary.json keeps the totals); the loop goes on",
+                    hlog_path.display()
+                );
+                hlog = None;
+            }
             previous = recorder.latencies.clone();
             interval_start = elapsed;
             next_interval_ns = now + INTERVAL_NS;
@@ -155,10 +210,35 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         next_poll += POLL_NS;
         sleep_until(next_poll.max(monotonic_ns()));
     }
+    let hlog_complete = hlog.is_some();
     drop(hlog);
-    let summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
+    let now = monotonic_ns();
+    supervisor_events.read(|line| recorder.event(now, &supervisor_event(line)));
+    let reason = if end_seq.is_some() {
+        "end-of-run"
+    } else {
+        "stopped"
+    };
+    recorder.event(
+        now,
+        &format!(
+            r#"{{"source":"logger","kind":"recording-end","seq":{},"reason":"{reason}","gaps":{}}}"#,
+            recorder.last_measurement.map_or(0, |m| m.seq),
+            recorder.total_gaps()
+        ),
+    );
+    let complete = recorder.finish(now).is_some();
+    if let (false, Some(failure)) = (complete, recorder.new_failure()) {
+        eprintln!(
+            "flexloop-logger: {}: {}; the file may lack its end (`flexloop` repairs it when the run ends)",
+            samples_path.display(),
+            failure.error
+        );
+    }
+    let mut summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
+    summary["recording"]["file"] = samples_name.clone().into();
+    summary["recording"]["latency_log_complete"] = hlog_complete.into();
     let gaps = recorder.total_gaps();
-    recorder.finish().map_err(io_err(&samples_path))?;
     let summary_path = args.run_dir.join(SUMMARY_FILE);
     write_json_atomically(&summary_path, &summary).map_err(io_err(&summary_path))?;
     if gaps > 0 {
@@ -167,7 +247,66 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     Ok(())
 }
 
-/// `samples.flxlog` for the first logger, `samples.g2.flxlog` for generation 2.
+fn wall_clock_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// A line of the supervisor's events file as a `/events` message.
+fn supervisor_event(line: &str) -> String {
+    match serde_json::from_str::<serde_json::Value>(line) {
+        Ok(serde_json::Value::Object(mut map)) => {
+            map.insert("source".into(), "supervisor".into());
+            serde_json::Value::Object(map).to_string()
+        }
+        _ => serde_json::json!({"source": "supervisor", "kind": "unreadable", "detail": line})
+            .to_string(),
+    }
+}
+
+/// Reads the lines appended to a file since the last read (complete lines
+/// only: the writer may be in the middle of one).
+struct EventsTail {
+    path: PathBuf,
+    offset: u64,
+    partial: Vec<u8>,
+}
+
+impl EventsTail {
+    fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            offset: 0,
+            partial: Vec::new(),
+        }
+    }
+
+    fn read(&mut self, mut each: impl FnMut(&str)) {
+        // No file yet: no events yet.
+        let Ok(mut file) = std::fs::File::open(&self.path) else {
+            return;
+        };
+        if file.seek(SeekFrom::Start(self.offset)).is_err() {
+            return;
+        }
+        let Ok(n) = file.read_to_end(&mut self.partial) else {
+            return;
+        };
+        self.offset += n as u64;
+        let Some(end) = self.partial.iter().rposition(|b| *b == b'\n') else {
+            return;
+        };
+        for line in String::from_utf8_lossy(&self.partial[..end]).lines() {
+            if !line.trim().is_empty() {
+                each(line);
+            }
+        }
+        self.partial.drain(..=end);
+    }
+}
+
+/// `samples.mcap` for the first logger, `samples.g2.mcap` for generation 2.
 pub fn generation_file(name: &str, generation: u32) -> String {
     match (generation, name.rsplit_once('.')) {
         (0, _) | (_, None) => name.to_string(),
@@ -201,10 +340,7 @@ fn write_interval<W: std::io::Write>(
     Ok(())
 }
 
-fn publish_telemetry<W: std::io::Write>(
-    out: &Outlet<Telemetry>,
-    recorder: &Recorder<W>,
-) -> Result<(), NodeError> {
+fn publish_telemetry(out: &Outlet<Telemetry>, recorder: &Recorder) -> Result<(), NodeError> {
     let m = recorder.last_measurement.unwrap_or_default();
     out.publish(|t| {
         t.published_ns = monotonic_ns();

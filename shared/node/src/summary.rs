@@ -1,6 +1,7 @@
 //! The run summary the logger writes (`summary.json`) and `flexloop` reads.
 
 use flexloop_components::Recorder;
+use flexloop_components::sample_file::Storage;
 use flexloop_runtime::latency::{LoopLatencies, Metric, QUANTILE_LABELS};
 use serde_json::{Value, json};
 use std::io::Write;
@@ -23,8 +24,8 @@ pub fn latencies_json(latencies: &LoopLatencies, budget_ns: u64) -> Value {
 }
 
 /// The whole summary of a run, from the logger's recorder.
-pub fn run_summary<W: Write>(
-    recorder: &Recorder<W>,
+pub fn run_summary<S: Storage>(
+    recorder: &Recorder<S>,
     scenario: &flexloop_scenario::Scenario,
     period_ns: u64,
     logger_cpu_ns: u64,
@@ -59,6 +60,7 @@ pub fn run_summary<W: Write>(
             "command": recorder.commands.gaps(),
         },
         "logger_cpu_ns": logger_cpu_ns,
+        "recording": recorder.recording_json(),
         "latency": latencies_json(&recorder.latencies, period_ns),
     })
 }
