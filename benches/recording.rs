@@ -11,7 +11,7 @@
 //! `cargo bench --bench recording` (README, "Benchmarks").
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use flexloop_components::{InProcessLoop, LogReader, Recorder};
+use flexloop_components::{InProcessLoop, LogReader, Recorder, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use std::path::{Path, PathBuf};
@@ -65,16 +65,17 @@ fn one_second() -> Vec<Tick> {
 
 fn write_all(ticks: &[Tick], path: &Path) -> u64 {
     let _ = std::fs::remove_file(path);
-    let mut r = Recorder::create(path, 0).expect("the bench's file");
+    let mut r = Recorder::new(SampleWriter::create(path, 0).expect("the bench's file"));
     for (k, (m, e, c)) in ticks.iter().enumerate() {
         r.measurement(m);
         r.estimate(e);
         r.command(c);
         if (k as u64 + 1).is_multiple_of(TICKS_PER_CHUNK) {
-            r.flush();
+            r.sink().flush();
         }
     }
-    let file = r.finish(0).expect("finished");
+    r.finish(0);
+    let file = r.sink().finish().expect("finished");
     file.metadata().map(|m| m.len()).unwrap_or(0)
 }
 

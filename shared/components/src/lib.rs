@@ -35,5 +35,5 @@ pub use controller::ControllerCore;
 pub use in_process::InProcessLoop;
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
-pub use recorder::Recorder;
-pub use sample_file::{LogEvent, LogReader, Record};
+pub use recorder::{RecordSink, Recorder};
+pub use sample_file::{LogEvent, LogReader, Record, SampleWriter};

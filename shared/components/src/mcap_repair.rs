@@ -158,6 +158,25 @@ pub fn close<S: Storage>(storage: &mut S) -> io::Result<Closed> {
     })
 }
 
+/// Messages per topic in the chunks of the MCAP file at `path`, from its
+/// message indexes alone (only the chunk with the channel definitions is
+/// decompressed): cheap enough to poll a file while it is being written.
+pub fn topic_counts(path: &Path) -> io::Result<BTreeMap<String, u64>> {
+    let mut file = std::fs::File::open(path)?;
+    let len = file.size()?;
+    let mut walk = walk(&mut file, len)?;
+    find_channels(&mut file, &mut walk)?;
+    let mut counts = BTreeMap::new();
+    for chunk in &walk.chunks {
+        for (id, n) in &chunk.counts {
+            if let Some(channel) = walk.channels.get(id) {
+                *counts.entry(channel.topic.clone()).or_default() += n;
+            }
+        }
+    }
+    Ok(counts)
+}
+
 /// The file ends in footer and magic.
 fn is_complete<S: Storage>(storage: &mut S, len: u64) -> io::Result<bool> {
     if len < 8 + FOOTER_RECORD + 8 {

@@ -1,16 +1,11 @@
 //! The logger's bookkeeping over the samples: sequence gaps per channel,
-//! latency histograms, the events the loop's flags and counters show, and
-//! the sample file every message goes to.
+//! latency histograms, the events the loop's flags and counters show; every
+//! message and event goes on to a [`RecordSink`] (the sample file).
 
 use crate::loop_events::LoopEvents;
-use crate::sample_file::{Failure, SampleWriter, Storage};
+use crate::sample_file::{SampleWriter, Storage};
 use flexloop_protocol::{Command, Estimate, Measurement};
 use flexloop_runtime::latency::LoopLatencies;
-use serde_json::{Value, json};
-use std::collections::BTreeMap;
-use std::fs::File;
-use std::io;
-use std::path::Path;
 
 /// Per-channel sequence bookkeeping, tolerant of reordering: during a swap
 /// two instances publish on one channel and a reader may get sample k+1 from
@@ -151,12 +146,38 @@ impl ChannelCount {
     }
 }
 
-/// Records every message, keeps the counts and writes what they show as
-/// events. Writing never fails the caller: after a write error the file is
-/// closed at its last complete chunk and only the counting goes on
-/// ([`Recorder::new_failure`] says so once).
-pub struct Recorder<S: Storage = File> {
-    file: SampleWriter<S>,
+/// Where the recorder hands every message and event: the sample file
+/// itself, or a queue to the thread that writes it (the logger).
+pub trait RecordSink {
+    fn measurement(&mut self, m: &Measurement);
+    fn estimate(&mut self, e: &Estimate);
+    fn command(&mut self, c: &Command);
+    /// One JSON event at `at_ns` (CLOCK_MONOTONIC).
+    fn event(&mut self, at_ns: u64, json: &str);
+}
+
+impl<S: Storage> RecordSink for SampleWriter<S> {
+    fn measurement(&mut self, m: &Measurement) {
+        SampleWriter::measurement(self, m);
+    }
+
+    fn estimate(&mut self, e: &Estimate) {
+        SampleWriter::estimate(self, e);
+    }
+
+    fn command(&mut self, c: &Command) {
+        SampleWriter::command(self, c);
+    }
+
+    fn event(&mut self, at_ns: u64, json: &str) {
+        SampleWriter::event(self, at_ns, json);
+    }
+}
+
+/// Counts every message, keeps the latency histograms, writes what the
+/// samples show as events, and hands everything to its sink.
+pub struct Recorder<O: RecordSink> {
+    out: O,
     events: LoopEvents,
     pub latencies: LoopLatencies,
     pub measurements: ChannelCount,
@@ -167,19 +188,6 @@ pub struct Recorder<S: Storage = File> {
     pub stale_estimates: u64,
     /// The newest measurement (its counters are the plant's totals).
     pub last_measurement: Option<Measurement>,
-    finished: bool,
-}
-
-impl Recorder<File> {
-    /// Creates the sample file at `path` (failing if it exists: a run never
-    /// overwrites a log); `log_time_offset_ns` moves CLOCK_MONOTONIC stamps
-    /// onto the wall clock.
-    pub fn create(path: &Path, log_time_offset_ns: u64) -> io::Result<Self> {
-        Ok(Self::with_writer(SampleWriter::create(
-            path,
-            log_time_offset_ns,
-        )?))
-    }
 }
 
 fn gap_json(channel: &str, first: u64, count: u64) -> String {
@@ -188,17 +196,10 @@ fn gap_json(channel: &str, first: u64, count: u64) -> String {
     )
 }
 
-impl<S: Storage> Recorder<S> {
-    pub fn new(storage: S, log_time_offset_ns: u64) -> io::Result<Self> {
-        Ok(Self::with_writer(SampleWriter::new(
-            storage,
-            log_time_offset_ns,
-        )?))
-    }
-
-    fn with_writer(file: SampleWriter<S>) -> Self {
+impl<O: RecordSink> Recorder<O> {
+    pub fn new(out: O) -> Self {
         Self {
-            file,
+            out,
             events: LoopEvents::default(),
             latencies: LoopLatencies::new(),
             measurements: ChannelCount::default(),
@@ -206,32 +207,30 @@ impl<S: Storage> Recorder<S> {
             commands: ChannelCount::default(),
             stale_estimates: 0,
             last_measurement: None,
-            finished: false,
         }
     }
 
-    /// The run's facts, as the file's `flexloop` metadata.
-    pub fn metadata(&mut self, entries: BTreeMap<String, String>) {
-        self.file.metadata(entries);
+    pub fn sink(&mut self) -> &mut O {
+        &mut self.out
     }
 
     pub fn measurement(&mut self, m: &Measurement) {
-        let file = &mut self.file;
-        file.measurement(m);
+        let out = &mut self.out;
+        out.measurement(m);
         self.measurements.see(m.seq, |first, count| {
-            file.event(m.published_ns, &gap_json("measurement", first, count))
+            out.event(m.published_ns, &gap_json("measurement", first, count))
         });
         self.events
-            .measurement(m, |e| file.event(e.at_ns, &e.json()));
+            .measurement(m, |e| out.event(e.at_ns, &e.json()));
         self.latencies.observe_measurement(m);
         self.last_measurement = Some(*m);
     }
 
     pub fn estimate(&mut self, e: &Estimate) {
-        let file = &mut self.file;
-        file.estimate(e);
+        let out = &mut self.out;
+        out.estimate(e);
         self.estimates.see(e.seq, |first, count| {
-            file.event(e.published_ns, &gap_json("estimate", first, count))
+            out.event(e.published_ns, &gap_json("estimate", first, count))
         });
         // The initial estimate answers no measurement.
         if e.source_published_ns != 0 {
@@ -240,12 +239,12 @@ impl<S: Storage> Recorder<S> {
     }
 
     pub fn command(&mut self, c: &Command) {
-        let file = &mut self.file;
-        file.command(c);
+        let out = &mut self.out;
+        out.command(c);
         self.commands.see(c.seq, |first, count| {
-            file.event(c.published_ns, &gap_json("command", first, count))
+            out.event(c.published_ns, &gap_json("command", first, count))
         });
-        self.events.command(c, |e| file.event(e.at_ns, &e.json()));
+        self.events.command(c, |e| out.event(e.at_ns, &e.json()));
         if c.estimate_seq != c.seq {
             self.stale_estimates += 1;
         }
@@ -254,73 +253,25 @@ impl<S: Storage> Recorder<S> {
 
     /// An event from elsewhere (the supervisor's, the logger's own), as JSON.
     pub fn event(&mut self, at_ns: u64, json: &str) {
-        self.file.event(at_ns, json);
-    }
-
-    /// Hands everything recorded so far to the file as one chunk.
-    pub fn flush(&mut self) {
-        self.file.flush();
-    }
-
-    /// Writing stopped (reported once).
-    pub fn new_failure(&mut self) -> Option<&Failure> {
-        self.file.new_failure()
+        self.out.event(at_ns, json);
     }
 
     pub fn total_gaps(&self) -> u64 {
         self.measurements.gaps() + self.estimates.gaps() + self.commands.gaps()
     }
 
-    /// Ends open conditions and gaps as events, then finishes and syncs the
-    /// file. Returns the storage if the file is complete.
-    pub fn finish(&mut self, at_ns: u64) -> Option<S> {
-        if self.finished {
-            return None;
-        }
-        self.finished = true;
-        let file = &mut self.file;
-        self.events
-            .finish(at_ns, |e| file.event(e.at_ns, &e.json()));
+    /// At the end: writes the conditions still open and the gaps still in
+    /// the reorder windows as events (no more samples will come).
+    pub fn finish(&mut self, at_ns: u64) {
+        let out = &mut self.out;
+        self.events.finish(at_ns, |e| out.event(e.at_ns, &e.json()));
         for (name, count) in [
             ("measurement", &mut self.measurements),
             ("estimate", &mut self.estimates),
             ("command", &mut self.commands),
         ] {
-            count.unsettled_gaps(|first, n| file.event(at_ns, &gap_json(name, first, n)));
+            count.unsettled_gaps(|first, n| out.event(at_ns, &gap_json(name, first, n)));
         }
-        self.file.finish()
-    }
-
-    /// The recording's outcome for the run summary.
-    pub fn recording_json(&self) -> Value {
-        let stats = self.file.stats();
-        let mut out = json!({
-            "format": "mcap",
-            "compression": "lz4",
-            "state": match (self.file.failure(), self.finished) {
-                (Some(_), _) => "stopped",
-                (None, true) => "complete",
-                (None, false) => "recording",
-            },
-            "messages": stats.messages,
-            "stored_messages": stats.stored_messages,
-            "dropped_messages": stats.dropped_messages,
-            "bytes": stats.bytes,
-        });
-        if let Some(f) = self.file.failure() {
-            out["error"] = json!(f.error);
-            out["closed"] = match &f.closed {
-                Ok(c) => json!({
-                    "bytes": c.bytes,
-                    "cut_bytes": c.cut_bytes,
-                    "chunks": c.chunks,
-                    "messages": c.messages,
-                    "indexed": c.indexed,
-                }),
-                Err(e) => json!({ "error": e }),
-            };
-        }
-        out
     }
 }
 
@@ -328,12 +279,14 @@ impl<S: Storage> Recorder<S> {
 mod tests {
     use super::*;
     use crate::sample_file::LogReader;
+    use std::collections::BTreeMap;
     use std::io::Cursor;
 
     #[test]
     fn records_every_message_and_writes_gaps_and_conditions_as_events() {
-        let mut r = Recorder::new(Cursor::new(Vec::new()), 1_000).unwrap();
-        r.metadata(BTreeMap::from([("scenario".into(), "t".into())]));
+        let mut r = Recorder::new(SampleWriter::new(Cursor::new(Vec::new()), 1_000).unwrap());
+        r.sink()
+            .metadata(BTreeMap::from([("scenario".into(), "t".into())]));
         for seq in [0u64, 1, 2, 5] {
             r.measurement(&Measurement {
                 seq,
@@ -347,12 +300,13 @@ mod tests {
             seq: 0,
             ..Default::default()
         });
-        r.flush();
+        r.sink().flush();
         assert_eq!(r.measurements.gaps(), 2);
         assert_eq!(r.measurements.samples, 4);
         assert_eq!(r.total_gaps(), 2);
-        let bytes = r.finish(99).unwrap().into_inner();
-        assert_eq!(r.recording_json()["state"], "complete");
+        r.finish(99);
+        let bytes = r.sink().finish().unwrap().into_inner();
+        assert_eq!(r.sink().recording_json()["state"], "complete");
         let log = LogReader::parse(&bytes).unwrap();
         assert!(!log.torn_tail, "{:?}", log.tail_error);
         assert_eq!(log.meta("scenario"), Some("t"));

@@ -161,6 +161,7 @@ pub struct SampleWriter<S: Storage> {
     stats: WriteStats,
     failure: Option<Failure>,
     failure_reported: bool,
+    finished: bool,
 }
 
 impl SampleWriter<File> {
@@ -221,6 +222,7 @@ impl<S: Storage> SampleWriter<S> {
             stats: WriteStats::default(),
             failure: None,
             failure_reported: false,
+            finished: false,
         })
     }
 
@@ -331,6 +333,7 @@ impl<S: Storage> SampleWriter<S> {
     /// Writes the summary and syncs; returns the storage (`None` after a
     /// failure, when the file was already closed).
     pub fn finish(&mut self) -> Option<S> {
+        self.finished = true;
         let mut mcap = self.mcap.take()?;
         if let Err(e) = mcap.finish() {
             self.mcap = Some(mcap);
@@ -357,6 +360,40 @@ impl<S: Storage> SampleWriter<S> {
                 None
             }
         }
+    }
+}
+
+impl<S: Storage> SampleWriter<S> {
+    /// The recording's outcome for the run summary.
+    pub fn recording_json(&self) -> serde_json::Value {
+        let stats = &self.stats;
+        let mut out = serde_json::json!({
+            "format": "mcap",
+            "compression": "lz4",
+            "state": match (&self.failure, self.finished) {
+                (Some(_), _) => "stopped",
+                (None, true) => "complete",
+                (None, false) => "recording",
+            },
+            "messages": stats.messages,
+            "stored_messages": stats.stored_messages,
+            "dropped_messages": stats.dropped_messages,
+            "bytes": stats.bytes,
+        });
+        if let Some(f) = &self.failure {
+            out["error"] = f.error.clone().into();
+            out["closed"] = match &f.closed {
+                Ok(c) => serde_json::json!({
+                    "bytes": c.bytes,
+                    "cut_bytes": c.cut_bytes,
+                    "chunks": c.chunks,
+                    "messages": c.messages,
+                    "indexed": c.indexed,
+                }),
+                Err(e) => serde_json::json!({ "error": e }),
+            };
+        }
+        out
     }
 }
 

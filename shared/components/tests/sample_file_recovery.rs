@@ -5,7 +5,7 @@
 
 use flexloop_components::mcap_repair;
 use flexloop_components::sample_file::Storage;
-use flexloop_components::{LogReader, Recorder};
+use flexloop_components::{LogReader, Recorder, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -54,20 +54,27 @@ fn tick(k: u64) -> (Measurement, Estimate, Command) {
 }
 
 /// Records `ticks` ticks into `storage`, a chunk every 100 ticks.
-fn record<S: Storage>(storage: S, ticks: u64) -> Recorder<S> {
-    let mut r = Recorder::new(storage, 7).unwrap();
-    r.metadata(BTreeMap::from([("scenario".into(), "recovery".into())]));
-    r.flush();
+fn record<S: Storage>(storage: S, ticks: u64) -> Recorder<SampleWriter<S>> {
+    let mut r = Recorder::new(SampleWriter::new(storage, 7).unwrap());
+    r.sink()
+        .metadata(BTreeMap::from([("scenario".into(), "recovery".into())]));
+    r.sink().flush();
     for k in 0..ticks {
         let (m, e, c) = tick(k);
         r.measurement(&m);
         r.estimate(&e);
         r.command(&c);
         if (k + 1).is_multiple_of(TICKS_PER_CHUNK) {
-            r.flush();
+            r.sink().flush();
         }
     }
     r
+}
+
+/// Ends the recording and returns the file's bytes.
+fn finished(mut r: Recorder<SampleWriter<Cursor<Vec<u8>>>>) -> Vec<u8> {
+    r.finish(0);
+    r.sink().finish().expect("a finished file").into_inner()
 }
 
 fn seqs(log: &LogReader) -> Vec<u64> {
@@ -89,8 +96,7 @@ fn strict_count(bytes: &[u8]) -> (u64, usize) {
 
 #[test]
 fn a_file_cut_anywhere_keeps_its_complete_chunks_and_closes_with_all_of_them() {
-    let mut r = record(Cursor::new(Vec::new()), 1_000);
-    let full = r.finish(0).unwrap().into_inner();
+    let full = finished(record(Cursor::new(Vec::new()), 1_000));
     let whole = LogReader::parse(&full).unwrap();
     assert!(!whole.torn_tail);
     assert_eq!(seqs(&whole), (0..1_000).collect::<Vec<_>>());
@@ -158,8 +164,7 @@ fn a_file_cut_anywhere_keeps_its_complete_chunks_and_closes_with_all_of_them() {
 
 #[test]
 fn the_index_of_the_last_chunk_is_written_anew_when_it_was_cut() {
-    let mut r = record(Cursor::new(Vec::new()), 300);
-    let full = r.finish(0).unwrap().into_inner();
+    let full = finished(record(Cursor::new(Vec::new()), 300));
     // Cut right after the last data chunk record, before its message
     // indexes: find it from the summary's chunk indexes.
     let summary = mcap::Summary::read(&full).unwrap().unwrap();
@@ -259,14 +264,15 @@ fn a_full_disk_stops_the_writing_and_leaves_a_finished_file() {
     for capacity in [60_000, 200_000, 1_000_000] {
         let disk = SmallDisk::new(Vec::new(), capacity);
         let mut r = record(disk.clone(), 2_000);
-        let failure = r.new_failure().expect("the disk filled").clone();
+        let failure = r.sink().new_failure().expect("the disk filled").clone();
         assert!(failure.error.contains("No space left"), "{}", failure.error);
-        assert!(r.new_failure().is_none(), "reported once");
+        assert!(r.sink().new_failure().is_none(), "reported once");
         // The counting went on past the failure.
         assert_eq!(r.measurements.samples, 2_000);
         assert_eq!(r.total_gaps(), 0);
-        assert!(r.finish(0).is_none(), "nothing more to finish");
-        let recording = r.recording_json();
+        r.finish(0);
+        assert!(r.sink().finish().is_none(), "nothing more to finish");
+        let recording = r.sink().recording_json();
         assert_eq!(recording["state"], "stopped");
         assert!(recording["dropped_messages"].as_u64().unwrap() > 0);
         let closed = failure.closed.expect("closed");
@@ -295,8 +301,7 @@ fn a_full_disk_stops_the_writing_and_leaves_a_finished_file() {
 fn a_disk_too_full_for_the_summary_still_gets_a_footer() {
     // Fill the disk so that after the torn chunk is cut there is room for a
     // footer but not for the whole summary: close() falls back.
-    let mut r = record(Cursor::new(Vec::new()), 500);
-    let full = r.finish(0).unwrap().into_inner();
+    let full = finished(record(Cursor::new(Vec::new()), 500));
     let summary = mcap::Summary::read(&full).unwrap().unwrap();
     let last = summary.chunk_indexes.last().unwrap();
     let end = (last.chunk_start_offset + last.chunk_length) as usize;
@@ -321,4 +326,21 @@ fn a_disk_too_full_for_the_summary_still_gets_a_footer() {
     assert!(mcap::Summary::read(&bytes).unwrap().is_none());
     let all = mcap::MessageStream::new(&bytes).unwrap().count();
     assert_eq!(all, log.records.len() + log.events.len());
+}
+
+#[test]
+fn topic_counts_read_the_indexes_of_a_file_being_written() {
+    let full = finished(record(Cursor::new(Vec::new()), 300));
+    let path = std::env::temp_dir().join(format!("flexloop-counts-{}.mcap", std::process::id()));
+    std::fs::write(&path, &full).unwrap();
+    let counts = mcap_repair::topic_counts(&path).unwrap();
+    assert_eq!(counts.get("/measurement"), Some(&300));
+    assert_eq!(counts.get("/command"), Some(&300));
+    // Cut inside the last chunk: the complete chunks count.
+    let summary = mcap::Summary::read(&full).unwrap().unwrap();
+    let last = summary.chunk_indexes.last().unwrap();
+    std::fs::write(&path, &full[..last.chunk_start_offset as usize + 100]).unwrap();
+    let counts = mcap_repair::topic_counts(&path).unwrap();
+    assert_eq!(counts.get("/measurement"), Some(&200));
+    let _ = std::fs::remove_file(&path);
 }
