@@ -66,18 +66,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Logger);
     let memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
-    // The writer starts before this thread takes its priority: it stays a
-    // normal thread, which this one preempts whenever it wakes to drain.
-    let (queue, writer) = recording::spawn(Files {
-        samples,
-        samples_path: samples_path.clone(),
-        hlog,
-        hlog_path,
-        run_dir: args.run_dir.clone(),
-        scenario_name: scenario.name.clone(),
-    })
-    .map_err(io_err(&samples_path))?;
-    let mut recorder = Recorder::new(queue);
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
     let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
@@ -94,8 +82,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             )
         },
     )? {
-        recorder.sink().close(monotonic_ns());
-        let _ = writer.join();
+        // Stopped before the loop started: the sample file finishes empty.
         return Ok(());
     }
     estimates.connect()?;
@@ -108,6 +95,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         MEASUREMENT.qos.logger_buffer_size,
     )?;
     measurements.connect()?;
+    // The writer starts before this thread takes its priority: it stays a
+    // normal thread (off the loop's CPU, as this one was started), which
+    // this one preempts whenever it wakes to drain.
+    let (queue, writer) = recording::spawn(Files {
+        samples,
+        samples_path: samples_path.clone(),
+        hlog,
+        hlog_path,
+        run_dir: args.run_dir.clone(),
+        scenario_name: scenario.name.clone(),
+    })
+    .map_err(io_err(&samples_path))?;
+    let mut recorder = Recorder::new(queue);
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
     let scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
     recorder.sink().send_blocking(Item::Metadata(run_metadata(
@@ -123,64 +123,33 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             args.generation
         ),
     );
-
     let start_ns = monotonic_ns();
-    let mut next_interval_ns = start_ns + INTERVAL_NS;
-    let mut end_seq: Option<u64> = None;
-    let mut end_seen_ns = 0u64;
-    let mut next_poll = start_ns;
-    loop {
-        let stopping = shutdown::requested();
-        while let Some(m) = measurements.receive()? {
-            recorder.measurement(&m);
-            if m.flags & flags::END_OF_RUN != 0 && end_seq.is_none() {
-                end_seq = Some(m.seq);
-                end_seen_ns = monotonic_ns();
-            }
-        }
-        while let Some(e) = estimates.receive()? {
-            recorder.estimate(&e);
-        }
-        while let Some(c) = commands.receive()? {
-            recorder.command(&c);
-        }
-        let now = monotonic_ns();
-        if now >= next_interval_ns {
-            let latencies = recorder.latencies.clone();
-            recorder
-                .sink()
-                .interval(&latencies, Duration::from_nanos(now - start_ns));
-            next_interval_ns = now + INTERVAL_NS;
-            publish_telemetry(&telemetry, &recorder)?;
-        }
-        if let Some(last) = end_seq {
-            let complete = recorder.commands.last_seq.is_some_and(|s| s >= last)
-                && recorder.estimates.last_seq.is_some_and(|s| s > last);
-            if complete || now - end_seen_ns > END_GRACE_NS {
-                break;
-            }
-        }
-        if stopping {
-            break;
-        }
-        next_poll += POLL_NS;
-        sleep_until(next_poll.max(monotonic_ns()));
-    }
+    let inlets = Inlets {
+        measurements: &measurements,
+        estimates: &estimates,
+        commands: &commands,
+        telemetry: &telemetry,
+    };
+    let drained = drain(&mut recorder, &inlets, start_ns);
+
+    // Whatever ended the draining, the files are finished.
     let now = monotonic_ns();
-    publish_telemetry(&telemetry, &recorder)?;
     recorder.finish(now);
-    let reason = if end_seq.is_some() {
-        "end-of-run"
-    } else {
-        "stopped"
+    let reason = match &drained {
+        Ok(Some(_)) => "end-of-run".to_string(),
+        Ok(None) => "stopped".to_string(),
+        Err(e) => format!("error: {e}"),
     };
     recorder.event(
         now,
-        &format!(
-            r#"{{"source":"logger","kind":"recording-end","seq":{},"reason":"{reason}","gaps":{}}}"#,
-            recorder.last_measurement.map_or(0, |m| m.seq),
-            recorder.total_gaps()
-        ),
+        &serde_json::json!({
+            "source": "logger",
+            "kind": "recording-end",
+            "seq": recorder.last_measurement.map_or(0, |m| m.seq),
+            "reason": reason,
+            "gaps": recorder.total_gaps(),
+        })
+        .to_string(),
     );
     let totals = Box::new(recorder.latencies.clone());
     let queue = recorder.sink();
@@ -204,7 +173,68 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     if gaps > 0 {
         eprintln!("flexloop-logger: {gaps} samples never reached the log (see {SUMMARY_FILE})");
     }
-    Ok(())
+    drained.map(|_| ())
+}
+
+/// The ports the draining reads from and publishes to.
+struct Inlets<'a> {
+    measurements: &'a Inlet<Measurement>,
+    estimates: &'a Inlet<Estimate>,
+    commands: &'a Inlet<Command>,
+    telemetry: &'a Outlet<Telemetry>,
+}
+
+/// Drains every channel every 2 ms until the run ends (returns the last
+/// tick) or a stop is requested (`None`).
+fn drain(
+    recorder: &mut Recorder<Queue>,
+    ports: &Inlets<'_>,
+    start_ns: u64,
+) -> Result<Option<u64>, NodeError> {
+    let mut next_interval_ns = start_ns + INTERVAL_NS;
+    let mut end_seq: Option<u64> = None;
+    let mut end_seen_ns = 0u64;
+    let mut next_poll = start_ns;
+    loop {
+        let stopping = shutdown::requested();
+        while let Some(m) = ports.measurements.receive()? {
+            recorder.measurement(&m);
+            if m.flags & flags::END_OF_RUN != 0 && end_seq.is_none() {
+                end_seq = Some(m.seq);
+                end_seen_ns = monotonic_ns();
+            }
+        }
+        while let Some(e) = ports.estimates.receive()? {
+            recorder.estimate(&e);
+        }
+        while let Some(c) = ports.commands.receive()? {
+            recorder.command(&c);
+        }
+        let now = monotonic_ns();
+        if now >= next_interval_ns {
+            // Once a second: the histograms' copy is the only allocation here.
+            let totals = Box::new(recorder.latencies.clone());
+            recorder
+                .sink()
+                .interval(totals, Duration::from_nanos(now - start_ns));
+            next_interval_ns = now + INTERVAL_NS;
+            publish_telemetry(ports.telemetry, recorder)?;
+        }
+        if let Some(last) = end_seq {
+            let complete = recorder.commands.last_seq.is_some_and(|s| s >= last)
+                && recorder.estimates.last_seq.is_some_and(|s| s > last);
+            if complete || now - end_seen_ns > END_GRACE_NS {
+                publish_telemetry(ports.telemetry, recorder)?;
+                return Ok(end_seq);
+            }
+        }
+        if stopping {
+            publish_telemetry(ports.telemetry, recorder)?;
+            return Ok(None);
+        }
+        next_poll += POLL_NS;
+        sleep_until(next_poll.max(monotonic_ns()));
+    }
 }
 
 fn wall_clock_ns() -> u64 {

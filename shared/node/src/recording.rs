@@ -111,11 +111,8 @@ impl Queue {
     }
 
     /// The latency histograms for the writer's interval log.
-    pub fn interval(&mut self, totals: &LoopLatencies, elapsed: Duration) {
-        let item = Item::Interval {
-            totals: Box::new(totals.clone()),
-            elapsed,
-        };
+    pub fn interval(&mut self, totals: Box<LoopLatencies>, elapsed: Duration) {
+        let item = Item::Interval { totals, elapsed };
         // A full queue skips this interval; the next one covers it.
         let _ = self.tx.try_send(item);
     }
