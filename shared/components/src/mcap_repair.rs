@@ -129,19 +129,20 @@ pub fn close<S: Storage>(storage: &mut S) -> io::Result<Closed> {
     storage.truncate(cut)?;
     let tail = full_tail(&mut walk, cut, &regenerated)?;
     let mut indexed = storage.write_all(&tail).is_ok();
-    if !indexed && !regenerated.is_empty() {
-        // Short of room (a full disk): the summary without the last chunk's
-        // message index (optional in MCAP; readers then scan that chunk).
-        if let Some(last) = walk.chunks.last_mut() {
-            last.index_offsets.clear();
-            last.index_length = 0;
-        }
+    if !indexed && let Some(last) = walk.chunks.last().map(|c| c.start) {
+        // Short of room (a full disk): the last chunk gives up its room to
+        // the summary, so that every reader (the indexed ones of Foxglove
+        // and PlotJuggler too) opens the file.
+        walk.chunks.pop();
+        walk.metadata.retain(|m| m.offset < last);
+        walk.boundaries.retain(|b| *b < last);
+        cut = last;
         storage.truncate(cut)?;
         indexed = storage.write_all(&full_tail(&mut walk, cut, &[])?).is_ok();
     }
     if !indexed {
-        // A footer alone still makes a valid file (readers scan it); cut
-        // records off the end until it fits.
+        // Not even that fits: a footer alone still makes a valid file
+        // (readers scan it); cut records off the end until it fits.
         cut = write_bare_tail(storage, cut, &mut walk)?;
     }
     storage.sync()?;

@@ -55,6 +55,11 @@ fn tick(k: u64) -> (Measurement, Estimate, Command) {
 
 /// Records `ticks` ticks into `storage`, a chunk every 100 ticks.
 fn record<S: Storage>(storage: S, ticks: u64) -> Recorder<SampleWriter<S>> {
+    record_chunks(storage, ticks, TICKS_PER_CHUNK)
+}
+
+/// Records `ticks` ticks into `storage`, a chunk every `per_chunk` ticks.
+fn record_chunks<S: Storage>(storage: S, ticks: u64, per_chunk: u64) -> Recorder<SampleWriter<S>> {
     let mut r = Recorder::new(SampleWriter::new(storage, 7).unwrap());
     r.sink()
         .metadata(BTreeMap::from([("scenario".into(), "recovery".into())]));
@@ -64,7 +69,7 @@ fn record<S: Storage>(storage: S, ticks: u64) -> Recorder<SampleWriter<S>> {
         r.measurement(&m);
         r.estimate(&e);
         r.command(&c);
-        if (k + 1).is_multiple_of(TICKS_PER_CHUNK) {
+        if (k + 1).is_multiple_of(per_chunk) {
             r.sink().flush();
         }
     }
@@ -297,32 +302,55 @@ fn a_full_disk_stops_the_writing_and_leaves_a_finished_file() {
     }
 }
 
-#[test]
-fn a_disk_too_full_for_the_summary_still_gets_a_footer() {
-    // Fill the disk so that after the torn chunk is cut there is room for a
-    // footer but not for the whole summary: close() falls back.
-    let full = finished(record(Cursor::new(Vec::new()), 500));
-    let summary = mcap::Summary::read(&full).unwrap().unwrap();
-    let last = summary.chunk_indexes.last().unwrap();
-    let end = (last.chunk_start_offset + last.chunk_length) as usize;
-    let cut = end - 10;
-    // Room for 60 bytes past the previous chunk's data: a footer (50 bytes)
-    // fits, a summary does not.
-    let previous = &summary.chunk_indexes[summary.chunk_indexes.len() - 2];
+/// The end of the last complete chunk's index and the start of the chunk
+/// before it, in a finished file of more than two chunks.
+fn last_chunks(full: &[u8]) -> (usize, usize, usize) {
+    let summary = mcap::Summary::read(full).unwrap().unwrap();
+    let n = summary.chunk_indexes.len();
+    let last = &summary.chunk_indexes[n - 1];
+    let previous = &summary.chunk_indexes[n - 2];
     let previous_end = (previous.chunk_start_offset
         + previous.chunk_length
         + previous.message_index_length) as usize;
-    let mut disk = SmallDisk::new(full[..cut].to_vec(), previous_end + 60);
+    let last_end = (last.chunk_start_offset + last.chunk_length) as usize;
+    (previous.chunk_start_offset as usize, previous_end, last_end)
+}
+
+#[test]
+fn a_disk_too_full_for_the_summary_gives_up_the_last_chunk_for_it() {
+    // Torn inside the last chunk, and the disk full just past the chunk
+    // before: no room for the summary, until that chunk makes room.
+    let full = finished(record(Cursor::new(Vec::new()), 500));
+    let (_, previous_end, last_end) = last_chunks(&full);
+    let mut disk = SmallDisk::new(full[..last_end - 10].to_vec(), previous_end + 60);
     let closed = mcap_repair::close(&mut disk).unwrap();
-    assert!(!closed.indexed);
+    assert!(closed.indexed);
     let bytes = disk.bytes();
     let log = LogReader::parse(&bytes).unwrap();
     assert!(!log.torn_tail, "{:?}", log.tail_error);
+    assert_eq!(seqs(&log), (0..300).collect::<Vec<_>>());
+    let (count, read) = strict_count(&bytes);
+    assert_eq!((count, read as u64), (closed.messages, closed.messages));
+}
+
+#[test]
+fn a_disk_too_full_even_for_that_still_gets_a_footer() {
+    // Chunks of one tick are smaller than the summary: giving up one does
+    // not make room for it, and only a footer fits.
+    let full = finished(record_chunks(Cursor::new(Vec::new()), 50, 1));
+    let (previous_start, previous_end, last_end) = last_chunks(&full);
+    let mut disk = SmallDisk::new(full[..last_end - 10].to_vec(), previous_end + 60);
+    let closed = mcap_repair::close(&mut disk).unwrap();
+    assert!(!closed.indexed);
+    let bytes = disk.bytes();
     assert_eq!(
-        seqs(&log).len(),
-        400,
-        "the last complete chunk before the cut"
+        bytes.len(),
+        previous_start + 50,
+        "data end, footer and magic"
     );
+    let log = LogReader::parse(&bytes).unwrap();
+    assert!(!log.torn_tail, "{:?}", log.tail_error);
+    assert_eq!(seqs(&log), (0..48).collect::<Vec<_>>());
     assert!(mcap::Summary::read(&bytes).unwrap().is_none());
     let all = mcap::MessageStream::new(&bytes).unwrap().count();
     assert_eq!(all, log.records.len() + log.events.len());
