@@ -10,11 +10,18 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// The Python with `mcap`, `mcap-ros1-support` and `hdrhistogram`
-/// (`FLEXLOOP_PYTHON`, else `python3`); `None` (the test skips) only where
-/// there is no Python at all and this is not CI.
+/// The Python with `mcap`, `mcap-ros1-support` and `hdrhistogram`:
+/// `FLEXLOOP_PYTHON`, else the venv `.ci/run` makes, else `python3`; `None`
+/// (the test skips) only where there is no Python at all and this is not CI.
 fn python() -> Option<String> {
-    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| "python3".into());
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/ci-python/bin/python");
+    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| {
+        if venv.is_file() {
+            venv.display().to_string()
+        } else {
+            "python3".into()
+        }
+    });
     match Command::new(&python).arg("--version").output() {
         Ok(out) if out.status.success() => Some(python),
         _ if std::env::var_os("CI").is_some() => {
