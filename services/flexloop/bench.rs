@@ -59,11 +59,12 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let summary = flexloop_node::summary::read_summary(&run_dir)?;
 
     let samples = (scenario.timing.rate_hz * 2.0) as u64;
-    let (timer, pingpong) = if args.probes {
+    let (timer, pingpong, sockets) = if args.probes {
         eprintln!(
-            "flexloop bench: measuring the wake-up floor and an iceoryx2 ping-pong (2 s each)"
+            "flexloop bench: measuring the wake-up floor, an iceoryx2 ping-pong and a Unix-socket ring (2 s each)"
         );
         let plant_rt = realtime_settings(&scenario, Role::Plant);
+        let observer_rt = realtime_settings(&scenario, Role::Observer);
         let controller_rt = realtime_settings(&scenario, Role::Controller);
         let timer = probes::timer_probe(&plant_rt, period_ns, samples);
         let pp = probes::event_ping_pong(
@@ -73,9 +74,11 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
             period_ns,
             samples,
         )?;
-        (Some(timer), Some(pp))
+        let sockets =
+            probes::socket_ring(&plant_rt, &observer_rt, &controller_rt, period_ns, samples)?;
+        (Some(timer), Some(pp), Some(sockets))
     } else {
-        (None, None)
+        (None, None, None)
     };
 
     let ticks = summary["ticks"].as_u64().unwrap_or(0);
@@ -134,11 +137,15 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     };
     let timer_json = probe_json(&timer);
     let pp_json = probe_json(&pingpong);
+    let sockets_json = probe_json(&sockets);
     if let Some(t) = &timer_json {
         row("probe: timer wake-up", t);
     }
     if let Some(p) = &pp_json {
         row("probe: iox2 ping-pong", p);
+    }
+    if let Some(s) = &sockets_json {
+        row("probe: socket ring", s);
     }
 
     println!();
@@ -186,6 +193,14 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
             p50(hop) / (p50(p) / 2.0).max(1.0)
         );
     }
+    if let Some(s) = &sockets_json {
+        let p9999 = |v: &Value| v["p99.99_ns"].as_u64().unwrap_or(0) as f64;
+        println!(
+            "round trip against the same chain over Unix sockets: p50 {:.2}x, p99.99 {:.2}x",
+            p50(rt) / p50(s).max(1.0),
+            p9999(rt) / p9999(s).max(1.0)
+        );
+    }
     let fits = misses == 0 && over == 0;
     let rate = if ticks > 0 {
         (misses as f64) / ticks as f64
@@ -215,7 +230,11 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let bench_json = json!({
         "swaps": swaps,
         "summary": summary,
-        "probes": { "timer_wakeup": timer_json, "iceoryx2_event_ping_pong": pp_json },
+        "probes": {
+            "timer_wakeup": timer_json,
+            "iceoryx2_event_ping_pong": pp_json,
+            "unix_socket_ring": sockets_json,
+        },
         "cpu_ns": Value::Object(cpu),
         "wall_ns": wall_ns,
     });

@@ -8,8 +8,8 @@ use flexloop_node::Role;
 use flexloop_protocol::channels::{
     ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, OBSERVER_STATE,
 };
-use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS};
-use flexloop_scenario::schema::RestartPolicy;
+use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, flags};
+use flexloop_scenario::schema::{RestartPolicy, SafeAction};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
 use serde_json::{Value, json};
@@ -82,7 +82,9 @@ pub struct Conductor {
     run_dir: PathBuf,
     started: Instant,
     last_seq: Option<u64>,
-    recent_u: VecDeque<(u64, [f64; MAX_INPUTS])>,
+    /// (sample, from its owner, u): the owner's commands, and the standby's,
+    /// which the plant applies while the owner is silent.
+    recent_u: VecDeque<(u64, bool, [f64; MAX_INPUTS])>,
     /// The last state each role's active instance published: a restarted
     /// instance gets it from here, since a dead publisher hands nothing over.
     last_active: [Option<Handover>; 2],
@@ -198,13 +200,14 @@ impl Conductor {
         }
         while let Ok(Some(c)) = self.commands.receive() {
             self.last_seq = Some(self.last_seq.map_or(c.seq, |s| s.max(c.seq)));
-            if c.generation != self.current.controller_for(c.seq) {
+            let owner = c.generation == self.current.controller_for(c.seq);
+            if !owner && c.flags & flags::STANDBY == 0 {
                 continue;
             }
             if self.recent_u.len() == COMMAND_HISTORY {
                 self.recent_u.pop_front();
             }
-            self.recent_u.push_back((c.seq, c.u));
+            self.recent_u.push_back((c.seq, owner, c.u));
         }
     }
 
@@ -257,6 +260,7 @@ impl Conductor {
                 });
             }
         }
+        self.keep_standby(running);
         for request in pending_requests(&self.run_dir) {
             let answer = match self.handle_request(running, &request) {
                 Ok(switch) => json!({"ok": true, "switch": switch.json()}),
@@ -268,15 +272,102 @@ impl Conductor {
         None
     }
 
+    /// With `safe_action = "standby"`, keeps one standby controller following
+    /// the running loop (started once the loop ticks, again after a promotion
+    /// or a crash of the standby, within the restart limit).
+    fn keep_standby(&mut self, running: &mut RunningLoop) {
+        let slot = Role::Controller as usize;
+        if self.scenario.supervision.safe_action != SafeAction::Standby
+            || self.last_seq.is_none()
+            || self.pending.iter().any(|p| p.role == Role::Controller)
+            || self.restarts[slot] > self.scenario.supervision.max_restarts
+            || running
+                .children
+                .iter()
+                .any(|c| c.standby && c.exit.is_none())
+        {
+            return;
+        }
+        let Some(scenario) = running.child(Role::Controller).map(|c| c.scenario.clone()) else {
+            return;
+        };
+        let generation = self.next_generation(running, Role::Controller);
+        match running.start_standby(&scenario, generation) {
+            Ok(pid) => self.event("standby", Role::Controller, generation, json!({"pid": pid})),
+            Err(e) => {
+                self.restarts[slot] += 1;
+                self.event("standby-failed", Role::Controller, generation, json!(e));
+            }
+        }
+    }
+
+    /// Hands the loop to the standby controller, if one follows it.
+    fn promote_standby(
+        &mut self,
+        running: &mut RunningLoop,
+        start_seq: u64,
+    ) -> Option<Result<(), String>> {
+        let generation = running
+            .children
+            .iter()
+            .find(|c| {
+                c.standby
+                    && c.exit.is_none()
+                    && self
+                        .shadows_seen
+                        .contains(&(Role::Controller, c.generation))
+            })?
+            .generation;
+        if let Some(c) = running
+            .children
+            .iter_mut()
+            .find(|c| c.standby && c.generation == generation)
+        {
+            c.standby = false;
+        }
+        let switch =
+            match self.activate_and_measure(running, Role::Controller, generation, None, start_seq)
+            {
+                Ok(switch) => switch,
+                Err(e) => return Some(Err(e)),
+            };
+        self.event(
+            "promote-standby",
+            Role::Controller,
+            generation,
+            switch.json(),
+        );
+        self.switches.push(switch);
+        Some(Ok(()))
+    }
+
     fn settle_crashes(&mut self, running: &mut RunningLoop) {
         let policy = self.scenario.supervision.restart;
-        let crashed: Vec<(i32, Role, u32, i32)> = running
+        let crashed: Vec<(i32, Role, u32, i32, bool)> = running
             .children
             .iter()
             .filter(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
-            .map(|c| (c.pid, c.role, c.generation, c.exit.map_or(-1, |e| e.code)))
+            .map(|c| {
+                let code = c.exit.map_or(-1, |e| e.code);
+                (c.pid, c.role, c.generation, code, c.standby)
+            })
             .collect();
-        for (pid, role, generation, code) in crashed {
+        for (pid, role, generation, code, standby) in crashed {
+            if standby {
+                // The active loop is untouched; `keep_standby` starts another.
+                if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
+                    c.settled = true;
+                }
+                self.restarts[role as usize] += 1;
+                let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
+                self.event(
+                    "crash",
+                    role,
+                    generation,
+                    json!({"exit": code, "standby": true, "cleaned_nodes": cleaned}),
+                );
+                continue;
+            }
             let restartable = matches!(role, Role::Observer | Role::Controller | Role::Logger);
             let slot = role as usize;
             if !restartable
@@ -328,8 +419,13 @@ impl Conductor {
             .child(role)
             .map(|c| c.scenario.clone())
             .ok_or("no instance to restart")?;
-        let generation = self.next_generation(running, role);
         let start_seq = self.last_seq.unwrap_or(0);
+        if role == Role::Controller
+            && let Some(promoted) = self.promote_standby(running, start_seq)
+        {
+            return promoted;
+        }
+        let generation = self.next_generation(running, role);
         let pid = running.start_replacement(role, &scenario, generation)?;
         if self.last_seq.is_none() && role != Role::Logger {
             // Before tick 0 there is nothing to take over: the replacement
@@ -601,12 +697,16 @@ impl Conductor {
     /// The command's step at `from_seq` and the largest ordinary steps
     /// before and after it.
     fn step_at(&self, from_seq: u64) -> (f64, f64, f64) {
+        // What the plant applied: the owner's command, else the standby's.
         let u_of = |seq: u64| {
-            self.recent_u
-                .iter()
-                .rev()
-                .find(|(s, _)| *s == seq)
-                .map(|(_, u)| *u)
+            let of = |owner: bool| {
+                self.recent_u
+                    .iter()
+                    .rev()
+                    .find(|(s, o, _)| *s == seq && *o == owner)
+                    .map(|(_, _, u)| *u)
+            };
+            of(true).or_else(|| of(false))
         };
         let step = |seq: u64| -> Option<f64> {
             let (a, b) = (u_of(seq.checked_sub(1)?)?, u_of(seq)?);

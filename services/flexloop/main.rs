@@ -2,7 +2,7 @@
 //!
 //! `flexloop up [SCENARIO]`, `flexloop run SCENARIO`, `flexloop down`,
 //! `flexloop status`, `flexloop bench [--duration S] [--rate HZ]`,
-//! `flexloop tune-ff RUN`. See README.md.
+//! `flexloop tune-ff RUN`, `flexloop report RUN`. See README.md.
 
 mod bench;
 mod conductor;
@@ -12,6 +12,7 @@ mod positions;
 mod probes;
 mod progress;
 mod registry;
+mod report;
 mod run;
 mod supervisor;
 
@@ -28,6 +29,11 @@ const USAGE: &str = "usage:
   flexloop run [SCENARIO] [--mode realtime|lockstep] [--rate HZ] [--duration S] [--run-dir DIR] [--no-realtime]
       run the scenario's trajectory, then print its control metrics (tracking, effort,
       innovation, modal damping) beside the timing summary; writes metrics.json
+  flexloop report RUN [--out DIR]
+      a finished run as report.md (with SVG figures) and a self-contained report.html in
+      RUN/report/ (or DIR): latency percentile plots, tick timing, tracking error, command
+      parts, estimated against true flexible output, timing and control tables, events;
+      RUN is a run directory or its name under runs/
   flexloop tune-ff RUN_DIR [--into SCENARIO]
       fit the four feedforward gains from a recorded run by least squares and write
       them into the scenario file (default: the one the run used)
@@ -83,6 +89,7 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),
         Some("run") => run::run(LoopArgs::parse(rest, false)?),
         Some("tune-ff") => run::tune_ff(rest),
+        Some("report") => report::report(rest),
         Some("design") => design::design(rest),
         Some("positions") => positions::positions(rest),
         Some("export") => export::export(rest),

@@ -111,3 +111,91 @@ pub fn event_ping_pong(
     flexloop_transport::remove_leftovers(prefix);
     Ok(result)
 }
+
+/// The loop's chain by hand over Unix datagram sockets, as a program without
+/// iceoryx2 would write it: three threads with the loop's CPU and priorities,
+/// each blocking in `recv`; the plant sends a measurement-sized datagram on
+/// the tick grid, the observer an estimate-sized one to the controller, the
+/// controller a command-sized one back. Round trip as the loop's: from the
+/// plant's send to the plant holding the command.
+pub fn socket_ring(
+    plant: &RealtimeSettings,
+    observer: &RealtimeSettings,
+    controller: &RealtimeSettings,
+    period_ns: u64,
+    samples: u64,
+) -> Result<LatencyHistogram, String> {
+    use flexloop_protocol::{Command, Estimate, Measurement};
+    use std::os::unix::net::UnixDatagram;
+    let pair = || UnixDatagram::pair().map_err(|e| format!("socketpair: {e}"));
+    let (plant_out, observer_in) = pair()?;
+    let (observer_out, controller_in) = pair()?;
+    let (controller_out, plant_in) = pair()?;
+    let idle = Some(Duration::from_millis(50));
+    for s in [&observer_in, &controller_in] {
+        s.set_read_timeout(idle).map_err(|e| e.to_string())?;
+    }
+    plant_in
+        .set_read_timeout(Some(Duration::from_nanos(period_ns * 10)))
+        .map_err(|e| e.to_string())?;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // One stage: receive what the one before sent, send `reply` bytes on.
+    let stage = |name: &'static str,
+                 settings: &RealtimeSettings,
+                 input: UnixDatagram,
+                 output: UnixDatagram,
+                 reply: usize| {
+        let settings = settings.clone();
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let _rt = realtime::apply(name, &settings);
+            let mut buffer = vec![0u8; 8192];
+            let message = vec![1u8; reply];
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if input.recv(&mut buffer).is_ok() {
+                    let _ = output.send(&message);
+                }
+            }
+        })
+    };
+    let observer_thread = stage(
+        "bench-socket-observer",
+        observer,
+        observer_in,
+        observer_out,
+        size_of::<Estimate>(),
+    );
+    let controller_thread = stage(
+        "bench-socket-controller",
+        controller,
+        controller_in,
+        controller_out,
+        size_of::<Command>(),
+    );
+    let plant = plant.clone();
+    let result = std::thread::spawn(move || {
+        let _rt = realtime::apply("bench-socket-plant", &plant);
+        let measurement = vec![1u8; size_of::<Measurement>()];
+        let mut buffer = vec![0u8; 8192];
+        let grid = TickGrid::starting_in(period_ns, 1_000_000);
+        let mut h = LatencyHistogram::new();
+        for k in 0..samples {
+            sleep_until(grid.tick_ns(k));
+            let sent = monotonic_ns();
+            if plant_out.send(&measurement).is_err() {
+                continue;
+            }
+            // Bounded by the read timeout: a lost reply costs ten periods.
+            if plant_in.recv(&mut buffer).is_ok() {
+                h.record_span(sent, monotonic_ns());
+            }
+        }
+        h
+    })
+    .join()
+    .map_err(|_| "the socket ring's plant thread panicked".to_string());
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = observer_thread.join();
+    let _ = controller_thread.join();
+    result
+}

@@ -36,6 +36,8 @@ pub struct ChildProcess {
     /// Replaced, crashed-and-restarted, or otherwise dealt with: its exit is
     /// not the run's failure.
     pub settled: bool,
+    /// A standby controller (not the role's current instance until promoted).
+    pub standby: bool,
 }
 
 /// How a child ended and what CPU it used.
@@ -71,7 +73,7 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
         &[Role::Observer, Role::Controller, Role::Plant]
     };
     for &role in roles {
-        match spawn(&plan, role, &plan.scenario, 0, false) {
+        match spawn(&plan, role, &plan.scenario, 0, Joining::No) {
             Ok(pid) => running.children.push(ChildProcess {
                 role,
                 pid,
@@ -79,6 +81,7 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
                 generation: 0,
                 scenario: plan.scenario.clone(),
                 settled: false,
+                standby: false,
             }),
             Err(e) => {
                 running.stop();
@@ -99,20 +102,37 @@ pub fn stderr_name(role: Role, generation: u32) -> String {
     }
 }
 
+/// How a process enters the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Joining {
+    /// With the others, at start-up.
+    No,
+    /// A running loop, in shadow (a swap or restart).
+    AsReplacement,
+    /// A running loop, as the standby controller.
+    AsStandby,
+}
+
 fn spawn(
     plan: &LaunchPlan,
     role: Role,
     scenario: &Path,
     generation: u32,
-    join: bool,
+    joining: Joining,
 ) -> std::io::Result<i32> {
     let stderr = std::fs::File::create(plan.run_dir.join(stderr_name(role, generation)))?;
     let mut cmd = Command::new(binary(role)?);
     if generation > 0 {
         cmd.arg("--generation").arg(generation.to_string());
     }
-    if join {
-        cmd.arg("--join");
+    match joining {
+        Joining::No => {}
+        Joining::AsReplacement => {
+            cmd.arg("--join");
+        }
+        Joining::AsStandby => {
+            cmd.arg("--standby");
+        }
     }
     cmd.arg("--scenario")
         .arg(scenario)
@@ -175,12 +195,19 @@ impl RunningLoop {
     }
 
     /// The current instance of `role` (the newest started).
+    /// The role's current instance (the newest, standbys aside).
     pub fn child(&self, role: Role) -> Option<&ChildProcess> {
-        self.children.iter().rev().find(|c| c.role == role)
+        self.children
+            .iter()
+            .rev()
+            .find(|c| c.role == role && !c.standby)
     }
 
     pub fn child_mut(&mut self, role: Role) -> Option<&mut ChildProcess> {
-        self.children.iter_mut().rev().find(|c| c.role == role)
+        self.children
+            .iter_mut()
+            .rev()
+            .find(|c| c.role == role && !c.standby)
     }
 
     /// Starts another instance of `role` that joins the running loop (swap
@@ -191,7 +218,22 @@ impl RunningLoop {
         scenario: &Path,
         generation: u32,
     ) -> Result<i32, String> {
-        let pid = spawn(&self.plan, role, scenario, generation, true)
+        self.start_joining(role, scenario, generation, Joining::AsReplacement)
+    }
+
+    /// Starts a standby controller that follows the running loop.
+    pub fn start_standby(&mut self, scenario: &Path, generation: u32) -> Result<i32, String> {
+        self.start_joining(Role::Controller, scenario, generation, Joining::AsStandby)
+    }
+
+    fn start_joining(
+        &mut self,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+        joining: Joining,
+    ) -> Result<i32, String> {
+        let pid = spawn(&self.plan, role, scenario, generation, joining)
             .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
         self.children.push(ChildProcess {
             role,
@@ -200,6 +242,7 @@ impl RunningLoop {
             generation,
             scenario: scenario.to_path_buf(),
             settled: false,
+            standby: joining == Joining::AsStandby,
         });
         Ok(pid)
     }

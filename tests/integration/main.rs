@@ -8,6 +8,7 @@ mod bad_input;
 mod loop_processes;
 mod positions;
 mod recording;
+mod report;
 mod swap;
 mod thesis;
 mod util;

@@ -176,6 +176,112 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
 }
 
 #[test]
+fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
+    let dir = temp_dir("swap-standby");
+    let text = std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap();
+    let file = dir.join("lecture-standby.toml");
+    std::fs::write(
+        &file,
+        format!("{text}\n[supervision]\nsafe_action = \"standby\"\n"),
+    )
+    .unwrap();
+    let (child, prefix) = start_file(&dir, &file, &["--rate", "1000"]);
+    wait_for_ticks(&dir, 100);
+    let standby_running = |dir: &Path| {
+        processes_mentioning(&dir.display().to_string())
+            .iter()
+            .any(|p| p.contains("flexloop-controller") && p.contains("--standby"))
+    };
+    let since = Instant::now();
+    while !standby_running(&dir) {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no standby started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Let the standby follow the loop a while, then kill the active controller.
+    std::thread::sleep(Duration::from_millis(500));
+    let active: Vec<i32> = processes_mentioning(&dir.display().to_string())
+        .iter()
+        .filter(|p| p.contains("flexloop-controller") && !p.contains("--standby"))
+        .filter_map(|p| p.split(':').next()?.parse().ok())
+        .collect();
+    assert_eq!(active.len(), 1, "one active controller");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(active[0], libc::SIGKILL) };
+    let since = Instant::now();
+    let promoted = loop {
+        if let Some(e) = events(&dir)
+            .into_iter()
+            .find(|e| e["kind"] == "promote-standby")
+        {
+            break e;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "standby not promoted: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    // A new standby follows the promoted controller.
+    let since = Instant::now();
+    while events(&dir)
+        .iter()
+        .filter(|e| e["kind"] == "standby")
+        .count()
+        < 2
+    {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no second standby"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert!(counter(&summary, "fallback_ticks") > 0, "{summary}");
+    assert_eq!(counter(&summary, "rejected_commands"), 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let standby_ticks = log
+        .measurements()
+        .filter(|m| m.flags & flags::STANDBY != 0)
+        .count();
+    let fallback_ticks = log
+        .measurements()
+        .filter(|m| m.flags & flags::FALLBACK != 0)
+        .count();
+    // Applied only as the safe action (a late standby command leaves a
+    // fallback tick to hold, which this machine's timing may cause).
+    assert!(
+        standby_ticks > 0,
+        "the plant applied the standby's commands"
+    );
+    assert!(standby_ticks <= fallback_ticks);
+    assert!(
+        log.measurements()
+            .all(|m| m.flags & flags::STANDBY == 0 || m.flags & flags::FALLBACK != 0)
+    );
+    // The standby computed what the active one would have: no step at the
+    // promotion beyond the loop's ordinary changes.
+    let switch = &promoted["detail"];
+    let (du, ordinary) = (
+        switch["du_switch"].as_f64().unwrap(),
+        switch["du_before"]
+            .as_f64()
+            .unwrap()
+            .max(switch["du_after"].as_f64().unwrap()),
+    );
+    assert!(
+        du <= ordinary + 1e-9,
+        "step {du} at the promotion, ordinary {ordinary}"
+    );
+    assert_clean(&dir);
+}
+
+#[test]
 fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
     let dir = temp_dir("swap-rogue");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);

@@ -106,9 +106,14 @@ pub fn assert_clean(run_dir: &Path) {
 
 /// `flexloop up` until stopped, in the background.
 pub fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Child, String) {
+    start_file(dir, &scenario(scenario_name), args)
+}
+
+/// [`start`] with a scenario file anywhere.
+pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Child, String) {
     let mut cmd = flexloop();
     cmd.arg("up")
-        .arg(scenario(scenario_name))
+        .arg(scenario_file)
         .args(["--no-realtime", "--duration", "0", "--run-dir"])
         .arg(dir)
         .args(args)

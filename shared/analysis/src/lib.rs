@@ -4,6 +4,10 @@
 //!   in-process loop, aligned by sequence number.
 //! - [`metrics`]: tracking error over the scan windows (rms, peak, MA, MSD),
 //!   control effort and its parts, innovation statistics.
+//! - [`flexible`]: the observer's flexible output against the plant's own,
+//!   rebuilt from the logged input.
+//! - [`latency_log`]: the logger's HdrHistogram interval log, merged per
+//!   histogram, and its percentile distribution.
 //! - [`modal_damping`]: the damping the loop achieves on each flexible mode,
 //!   from the closed-loop model and identified from the run's ring-down.
 //! - [`feedforward_fit`]: least-squares feedforward gains from a recorded run.
@@ -15,6 +19,8 @@
 //! Offline code: it allocates freely and never runs inside the loop.
 
 pub mod feedforward_fit;
+pub mod flexible;
+pub mod latency_log;
 pub mod metrics;
 pub mod modal_damping;
 pub mod positions;

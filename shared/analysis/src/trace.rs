@@ -4,7 +4,8 @@
 //! Row k holds y(k) as the plant published it, u(k) as the controller
 //! computed it from y(k), and the estimate the controller used at tick k
 //! (x̂(k|k−1)). A tick whose messages are missing from a log is left out and
-//! counted, never filled in.
+//! counted, never filled in. The timing of every tick the plant logged,
+//! complete or not, is kept apart in [`RunTrace::timing`].
 
 use flexloop_components::{InProcessLoop, LogReader};
 use flexloop_protocol::{Command, Estimate, Measurement, flags};
@@ -43,6 +44,26 @@ impl TickRow {
     }
 }
 
+/// How one tick went, as the plant and the controller stamped it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TickTiming {
+    pub seq: u64,
+    /// Plant awake minus the scheduled tick, ns.
+    pub lateness_ns: u64,
+    /// u(k) published minus the scheduled tick k, ns (None when u(k) is not
+    /// in the log): the one-sample budget applies to it.
+    pub command_ns: Option<u64>,
+    /// The plant held its input: the command due was missing (a loop miss,
+    /// or a miss after a stall).
+    pub held: bool,
+    /// The plant itself woke too late for this tick.
+    pub stalled: bool,
+    /// The plant applied its safe action (controller silent).
+    pub fallback: bool,
+    /// The controller ran without the observer's contribution.
+    pub observer_fallback: bool,
+}
+
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RunTrace {
     /// Sample period in s; tick k is at t = k·ts.
@@ -53,6 +74,9 @@ pub struct RunTrace {
     pub n_states: usize,
     /// Ticks with a measurement but no command or estimate in the log.
     pub incomplete_ticks: u64,
+    /// Every logged measurement's timing, by sequence number (empty for a
+    /// simulated run, which has no clock).
+    pub timing: Vec<TickTiming>,
     /// The plant's own counters at the end of the run.
     pub misses: u64,
     pub stalled_ticks: u64,
@@ -133,6 +157,15 @@ impl RunTrace {
         measurements.sort_by_key(|m| m.seq);
         for m in measurements {
             let command = commands.get(&m.seq);
+            trace.timing.push(TickTiming {
+                seq: m.seq,
+                lateness_ns: m.woke_ns.saturating_sub(m.tick_ns),
+                command_ns: command.map(|c| c.published_ns.saturating_sub(m.tick_ns)),
+                held: m.flags & flags::HELD_INPUT != 0,
+                stalled: m.flags & flags::STALLED_TICK != 0,
+                fallback: m.flags & flags::FALLBACK != 0,
+                observer_fallback: command.is_some_and(|c| c.flags & flags::OBSERVER_FALLBACK != 0),
+            });
             let used = command.and_then(|c| estimates.get(&c.estimate_seq));
             match (command, used) {
                 (Some(c), Some(e)) => {

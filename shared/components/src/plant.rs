@@ -30,6 +30,8 @@ pub enum CommandVerdict {
     NonFinite,
     /// For a tick the plant has not reached (cannot happen in a healthy loop).
     Early,
+    /// The standby controller's command for this tick, kept for the safe action.
+    Standby,
 }
 
 /// Counters the plant reports in every measurement.
@@ -45,6 +47,8 @@ pub struct PlantCounters {
     pub clamped: u64,
     /// Ticks under the safe action.
     pub fallback_ticks: u64,
+    /// Fallback ticks that applied the standby controller's command.
+    pub standby_ticks: u64,
 }
 
 pub struct PlantCore {
@@ -70,6 +74,8 @@ pub struct PlantCore {
     held: [f64; MAX_INPUTS],
     /// The on-time command for the next tick, once accepted.
     next: Option<(u64, [f64; MAX_INPUTS])>,
+    /// The standby controller's command for the next tick, if any.
+    standby_next: Option<(u64, [f64; MAX_INPUTS])>,
     /// [u; w] as the model's input vector.
     model_input: [f64; 2 * MAX_INPUTS],
     y_true: [f64; MAX_OUTPUTS],
@@ -98,6 +104,7 @@ impl PlantCore {
             safe_action: SafeAction::Hold,
             held: [0.0; MAX_INPUTS],
             next: None,
+            standby_next: None,
             model_input: [0.0; 2 * MAX_INPUTS],
             y_true: [0.0; MAX_OUTPUTS],
             previous_tick_stalled: false,
@@ -121,6 +128,11 @@ impl PlantCore {
     /// `tick_ns`. In lockstep mode pass `tick_ns = u64::MAX` (nothing is late).
     pub fn offer(&mut self, cmd: &Command, k: u64, tick_ns: u64) -> CommandVerdict {
         let due = k.wrapping_sub(1);
+        if cmd.flags & flags::STANDBY != 0
+            && cmd.generation != self.activation.controller_for(cmd.seq)
+        {
+            return self.offer_standby(cmd, due, tick_ns);
+        }
         if cmd.generation != self.activation.controller_for(cmd.seq) {
             self.counters.wrong_generation += 1;
             CommandVerdict::WrongGeneration
@@ -149,6 +161,29 @@ impl PlantCore {
         }
     }
 
+    /// A standby command is kept only when it is the one due, on time and
+    /// finite; it is never counted against the loop (it is not the active
+    /// instance's to miss).
+    fn offer_standby(&mut self, cmd: &Command, due: u64, tick_ns: u64) -> CommandVerdict {
+        if self.safe_action != SafeAction::Standby {
+            self.counters.wrong_generation += 1;
+            return CommandVerdict::WrongGeneration;
+        }
+        if cmd.seq != due || cmd.published_ns > tick_ns {
+            return CommandVerdict::Stale;
+        }
+        if cmd.u[..self.n_inputs].iter().any(|v| !v.is_finite()) {
+            self.counters.non_finite += 1;
+            return CommandVerdict::NonFinite;
+        }
+        let mut u = [0.0; MAX_INPUTS];
+        for (dst, src) in u.iter_mut().zip(&cmd.u[..self.n_inputs]) {
+            *dst = src.clamp(-self.input_limit, self.input_limit);
+        }
+        self.standby_next = Some((cmd.seq, u));
+        CommandVerdict::Standby
+    }
+
     /// Whether the command due for tick `k` has been accepted.
     pub fn has_command_for(&self, k: u64) -> bool {
         matches!(self.next, Some((seq, _)) if seq.wrapping_add(1) == k)
@@ -172,6 +207,7 @@ impl PlantCore {
         } else {
             self.applied_seq
         };
+        let standby_next = self.standby_next.take();
         let arriving = match self.next.take() {
             Some((seq, u)) if seq.wrapping_add(1) == k => {
                 arriving_seq = seq;
@@ -185,10 +221,19 @@ impl PlantCore {
                 self.count_miss();
                 self.counters.fallback_ticks += 1;
                 tick_flags |= flags::HELD_INPUT | flags::FALLBACK;
-                match (self.safe_action, self.extra_delay) {
-                    (SafeAction::Zero, _) => [0.0; MAX_INPUTS],
-                    (SafeAction::Hold, true) => self.pending,
-                    (SafeAction::Hold, false) => self.held,
+                let standby = standby_next.filter(|(seq, _)| {
+                    seq.wrapping_add(1) == k && self.safe_action == SafeAction::Standby
+                });
+                match (self.safe_action, standby, self.extra_delay) {
+                    (SafeAction::Zero, _, _) => [0.0; MAX_INPUTS],
+                    (SafeAction::Standby, Some((seq, u)), _) => {
+                        tick_flags |= flags::STANDBY;
+                        self.counters.standby_ticks += 1;
+                        arriving_seq = seq;
+                        u
+                    }
+                    (_, _, true) => self.pending,
+                    (_, _, false) => self.held,
                 }
             }
             _ => {

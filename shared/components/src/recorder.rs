@@ -214,6 +214,10 @@ impl<O: RecordSink> Recorder<O> {
         &mut self.out
     }
 
+    pub fn sink_ref(&self) -> &O {
+        &self.out
+    }
+
     pub fn measurement(&mut self, m: &Measurement) {
         let out = &mut self.out;
         out.measurement(m);

@@ -40,9 +40,12 @@ pub struct ServiceArgs {
     /// Join a running loop as a replacement (swap or restart): no start-up
     /// handshake, shadow until the activation hands it its samples.
     pub join: bool,
+    /// A controller that follows the active one in shadow and publishes its
+    /// commands for the plant's safe action (scenario `safe_action = "standby"`).
+    pub standby: bool,
 }
 
-pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join]";
+pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby]";
 
 impl ServiceArgs {
     pub fn parse(role: Role, args: impl IntoIterator<Item = OsString>) -> Result<Self, NodeError> {
@@ -55,6 +58,7 @@ impl ServiceArgs {
         let mut overrides = Overrides::default();
         let mut generation = 0;
         let mut join = false;
+        let mut standby = false;
         while let Some(arg) = parser.next().map_err(|e| usage(e.to_string()))? {
             let value = |p: &mut lexopt::Parser| -> Result<String, NodeError> {
                 p.value()
@@ -87,6 +91,7 @@ impl ServiceArgs {
                 }
                 Long("no-realtime") => overrides.no_realtime = true,
                 Long("join") => join = true,
+                Long("standby") if role == Role::Controller => standby = true,
                 Long("generation") => {
                     generation = value(&mut parser)?
                         .parse()
@@ -107,7 +112,8 @@ impl ServiceArgs {
             run_dir: run_dir.ok_or_else(|| usage("--run-dir is required".into()))?,
             overrides,
             generation,
-            join,
+            join: join || standby,
+            standby,
         })
     }
 
@@ -138,7 +144,7 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
         lock_memory: rt.lock_memory && is_loop,
         timer_slack_ns: Some(rt.timer_slack_ns),
         hold_cpu_dma_latency: rt.hold_cpu_dma_latency && role == Role::Plant,
-        stop_locking_future: false,
+        prefault_private: false,
         // Start-up work stays off the CPU of the plant's clock (the loop's).
         avoid_cpu: rt.plant.cpu,
     }

@@ -63,10 +63,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // before tick 0 thereby lets the loop start, and takes over from it).
     let commands = Outlet::<Command>::open(&node, &COMMAND)?;
     commands.connect()?;
-    if args.join && !catch_up_with_loop(&mut core, &measurements)? {
+    states_in.connect()?;
+    let mut handovers = HandoverRing::default();
+    if args.join
+        && !catch_up_with_loop(
+            &mut core,
+            &measurements,
+            &states_in,
+            &mut handovers,
+            args.generation,
+        )?
+    {
         return Ok(());
     }
-    states_in.connect()?;
     activation.connect()?;
     // Priority and CPU only now, every port open and connected: creating a
     // port initialises its shared memory, milliseconds of kernel work that
@@ -82,7 +91,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // an estimate one tick old (counted) costs less than a missed command.
     let estimate_wait_ns = period_ns / 2;
 
-    let mut handovers = HandoverRing::default();
     let mut backlog = Backlog::default();
     let mut takeover = Takeover::default();
     let mut shadow_command = Command::default();
@@ -121,7 +129,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         }
 
         ring.take(&estimates, activation.current())?;
-        if active && ring.find(m.seq).is_none() {
+        // A standby's command may be applied: it waits for the estimate too.
+        if (active || args.standby) && ring.find(m.seq).is_none() {
             let deadline = if lockstep {
                 received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
             } else {
@@ -181,6 +190,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             core.step(&m, estimate, &mut shadow_command);
             takeover.shadow_u = shadow_command.u;
             takeover.shadow_seq = m.seq;
+            if args.standby {
+                commands.publish(|c| {
+                    *c = shadow_command;
+                    c.flags |= flags::STANDBY;
+                    c.received_ns = received_ns;
+                    c.published_ns = monotonic_ns();
+                })?;
+            }
             publish_state(
                 &states_out,
                 m.seq,
@@ -238,15 +255,20 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     Ok(())
 }
 
-/// A replacement joining a running loop replays its feedforward block up to
-/// the loop's current sample before it takes its CPU and priority: the
-/// replay is design-time work (one block step per sample since the start)
-/// and must not run at real-time priority beside the loop. False if a
-/// shutdown came first.
+/// A replacement joining a running loop brings its feedforward block to the
+/// loop's current sample before it takes its CPU and priority: it takes the
+/// block's state from the active instance when both have the same
+/// feedforward, and otherwise replays it (design-time work, one block step
+/// per sample since the start, that must not run at real-time priority
+/// beside the loop). False if a shutdown came first.
 fn catch_up_with_loop(
     core: &mut ControllerCore,
     measurements: &Inlet<Measurement>,
+    states_in: &Inlet<Handover>,
+    handovers: &mut HandoverRing,
+    generation: u32,
 ) -> Result<bool, NodeError> {
+    let mut taken_over = false;
     let since = std::time::Instant::now();
     loop {
         if shutdown::requested() {
@@ -263,6 +285,10 @@ fn catch_up_with_loop(
         let mut newest = None;
         while let Some(m) = measurements.receive()? {
             newest = Some(m.seq);
+        }
+        handovers.take(states_in, generation)?;
+        if !taken_over && let Some(h) = handovers.newest() {
+            taken_over = core.load_feedforward(h);
         }
         // Close the gap until what is left fits the per-sample catch-up.
         if let Some(seq) = newest

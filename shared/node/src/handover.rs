@@ -109,18 +109,30 @@ pub fn publish_state(
     Ok(())
 }
 
-/// A replacement follows in shadow at the lowest real-time priority, so that
-/// stepping through its backlog never delays the active loop on their
-/// shared CPU; it takes the loop's priority once it is named for a boundary.
+/// A replacement follows in shadow off the loop's CPU and without real-time
+/// priority, so that stepping through its backlog never competes with the
+/// active loop; it moves to the loop's CPU and priority once it is named
+/// for a boundary ([`raise_priority`]).
+///
+/// A standby controller keeps its real-time priority on the other CPU: its
+/// commands are the plant's safe action and must be on time.
 pub fn shadow_scheduling(rt: &RealtimeSettings, args: &ServiceArgs) -> RealtimeSettings {
     let mut scheduling = rt.scheduling_part();
     if args.join {
-        scheduling.fifo_priority = scheduling.fifo_priority.map(|_| 1);
+        if !args.standby {
+            scheduling.fifo_priority = None;
+        }
+        scheduling.avoid_cpu = scheduling.cpu.take();
     }
     scheduling
 }
 
 pub fn raise_priority(rt: &RealtimeSettings) {
+    if let Some(cpu) = rt.cpu
+        && let Err(e) = realtime::pin_to_cpu(cpu)
+    {
+        eprintln!("flexloop: cpu {cpu} refused ({e}); running on");
+    }
     if let Some(priority) = rt.fifo_priority
         && let Err(e) = realtime::set_fifo_priority(priority)
     {

@@ -163,11 +163,18 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         .join()
         .map_err(|_| NodeError::Peer("the logger's writer thread panicked".into()))?;
     let mut summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
+    // Gaps: everything the file lacks, also what the writer had no room for.
+    for (channel, n) in ["measurement", "estimate", "command"]
+        .iter()
+        .zip(recorder.sink_ref().dropped)
+    {
+        summary["gaps"][channel] = (summary["gaps"][channel].as_u64().unwrap_or(0) + n).into();
+    }
     summary["recording"] = outcome.recording;
     summary["recording"]["file"] = samples_name.clone().into();
     summary["recording"]["latency_log_complete"] = outcome.latency_log_complete.into();
     summary["recording"]["dropped_in_logger"] = dropped;
-    let gaps = recorder.total_gaps();
+    let gaps = missing(&recorder);
     let summary_path = args.run_dir.join(SUMMARY_FILE);
     write_json_atomically(&summary_path, &summary).map_err(io_err(&summary_path))?;
     if gaps > 0 {
@@ -237,6 +244,11 @@ fn drain(
     }
 }
 
+/// Samples the file lacks: never received, or no room in the writer's queue.
+fn missing(recorder: &Recorder<Queue>) -> u64 {
+    recorder.total_gaps() + recorder.sink_ref().dropped.iter().sum::<u64>()
+}
+
 fn wall_clock_ns() -> u64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
@@ -261,7 +273,7 @@ fn publish_telemetry(out: &Outlet<Telemetry>, recorder: &Recorder<Queue>) -> Res
         t.late_commands = m.late_commands;
         t.stalled_ticks = m.stalled_ticks;
         t.stall_misses = m.stall_misses;
-        t.gaps = recorder.total_gaps();
+        t.gaps = missing(recorder);
         t.stale_estimates = recorder.stale_estimates;
         t.round_trip = recorder
             .latencies

@@ -17,7 +17,7 @@ pub const MAX_HANDOVER_STATES: usize = 128;
 /// A component's state after it processed measurement `seq`.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Handover.v1")]
+#[type_name("flexloop.Handover.v2")]
 pub struct Handover {
     /// The measurement last processed.
     pub seq: u64,
@@ -29,6 +29,13 @@ pub struct Handover {
     pub shadow: u32,
     pub n_states: u32,
     pub n_inputs: u32,
+    /// Fingerprint of the feedforward alone (block, gains, reference): a
+    /// joining controller with the same feedforward but another feedback
+    /// takes the block's state from here instead of replaying the run.
+    pub feedforward_hash: u64,
+    /// Where the feedforward block's state lies in `state`.
+    pub feedforward_at: u32,
+    pub feedforward_len: u32,
     pub state: [f64; MAX_HANDOVER_STATES],
     /// The controller's command for `seq` (total u, after limits); for a
     /// shadow instance the command it would have sent.

@@ -51,6 +51,9 @@ pub mod flags {
     /// The controller ran without the observer's contribution: no fresh
     /// estimate for the watchdog's number of ticks.
     pub const OBSERVER_FALLBACK: u32 = 1 << 7;
+    /// Command: from the standby controller, for the plant's safe action
+    /// only. Measurement: the safe action applied the standby's command.
+    pub const STANDBY: u32 = 1 << 8;
 }
 
 /// y(k) from the plant, published at tick k.

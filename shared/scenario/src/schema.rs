@@ -356,6 +356,10 @@ pub enum SafeAction {
     Hold,
     /// Apply zero input.
     Zero,
+    /// Apply the command of a standby controller: a second instance of the
+    /// controller that follows the active one's state every sample and
+    /// publishes what it would send; it is promoted when the active one dies.
+    Standby,
 }
 
 /// When the supervisor restarts a component that died.
