@@ -155,6 +155,13 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     println!(
         "stale estimates {stale} (observer later than half a period: the controller used the estimate of the tick before)"
     );
+    if summary["recording"]["state"] == "stopped" {
+        println!(
+            "recording stopped: {} (the sample file keeps {} messages; the counts above cover the whole run)",
+            summary["recording"]["error"].as_str().unwrap_or("?"),
+            summary["recording"]["closed"]["messages"]
+        );
+    }
     let mut cpu = serde_json::Map::new();
     let wall_ns = started.elapsed().as_nanos().max(1) as f64;
     // Per role, over all its instances (swaps and restarts start more).

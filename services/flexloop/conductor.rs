@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 /// Where `flexloop swap` leaves requests for the supervisor and finds answers.
 pub const REQUESTS_DIR: &str = "requests";
-pub const EVENTS_FILE: &str = "events.jsonl";
+pub use flexloop_node::logger::EVENTS_FILE;
 /// How long a replacement may take to start and follow the loop in shadow.
 const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long the replaced instance may take to hand over and exit.

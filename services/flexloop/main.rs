@@ -7,6 +7,7 @@
 mod bench;
 mod conductor;
 mod design;
+mod export;
 mod positions;
 mod probes;
 mod progress;
@@ -45,6 +46,9 @@ const USAGE: &str = "usage:
       7·N+1 positions along the chain (0 = ma … 7 = m7); min / mean / max rms e_true over
       the scan beside the thesis; in-process lockstep, or --processes through the processes
       in lockstep (one run directory per position; sample logs removed unless --keep-logs)
+  flexloop export RUN --csv [--out DIR]
+      the run's sample file (RUN: a run directory or a samples*.mcap file) as one CSV per
+      channel (measurement, estimate, command, events; header row with units) in RUN/csv
   flexloop down [--prefix P]          stop running loops
   flexloop status [--prefix P]        live counters and latency percentiles of a running loop
   flexloop swap controller|observer SCENARIO [--prefix P]
@@ -88,6 +92,7 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         Some("report") => report::report(rest),
         Some("design") => design::design(rest),
         Some("positions") => positions::positions(rest),
+        Some("export") => export::export(rest),
         Some("down") => down(prefix_arg(rest)?),
         Some("status") => status(prefix_arg(rest)?),
         Some("swap") => swap(rest),
@@ -347,6 +352,7 @@ pub fn run_supervised_with(
         .map(|_| Duration::from_secs_f64(prepared.scenario.timing.duration_s * 3.0 + 30.0));
     let rate_hz = prepared.scenario.timing.rate_hz;
     let prefix = prepared.plan.prefix.clone();
+    let run_dir = prepared.plan.run_dir.clone();
     let mut conductor = conductor::Conductor::open(
         &prefix,
         &prepared.plan.run_dir,
@@ -376,6 +382,7 @@ pub fn run_supervised_with(
     drop(conductor);
     running.stop();
     running.cleanup();
+    close_sample_files(&run_dir);
     match outcome {
         supervisor::Outcome::ChildFailed(role, code) => Err(format!(
             "flexloop-{} failed (exit {code}); all processes stopped\n{}",
@@ -387,6 +394,35 @@ pub fn run_supervised_with(
             running.failure_report()
         )),
         _ => Ok((running, outcome, switches)),
+    }
+}
+
+/// Closes the sample files of a run whose logger was killed before it
+/// finished them (a restarted logger writes its own), so that every MCAP
+/// reader opens them; finished files are left as they are.
+fn close_sample_files(run_dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(run_dir) else {
+        return;
+    };
+    for path in entries.flatten().map(|e| e.path()) {
+        let is_samples = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with("samples") && n.ends_with(".mcap"));
+        if !is_samples {
+            continue;
+        }
+        match flexloop_components::mcap_repair::repair_file(&path) {
+            Ok(c) if c.already_complete => {}
+            Ok(c) => eprintln!(
+                "flexloop: {}: the logger did not finish it; closed after its last complete chunk ({} messages in {} chunks kept, {} bytes of torn data cut)",
+                path.display(),
+                c.messages,
+                c.chunks,
+                c.cut_bytes
+            ),
+            Err(e) => eprintln!("flexloop: {}: cannot close it: {e}", path.display()),
+        }
     }
 }
 

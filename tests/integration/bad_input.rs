@@ -102,7 +102,7 @@ fn supervision_settings_are_checked() {
 fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
     let dir = temp_dir("bad-swap");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_log(&dir, 1);
+    wait_for_ticks(&dir, 1);
     let mut swap = flexloop();
     swap.args(["swap", "controller"])
         .arg(scenario("thesis-original"))

@@ -24,7 +24,7 @@ fn lockstep_run_records_every_sample_and_leaves_nothing() {
     let dir = temp_dir("lockstep");
     let out = up(&dir, &["--mode", "lockstep", "--duration", "0.5"]);
     assert!(out.status.success(), "{}", describe(&out));
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(!log.torn_tail);
     let m: Vec<u64> = log.measurements().map(|m| m.seq).collect();
     let c: Vec<u64> = log.commands().map(|c| c.seq).collect();
@@ -58,7 +58,7 @@ fn lockstep_runs_are_bit_reproducible() {
         let dir = temp_dir(name);
         let out = up(&dir, &["--mode", "lockstep", "--duration", "0.2"]);
         assert!(out.status.success(), "{}", describe(&out));
-        let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+        let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
         log.commands()
             .map(|c| c.u[0].to_bits())
             .collect::<Vec<u64>>()
@@ -81,7 +81,7 @@ fn realtime_run_at_a_modest_rate_is_continuous_and_clean() {
         &["--mode", "realtime", "--rate", "1000", "--duration", "1"],
     );
     assert!(out.status.success(), "{}", describe(&out));
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let m: Vec<u64> = log.measurements().map(|m| m.seq).collect();
     assert_eq!(m.len(), 1_000);
     assert!(
@@ -114,15 +114,7 @@ fn down_stops_a_running_loop_cleanly_and_status_sees_it() {
         .stderr(std::process::Stdio::piped());
     let child = cmd.spawn().unwrap();
     let prefix = format!("flx{}_", child.id());
-    // Wait (bounded) until the logger has written samples.
-    let since = std::time::Instant::now();
-    while std::fs::metadata(dir.join("samples.flxlog")).map_or(0, |m| m.len()) < 100_000 {
-        assert!(
-            since.elapsed() < Duration::from_secs(60),
-            "loop did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_ticks(&dir, 21);
     let status = run_bounded(
         {
             let mut c = flexloop();
@@ -145,7 +137,7 @@ fn down_stops_a_running_loop_cleanly_and_status_sees_it() {
     assert!(down.status.success(), "{}", describe(&down));
     let out = wait_bounded(child, Duration::from_secs(30));
     assert!(out.status.success(), "{}", describe(&out));
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let m: Vec<u64> = log.measurements().map(|m| m.seq).collect();
     assert!(contiguous(&m, 0));
     assert!(log.measurements().last().unwrap().flags & flexloop_protocol::flags::END_OF_RUN != 0);

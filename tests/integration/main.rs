@@ -8,6 +8,7 @@ mod bad_input;
 mod loop_processes;
 mod mimo;
 mod positions;
+mod recording;
 mod report;
 mod sensor_scan;
 mod swap;

@@ -40,7 +40,7 @@ fn assert_no_gaps(summary: &Value) {
 fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
     let dir = temp_dir("swap-lockstep");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_log(&dir, 2_000_000);
+    wait_for_ticks(&dir, 430);
     let same = scenario("lecture-double-integrator");
     let first = swap(&prefix, "controller", &same);
     assert!(first.contains("generation 1"), "{first}");
@@ -60,7 +60,7 @@ fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
 
     // Every command, across three hand-overs, is the one an unswapped loop
     // computes: the state copy makes the switch exact.
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     // Two publishers during a hand-over: the log may hold k+1 before k.
     let mut commands: Vec<&Command> = log.commands().collect();
     commands.sort_by_key(|c| c.seq);
@@ -106,7 +106,7 @@ fn a_retuned_controller_takes_over_without_a_step() {
     )
     .unwrap();
     let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
-    wait_for_log(&dir, 15_000_000);
+    wait_for_ticks(&dir, 3_200);
     swap(&prefix, "controller", &retuned);
     stop(&prefix, child);
     let summary = summary(&dir);
@@ -135,7 +135,7 @@ fn a_retuned_controller_takes_over_without_a_step() {
 fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let dir = temp_dir("swap-crash");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_log(&dir, 500_000);
+    wait_for_ticks(&dir, 100);
     for role in ["controller", "observer", "logger"] {
         let pid = *pids_of(&dir, role)
             .last()
@@ -156,14 +156,7 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
         }
     }
     // The restarted logger records before the run ends.
-    let since = Instant::now();
-    while std::fs::metadata(dir.join("samples.g1.flxlog")).map_or(0, |m| m.len()) < 50_000 {
-        assert!(
-            since.elapsed() < Duration::from_secs(90),
-            "the logger did not come back"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_ticks_in(&dir, "samples.g1.mcap", 10);
     stop(&prefix, child);
     let summary = summary(&dir);
     // The silent controller cost ticks under the safe action, and the loop
@@ -173,7 +166,7 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     assert_eq!(crashes, 3);
     // The restarted logger writes its own files, to the end, and sees only
     // the restarted controller.
-    let second = LogReader::open(&dir.join("samples.g1.flxlog")).unwrap();
+    let second = LogReader::open(&dir.join("samples.g1.mcap")).unwrap();
     assert!(second.commands().all(|c| c.generation >= 1));
     let seqs: Vec<u64> = second.measurements().map(|m| m.seq).collect();
     assert!(seqs.len() > 10 && seqs.windows(2).all(|w| w[1] == w[0] + 1));
@@ -193,7 +186,7 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
     )
     .unwrap();
     let (child, prefix) = start_file(&dir, &file, &["--rate", "1000"]);
-    wait_for_log(&dir, 500_000);
+    wait_for_ticks(&dir, 100);
     let standby_running = |dir: &Path| {
         processes_mentioning(&dir.display().to_string())
             .iter()
@@ -251,7 +244,7 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
     let summary = summary(&dir);
     assert!(counter(&summary, "fallback_ticks") > 0, "{summary}");
     assert_eq!(counter(&summary, "rejected_commands"), 0, "{summary}");
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let standby_ticks = log
         .measurements()
         .filter(|m| m.flags & flags::STANDBY != 0)
@@ -292,7 +285,7 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
 fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
     let dir = temp_dir("swap-rogue");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_log(&dir, 1_000_000);
+    wait_for_ticks(&dir, 215);
     {
         // Answers every measurement before or beside the real controller:
         // once from a generation that is not active, once with NaN.
@@ -326,7 +319,7 @@ fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
     let summary = summary(&dir);
     assert!(counter(&summary, "rejected_commands") > 0, "{summary}");
     assert_eq!(counter(&summary, "misses"), 0, "{summary}");
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     for m in log.measurements() {
         assert!(m.u_applied[0].is_finite() && m.u_applied[0].abs() < 100.0);
     }
@@ -337,7 +330,7 @@ fn a_rogue_publisher_and_non_finite_commands_leave_the_plant_unharmed() {
 fn swaps_at_a_modest_realtime_rate_lose_no_sample() {
     let dir = temp_dir("swap-realtime");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_log(&dir, 500_000);
+    wait_for_ticks(&dir, 100);
     let same = scenario("lecture-double-integrator");
     swap(&prefix, "controller", &same);
     swap(&prefix, "observer", &same);
@@ -351,7 +344,7 @@ fn swaps_at_a_modest_realtime_rate_lose_no_sample() {
         assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
     }
     assert_eq!(counter(&summary, "rejected_commands"), 0, "{summary}");
-    let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let mut seqs: Vec<u64> = log.measurements().map(|m| m.seq).collect();
     seqs.sort_unstable();
     assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1));
@@ -378,13 +371,13 @@ fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
         };
         // SAFETY: a pid of a process this test started (through flexloop).
         unsafe { libc::kill(pid, libc::SIGKILL) };
-        wait_for_log(&dir, 200_000);
+        wait_for_ticks(&dir, 43);
         stop(&prefix, child);
         let restarted = events(&dir)
             .iter()
             .any(|e| e["kind"] == "restart" && e["role"] == role);
         assert!(restarted, "{role}: {:?}", events(&dir));
-        let log = LogReader::open(&dir.join("samples.flxlog")).unwrap();
+        let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
         assert!(log.measurements().last().unwrap().flags & flags::END_OF_RUN != 0);
         assert_clean(&dir);
     }

@@ -83,7 +83,7 @@ pub fn processes_mentioning(needle: &str) -> Vec<String> {
 
 /// The run's iceoryx2 prefix, from the sample log's metadata.
 pub fn prefix_of(run_dir: &Path) -> String {
-    let log = flexloop_components::LogReader::open(&run_dir.join("samples.flxlog")).unwrap();
+    let log = flexloop_components::LogReader::open(&run_dir.join("samples.mcap")).unwrap();
     let meta: serde_json::Value = serde_json::from_str(&log.metadata_json).unwrap();
     meta["prefix"].as_str().unwrap().to_string()
 }
@@ -124,19 +124,33 @@ pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Child, St
     (child, prefix)
 }
 
-/// Waits (bounded) until the logger has recorded `bytes` of samples.
-pub fn wait_for_log(dir: &Path, bytes: u64) {
+/// Waits (bounded) until the logger's sample file `file` in `dir` holds
+/// `ticks` measurements (it gets a chunk every 100 ms).
+pub fn wait_for_ticks_in(dir: &Path, file: &str, ticks: usize) {
     let since = Instant::now();
-    while std::fs::metadata(dir.join("samples.flxlog")).map_or(0, |m| m.len()) < bytes {
+    loop {
+        // From the file's indexes: reading it whole each time would take
+        // the loop's CPU.
+        let recorded = flexloop_components::mcap_repair::topic_counts(&dir.join(file))
+            .map_or(0, |c| c.get("/measurement").copied().unwrap_or(0) as usize);
+        if recorded >= ticks {
+            return;
+        }
         assert!(
             since.elapsed() < Duration::from_secs(90),
-            "loop did not run"
+            "loop did not run: {recorded} of {ticks} ticks in {file}"
         );
-        std::thread::sleep(Duration::from_millis(50));
+        std::thread::sleep(Duration::from_millis(100));
     }
 }
 
-pub fn stop(prefix: &str, child: Child) {
+/// Waits (bounded) until the first logger has recorded `ticks` measurements.
+pub fn wait_for_ticks(dir: &Path, ticks: usize) {
+    wait_for_ticks_in(dir, "samples.mcap", ticks);
+}
+
+/// `flexloop down` for `prefix`, then waits for `child`; returns its output.
+pub fn stop(prefix: &str, child: Child) -> Output {
     let down = run_bounded(
         {
             let mut c = flexloop();
@@ -148,6 +162,7 @@ pub fn stop(prefix: &str, child: Child) {
     assert!(down.status.success(), "{}", describe(&down));
     let out = wait_bounded(child, Duration::from_secs(60));
     assert!(out.status.success(), "{}", describe(&out));
+    out
 }
 
 pub fn events(dir: &Path) -> Vec<Value> {

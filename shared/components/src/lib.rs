@@ -12,19 +12,28 @@
 //!   feedforward and limits: u(k).
 //! - [`handover`]: design fingerprints and bumpless state shifts for swaps.
 //! - [`in_process`]: the whole loop in one process, as lockstep runs it.
-//! - [`recorder`]: the logger's sample file and gap counting.
+//! - [`recorder`]: the logger's bookkeeping: gaps, latencies, events, and
+//!   every message into the sample file.
+//! - [`sample_file`]: the run's MCAP sample file, written and read back.
+//! - [`mcap_repair`]: closes a sample file its writer left unfinished.
+//! - [`loop_events`]: conditions of the loop (misses, stalls, fallbacks, ...)
+//!   read off the samples.
 //! - [`noise`]: the seeded disturbance generator.
 
 pub mod controller;
 pub mod handover;
 pub mod in_process;
+pub mod loop_events;
+pub mod mcap_repair;
 pub mod noise;
 pub mod observer;
 pub mod plant;
 pub mod recorder;
+pub mod sample_file;
 
 pub use controller::ControllerCore;
 pub use in_process::InProcessLoop;
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
-pub use recorder::{LogReader, Record, Recorder};
+pub use recorder::{RecordSink, Recorder};
+pub use sample_file::{LogEvent, LogReader, Record, SampleWriter};

@@ -1,34 +1,11 @@
-//! The logger's sample file: every message as it was sent, and gap counting.
-//!
-//! Format (`.flxlog`): the line `FLXLOG1`, one line of JSON run metadata,
-//! then records `[kind u8][0u8; 3][len u32 LE][payload]`, the payload being
-//! the `#[repr(C)]` message bytes. Records are fixed per kind, so a reader
-//! recognises a torn last record (after a crash) and stops before it.
+//! The logger's bookkeeping over the samples: sequence gaps per channel,
+//! latency histograms, the events the loop's flags and counters show; every
+//! message and event goes on to a [`RecordSink`] (the sample file).
 
+use crate::loop_events::LoopEvents;
+use crate::sample_file::{SampleWriter, Storage};
 use flexloop_protocol::{Command, Estimate, Measurement};
 use flexloop_runtime::latency::LoopLatencies;
-use std::fs::File;
-use std::io::{self, BufWriter, Read, Write};
-use std::path::Path;
-
-const MAGIC: &[u8] = b"FLXLOG1\n";
-
-/// Channels the recorder tracks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum Kind {
-    Measurement = 1,
-    Estimate = 2,
-    Command = 3,
-}
-
-/// One record read back from a file.
-#[derive(Debug, Clone)]
-pub enum Record {
-    Measurement(Measurement),
-    Estimate(Box<Estimate>),
-    Command(Command),
-}
 
 /// Per-channel sequence bookkeeping, tolerant of reordering: during a swap
 /// two instances publish on one channel and a reader may get sample k+1 from
@@ -42,6 +19,8 @@ pub struct ChannelCount {
     settled_gaps: u64,
     /// Bit i: `last_seq − i` was seen (numbers before the first count as seen).
     window: u64,
+    /// A run of missing numbers that left the window and may go on.
+    pending: Option<(u64, u64)>,
 }
 
 impl Default for ChannelCount {
@@ -51,6 +30,7 @@ impl Default for ChannelCount {
             last_seq: None,
             settled_gaps: 0,
             window: u64::MAX,
+            pending: None,
         }
     }
 }
@@ -58,8 +38,41 @@ impl Default for ChannelCount {
 /// How far back a late sample still fills its place.
 const REORDER_WINDOW: u64 = 64;
 
+/// Adds `count` missing numbers from `first` on to the open run, reporting
+/// the run before it if they do not continue it.
+fn join(
+    pending: &mut Option<(u64, u64)>,
+    first: u64,
+    count: u64,
+    report: &mut impl FnMut(u64, u64),
+) {
+    if count == 0 {
+        return;
+    }
+    *pending = match *pending {
+        Some((start, n)) if start + n == first => Some((start, n + count)),
+        Some((start, n)) => {
+            report(start, n);
+            Some((first, count))
+        }
+        None => Some((first, count)),
+    };
+}
+
+/// Calls `add(number, 1)` for every unseen number of `window` (bit p stands
+/// for `last − p`) at `positions`, in ascending order.
+fn unseen(window: u64, last: u64, positions: std::ops::Range<u64>, mut add: impl FnMut(u64, u64)) {
+    for p in positions.rev() {
+        if window & (1 << p) == 0 {
+            add(last - p, 1);
+        }
+    }
+}
+
 impl ChannelCount {
-    fn see(&mut self, seq: u64) {
+    /// Counts `seq`; `missing(first, count)` hears of every run of numbers
+    /// that fell out of the reorder window unseen, once the run is complete.
+    fn see(&mut self, seq: u64, mut missing: impl FnMut(u64, u64)) {
         self.samples += 1;
         match self.last_seq {
             None => {
@@ -67,20 +80,41 @@ impl ChannelCount {
             }
             Some(last) if seq > last => {
                 let shift = seq - last;
-                if shift >= REORDER_WINDOW {
-                    // All of the window leaves, and so do the missing numbers
-                    // too old for the new one; the newer missing ones stay
-                    // in the new window as unseen.
-                    self.settled_gaps +=
-                        u64::from(self.window.count_zeros()) + shift - REORDER_WINDOW;
-                    self.window = 0;
-                } else {
-                    let leaving = self.window >> (REORDER_WINDOW - shift);
-                    self.settled_gaps += shift - u64::from(leaving.count_ones());
-                    self.window <<= shift;
+                let mut pending = self.pending.take();
+                {
+                    let mut add = |first, count| join(&mut pending, first, count, &mut missing);
+                    if shift >= REORDER_WINDOW {
+                        // All of the window leaves, and so do the missing numbers
+                        // too old for the new one; the newer missing ones stay
+                        // in the new window as unseen.
+                        unseen(self.window, last, 0..REORDER_WINDOW, &mut add);
+                        add(last + 1, shift - REORDER_WINDOW);
+                        self.settled_gaps +=
+                            u64::from(self.window.count_zeros()) + shift - REORDER_WINDOW;
+                        self.window = 0;
+                    } else {
+                        unseen(
+                            self.window,
+                            last,
+                            REORDER_WINDOW - shift..REORDER_WINDOW,
+                            &mut add,
+                        );
+                        let leaving = self.window >> (REORDER_WINDOW - shift);
+                        self.settled_gaps += shift - u64::from(leaving.count_ones());
+                        self.window <<= shift;
+                    }
                 }
                 self.window |= 1;
                 self.last_seq = Some(seq);
+                // The run is complete once the number after it was seen.
+                if let Some((first, n)) = pending {
+                    let back = seq - (first + n);
+                    if back >= REORDER_WINDOW || self.window & (1 << back) != 0 {
+                        missing(first, n);
+                        pending = None;
+                    }
+                }
+                self.pending = pending;
             }
             Some(last) => {
                 let back = last - seq;
@@ -96,11 +130,55 @@ impl ChannelCount {
     pub fn gaps(&self) -> u64 {
         self.settled_gaps + u64::from(self.window.count_zeros())
     }
+
+    /// Reports the open run and the numbers still missing inside the window
+    /// (at the end: no more will come).
+    fn unsettled_gaps(&mut self, mut missing: impl FnMut(u64, u64)) {
+        let mut pending = self.pending.take();
+        if let Some(last) = self.last_seq {
+            unseen(self.window, last, 0..REORDER_WINDOW, |first, count| {
+                join(&mut pending, first, count, &mut missing)
+            });
+        }
+        if let Some((first, n)) = pending {
+            missing(first, n);
+        }
+    }
 }
 
-/// Writes samples as they come and keeps the loop's latency histograms.
-pub struct Recorder<W: Write> {
-    out: W,
+/// Where the recorder hands every message and event: the sample file
+/// itself, or a queue to the thread that writes it (the logger).
+pub trait RecordSink {
+    fn measurement(&mut self, m: &Measurement);
+    fn estimate(&mut self, e: &Estimate);
+    fn command(&mut self, c: &Command);
+    /// One JSON event at `at_ns` (CLOCK_MONOTONIC).
+    fn event(&mut self, at_ns: u64, json: &str);
+}
+
+impl<S: Storage> RecordSink for SampleWriter<S> {
+    fn measurement(&mut self, m: &Measurement) {
+        SampleWriter::measurement(self, m);
+    }
+
+    fn estimate(&mut self, e: &Estimate) {
+        SampleWriter::estimate(self, e);
+    }
+
+    fn command(&mut self, c: &Command) {
+        SampleWriter::command(self, c);
+    }
+
+    fn event(&mut self, at_ns: u64, json: &str) {
+        SampleWriter::event(self, at_ns, json);
+    }
+}
+
+/// Counts every message, keeps the latency histograms, writes what the
+/// samples show as events, and hands everything to its sink.
+pub struct Recorder<O: RecordSink> {
+    out: O,
+    events: LoopEvents,
     pub latencies: LoopLatencies,
     pub measurements: ChannelCount,
     pub estimates: ChannelCount,
@@ -112,225 +190,151 @@ pub struct Recorder<W: Write> {
     pub last_measurement: Option<Measurement>,
 }
 
-impl Recorder<BufWriter<File>> {
-    /// Creates `path` (failing if it exists: a run never overwrites a log).
-    pub fn create(path: &Path, metadata_json: &str) -> io::Result<Self> {
-        let file = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(path)?;
-        Recorder::new(BufWriter::with_capacity(1 << 20, file), metadata_json)
-    }
-
-    /// Flushes and syncs the file to disk.
-    pub fn finish(mut self) -> io::Result<()> {
-        self.out.flush()?;
-        self.out.get_ref().sync_all()
-    }
+fn gap_json(channel: &str, first: u64, count: u64) -> String {
+    format!(
+        r#"{{"source":"logger","kind":"gap","channel":"{channel}","seq":{first},"count":{count}}}"#
+    )
 }
 
-impl<W: Write> Recorder<W> {
-    pub fn new(mut out: W, metadata_json: &str) -> io::Result<Self> {
-        out.write_all(MAGIC)?;
-        out.write_all(metadata_json.replace('\n', " ").as_bytes())?;
-        out.write_all(b"\n")?;
-        Ok(Self {
+impl<O: RecordSink> Recorder<O> {
+    pub fn new(out: O) -> Self {
+        Self {
             out,
+            events: LoopEvents::default(),
             latencies: LoopLatencies::new(),
             measurements: ChannelCount::default(),
             estimates: ChannelCount::default(),
             commands: ChannelCount::default(),
             stale_estimates: 0,
             last_measurement: None,
-        })
+        }
     }
 
-    fn write_record<T: Copy>(&mut self, kind: Kind, value: &T) -> io::Result<()> {
-        let len = std::mem::size_of::<T>();
-        // SAFETY: messages are #[repr(C)] plain data without padding (checked by
-        // the protocol's size tests), so their bytes are initialised.
-        let bytes = unsafe { std::slice::from_raw_parts((value as *const T).cast::<u8>(), len) };
-        self.out.write_all(&[kind as u8, 0, 0, 0])?;
-        self.out.write_all(&(len as u32).to_le_bytes())?;
-        self.out.write_all(bytes)
+    pub fn sink(&mut self) -> &mut O {
+        &mut self.out
     }
 
-    pub fn measurement(&mut self, m: &Measurement) -> io::Result<()> {
-        self.measurements.see(m.seq);
+    pub fn sink_ref(&self) -> &O {
+        &self.out
+    }
+
+    pub fn measurement(&mut self, m: &Measurement) {
+        let out = &mut self.out;
+        out.measurement(m);
+        self.measurements.see(m.seq, |first, count| {
+            out.event(m.published_ns, &gap_json("measurement", first, count))
+        });
+        self.events
+            .measurement(m, |e| out.event(e.at_ns, &e.json()));
         self.latencies.observe_measurement(m);
         self.last_measurement = Some(*m);
-        self.write_record(Kind::Measurement, m)
     }
 
-    pub fn estimate(&mut self, e: &Estimate) -> io::Result<()> {
-        self.estimates.see(e.seq);
+    pub fn estimate(&mut self, e: &Estimate) {
+        let out = &mut self.out;
+        out.estimate(e);
+        self.estimates.see(e.seq, |first, count| {
+            out.event(e.published_ns, &gap_json("estimate", first, count))
+        });
         // The initial estimate answers no measurement.
         if e.source_published_ns != 0 {
             self.latencies.observe_estimate(e);
         }
-        self.write_record(Kind::Estimate, e)
     }
 
-    pub fn command(&mut self, c: &Command) -> io::Result<()> {
-        self.commands.see(c.seq);
+    pub fn command(&mut self, c: &Command) {
+        let out = &mut self.out;
+        out.command(c);
+        self.commands.see(c.seq, |first, count| {
+            out.event(c.published_ns, &gap_json("command", first, count))
+        });
+        self.events.command(c, |e| out.event(e.at_ns, &e.json()));
         if c.estimate_seq != c.seq {
             self.stale_estimates += 1;
         }
         self.latencies.observe_command(c);
-        self.write_record(Kind::Command, c)
     }
 
-    pub fn flush(&mut self) -> io::Result<()> {
-        self.out.flush()
+    /// An event from elsewhere (the supervisor's, the logger's own), as JSON.
+    pub fn event(&mut self, at_ns: u64, json: &str) {
+        self.out.event(at_ns, json);
     }
 
     pub fn total_gaps(&self) -> u64 {
         self.measurements.gaps() + self.estimates.gaps() + self.commands.gaps()
     }
-}
 
-/// Reads a `.flxlog` file back.
-pub struct LogReader {
-    pub metadata_json: String,
-    pub records: Vec<Record>,
-    /// True if the file ended inside a record (the writer was killed).
-    pub torn_tail: bool,
-}
-
-impl LogReader {
-    pub fn open(path: &Path) -> io::Result<Self> {
-        let mut bytes = Vec::new();
-        File::open(path)?.read_to_end(&mut bytes)?;
-        Self::parse(&bytes)
-    }
-
-    pub fn parse(bytes: &[u8]) -> io::Result<Self> {
-        let bad = |what: &str| io::Error::new(io::ErrorKind::InvalidData, what.to_string());
-        if !bytes.starts_with(MAGIC) {
-            return Err(bad("not a flexloop sample log (bad magic)"));
+    /// At the end: writes the conditions still open and the gaps still in
+    /// the reorder windows as events (no more samples will come).
+    pub fn finish(&mut self, at_ns: u64) {
+        let out = &mut self.out;
+        self.events.finish(at_ns, |e| out.event(e.at_ns, &e.json()));
+        for (name, count) in [
+            ("measurement", &mut self.measurements),
+            ("estimate", &mut self.estimates),
+            ("command", &mut self.commands),
+        ] {
+            count.unsettled_gaps(|first, n| out.event(at_ns, &gap_json(name, first, n)));
         }
-        let rest = &bytes[MAGIC.len()..];
-        let eol = rest
-            .iter()
-            .position(|b| *b == b'\n')
-            .ok_or_else(|| bad("metadata line not terminated"))?;
-        let metadata_json = String::from_utf8_lossy(&rest[..eol]).into_owned();
-        let mut body = &rest[eol + 1..];
-        let mut records = Vec::new();
-        let mut torn_tail = false;
-        while !body.is_empty() {
-            if body.len() < 8 {
-                torn_tail = true;
-                break;
-            }
-            let kind = body[0];
-            let len = u32::from_le_bytes([body[4], body[5], body[6], body[7]]) as usize;
-            if body.len() < 8 + len {
-                torn_tail = true;
-                break;
-            }
-            let payload = &body[8..8 + len];
-            let record = match kind {
-                1 => Record::Measurement(decode(payload).ok_or_else(|| bad("measurement size"))?),
-                2 => Record::Estimate(Box::new(
-                    decode(payload).ok_or_else(|| bad("estimate size"))?,
-                )),
-                3 => Record::Command(decode(payload).ok_or_else(|| bad("command size"))?),
-                _ => return Err(bad("unknown record kind")),
-            };
-            records.push(record);
-            body = &body[8 + len..];
-        }
-        Ok(Self {
-            metadata_json,
-            records,
-            torn_tail,
-        })
     }
-
-    pub fn measurements(&self) -> impl Iterator<Item = &Measurement> {
-        self.records.iter().filter_map(|r| match r {
-            Record::Measurement(m) => Some(m),
-            _ => None,
-        })
-    }
-
-    pub fn commands(&self) -> impl Iterator<Item = &Command> {
-        self.records.iter().filter_map(|r| match r {
-            Record::Command(c) => Some(c),
-            _ => None,
-        })
-    }
-
-    pub fn estimates(&self) -> impl Iterator<Item = &Estimate> {
-        self.records.iter().filter_map(|r| match r {
-            Record::Estimate(e) => Some(e.as_ref()),
-            _ => None,
-        })
-    }
-}
-
-fn decode<T: Copy + Default>(payload: &[u8]) -> Option<T> {
-    if payload.len() != std::mem::size_of::<T>() {
-        return None;
-    }
-    let mut value = T::default();
-    // SAFETY: T is a plain-data message for which every bit pattern is valid,
-    // and the lengths match.
-    unsafe {
-        std::ptr::copy_nonoverlapping(
-            payload.as_ptr(),
-            (&mut value as *mut T).cast::<u8>(),
-            payload.len(),
-        );
-    }
-    Some(value)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sample_file::LogReader;
+    use std::collections::BTreeMap;
+    use std::io::Cursor;
 
     #[test]
-    fn round_trips_records_and_counts_gaps() {
-        let mut buf = Vec::new();
-        {
-            let mut r = Recorder::new(&mut buf, "{\"scenario\":\"t\"}").unwrap();
-            for seq in [0u64, 1, 2, 5] {
-                r.measurement(&Measurement {
-                    seq,
-                    y: [seq as f64; 8],
-                    ..Default::default()
-                })
-                .unwrap();
-            }
-            r.command(&Command {
-                seq: 0,
+    fn records_every_message_and_writes_gaps_and_conditions_as_events() {
+        let mut r = Recorder::new(SampleWriter::new(Cursor::new(Vec::new()), 1_000).unwrap());
+        r.sink()
+            .metadata(BTreeMap::from([("scenario".into(), "t".into())]));
+        for seq in [0u64, 1, 2, 5] {
+            r.measurement(&Measurement {
+                seq,
+                published_ns: 10 + seq,
+                misses: u64::from(seq >= 2),
+                y: [seq as f64; 8],
                 ..Default::default()
-            })
-            .unwrap();
-            assert_eq!(r.measurements.gaps(), 2);
-            assert_eq!(r.measurements.samples, 4);
-            assert_eq!(r.total_gaps(), 2);
+            });
         }
-        let log = LogReader::parse(&buf).unwrap();
-        assert_eq!(log.metadata_json, "{\"scenario\":\"t\"}");
+        r.command(&Command {
+            seq: 0,
+            ..Default::default()
+        });
+        r.sink().flush();
+        assert_eq!(r.measurements.gaps(), 2);
+        assert_eq!(r.measurements.samples, 4);
+        assert_eq!(r.total_gaps(), 2);
+        r.finish(99);
+        let bytes = r.sink().finish().unwrap().into_inner();
+        assert_eq!(r.sink().recording_json()["state"], "complete");
+        let log = LogReader::parse(&bytes).unwrap();
+        assert!(!log.torn_tail, "{:?}", log.tail_error);
+        assert_eq!(log.meta("scenario"), Some("t"));
         let seqs: Vec<u64> = log.measurements().map(|m| m.seq).collect();
         assert_eq!(seqs, vec![0, 1, 2, 5]);
         assert_eq!(log.measurements().last().unwrap().y[3], 5.0);
         assert_eq!(log.commands().count(), 1);
-        assert!(!log.torn_tail);
-
-        // A file cut inside its last record keeps everything before it.
-        let cut = LogReader::parse(&buf[..buf.len() - 3]).unwrap();
-        assert!(cut.torn_tail);
-        assert_eq!(cut.measurements().count(), 4);
-        assert_eq!(cut.commands().count(), 0);
-    }
-
-    #[test]
-    fn rejects_foreign_files() {
-        assert!(LogReader::parse(b"hello").is_err());
+        let kinds: Vec<String> = log
+            .events
+            .iter()
+            .map(|e| format!("{} {} {}", e.json["kind"], e.json["seq"], e.json["count"]))
+            .collect();
+        assert!(kinds.contains(&r#""miss" 2 null"#.to_string()), "{kinds:?}");
+        // The gap 3..=4 is still inside the reorder window at the end.
+        assert!(kinds.contains(&r#""gap" 3 2"#.to_string()), "{kinds:?}");
+        // Log time: the message's publish stamp plus the offset.
+        assert_eq!(
+            log.events
+                .iter()
+                .find(|e| e.json["kind"] == "miss")
+                .unwrap()
+                .log_time_ns,
+            1_012
+        );
     }
 }
 
@@ -341,9 +345,25 @@ mod channel_count_tests {
     fn count(seqs: &[u64]) -> ChannelCount {
         let mut c = ChannelCount::default();
         for s in seqs {
-            c.see(*s);
+            c.see(*s, |_, _| {});
         }
         c
+    }
+
+    /// Runs of missing numbers: (first, count).
+    type Runs = Vec<(u64, u64)>;
+
+    /// Runs reported as settled, then those still in the window.
+    fn runs(seqs: &[u64]) -> (Runs, Runs) {
+        let mut c = ChannelCount::default();
+        let mut settled = Vec::new();
+        for s in seqs {
+            c.see(*s, |first, n| settled.push((first, n)));
+        }
+        let mut open = Vec::new();
+        c.unsettled_gaps(|first, n| open.push((first, n)));
+        assert!(c.pending.is_none());
+        (settled, open)
     }
 
     #[test]
@@ -353,7 +373,25 @@ mod channel_count_tests {
         assert_eq!(count(&[0, 1, 200, 2]).gaps(), 198);
         // A sample that comes back after the window was already counted missing.
         let mut late = count(&(0..100).filter(|s| *s != 10).collect::<Vec<_>>());
-        late.see(10);
+        late.see(10, |_, _| {});
         assert_eq!(late.gaps(), 1);
+    }
+
+    #[test]
+    fn missing_runs_are_reported_once_each_and_add_up_to_the_gaps() {
+        let seqs: Vec<u64> = (0..300)
+            .filter(|s| !(10..13).contains(s) && *s != 50 && *s != 290)
+            .chain([400, 401, 470])
+            .collect();
+        let (settled, open) = runs(&seqs);
+        assert_eq!(settled, vec![(10, 3), (50, 1), (290, 1), (300, 100)]);
+        // 402..=406 left the window when 470 came, 407..=469 are still in
+        // it: one run, reported at the end.
+        assert_eq!(open, vec![(402, 68)]);
+        let reported: u64 = settled.iter().chain(&open).map(|(_, n)| n).sum();
+        assert_eq!(reported, count(&seqs).gaps());
+        // A late number inside the window is not reported.
+        let (settled, open) = runs(&[0, 1, 3, 2, 4]);
+        assert!(settled.is_empty() && open.is_empty());
     }
 }

@@ -9,6 +9,8 @@ pub mod handover;
 pub mod logger;
 pub mod observer;
 pub mod plant;
+pub mod recording;
+pub mod run_metadata;
 pub mod summary;
 
 use std::fmt;

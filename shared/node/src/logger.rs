@@ -1,21 +1,26 @@
-//! The logger process: polls every channel, records every sample, counts
-//! gaps, keeps the latency histograms and publishes telemetry.
+//! The logger process: polls every channel, records every sample into the
+//! MCAP sample file (with the supervisor's events and those the samples
+//! show), counts gaps, keeps the latency histograms and publishes telemetry.
 //!
 //! It polls on its own 2 ms clock instead of waking on events, so the loop
-//! processes never pay a notification for it; its queues hold 51 ms.
+//! processes never pay a notification for it; its queues hold 51 ms. The
+//! files are written by a thread of their own ([`crate::recording`]): a
+//! chunk every 100 ms; a write error (a full disk) stops the recording,
+//! closes the file at its last complete chunk and is reported, while the
+//! counting, the histograms and the loop go on.
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::recording::{self, Files, Item, Queue};
+use crate::run_metadata::run_metadata;
 use crate::summary::{run_summary, write_json_atomically};
 use crate::{NodeError, await_peers};
-use flexloop_components::Recorder;
+use flexloop_components::{Recorder, SampleWriter};
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, flags};
 use flexloop_runtime::clock::sleep_until;
-use flexloop_runtime::latency::{LoopLatencies, Metric};
+use flexloop_runtime::latency::Metric;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown, usage};
 use flexloop_transport::{Domain, Inlet, Outlet};
-use hdrhistogram::serialization::V2DeflateSerializer;
-use hdrhistogram::serialization::interval_log::{IntervalLogWriterBuilder, Tag};
 use std::path::Path;
 use std::time::{Duration, SystemTime};
 
@@ -24,9 +29,12 @@ const INTERVAL_NS: u64 = 1_000_000_000;
 /// After the last measurement, how long to wait for its command and estimate.
 const END_GRACE_NS: u64 = 500_000_000;
 
-pub const SAMPLES_FILE: &str = "samples.flxlog";
+pub const SAMPLES_FILE: &str = "samples.mcap";
 pub const HISTOGRAM_LOG: &str = "latency.hlog";
 pub const SUMMARY_FILE: &str = "summary.json";
+/// The supervisor's events (swap, crash, restart, ...), one JSON object a
+/// line; the logger copies them into the sample file.
+pub const EVENTS_FILE: &str = "events.jsonl";
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> NodeError + '_ {
     move |error| NodeError::Io {
@@ -38,40 +46,26 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> NodeError + '_ {
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let (scenario, _design) = args.load()?;
     let period_ns = scenario.period_ns();
+    // A file-size limit then fails a write (handled like a full disk)
+    // instead of killing the logger.
+    // SAFETY: ignoring a signal has no preconditions.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     // Files first: an unwritable run directory fails before the loop starts.
     // A restarted logger (generation > 0) never touches its predecessor's
-    // files, which may end in a torn record.
-    let samples_path = args
-        .run_dir
-        .join(generation_file(SAMPLES_FILE, args.generation));
+    // files, which may end in a torn chunk.
+    let samples_name = generation_file(SAMPLES_FILE, args.generation);
+    let samples_path = args.run_dir.join(&samples_name);
     let hlog_path = args
         .run_dir
         .join(generation_file(HISTOGRAM_LOG, args.generation));
-    let metadata = serde_json::json!({
-        "scenario": scenario.name,
-        "scenario_file": scenario.source.display().to_string(),
-        "mode": scenario.timing.mode.as_str(),
-        "rate_hz": scenario.timing.rate_hz,
-        "prefix": args.prefix,
-        "version": env!("CARGO_PKG_VERSION"),
-    });
-    let mut recorder =
-        Recorder::create(&samples_path, &metadata.to_string()).map_err(io_err(&samples_path))?;
-    let mut hlog_file = std::fs::File::create(&hlog_path).map_err(io_err(&hlog_path))?;
-    let mut serializer = V2DeflateSerializer::new();
-    let mut hlog = IntervalLogWriterBuilder::new()
-        .add_comment(&format!(
-            "flexloop {} latencies in ns, scenario {}",
-            env!("CARGO_PKG_VERSION"),
-            scenario.name
-        ))
-        .with_base_time(SystemTime::now())
-        .begin_log_with(&mut hlog_file, &mut serializer)
-        .map_err(io_err(&hlog_path))?;
+    let log_time_offset_ns = wall_clock_ns().saturating_sub(monotonic_ns());
+    let samples =
+        SampleWriter::create(&samples_path, log_time_offset_ns).map_err(io_err(&samples_path))?;
+    let hlog = std::fs::File::create(&hlog_path).map_err(io_err(&hlog_path))?;
 
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Logger);
-    let _memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
+    let memory = realtime::apply(Role::Logger.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
     let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
@@ -88,6 +82,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             )
         },
     )? {
+        // Stopped before the loop started: the sample file finishes empty.
         return Ok(());
     }
     estimates.connect()?;
@@ -100,74 +95,167 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         MEASUREMENT.qos.logger_buffer_size,
     )?;
     measurements.connect()?;
+    // The writer starts before this thread takes its priority: it stays a
+    // normal thread (off the loop's CPU, as this one was started), which
+    // this one preempts whenever it wakes to drain.
+    let (queue, writer) = recording::spawn(Files {
+        samples,
+        samples_path: samples_path.clone(),
+        hlog,
+        hlog_path,
+        run_dir: args.run_dir.clone(),
+        scenario_name: scenario.name.clone(),
+    })
+    .map_err(io_err(&samples_path))?;
+    let mut recorder = Recorder::new(queue);
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
-
+    let scheduling = realtime::apply(Role::Logger.name(), &rt.scheduling_part());
+    recorder.sink().send_blocking(Item::Metadata(run_metadata(
+        args,
+        &scenario,
+        log_time_offset_ns,
+        &[&memory, &scheduling],
+    )));
+    recorder.event(
+        monotonic_ns(),
+        &format!(
+            r#"{{"source":"logger","kind":"recording-start","generation":{},"file":"{samples_name}"}}"#,
+            args.generation
+        ),
+    );
     let start_ns = monotonic_ns();
-    let mut previous = LoopLatencies::new();
-    let mut next_interval_ns = start_ns + INTERVAL_NS;
-    let mut interval_start = Duration::ZERO;
-    let mut end_seq: Option<u64> = None;
-    let mut end_seen_ns = 0u64;
-    let mut next_poll = start_ns;
-    loop {
-        let stopping = shutdown::requested();
-        let write = |r: std::io::Result<()>| r.map_err(io_err(&samples_path));
-        while let Some(m) = measurements.receive()? {
-            write(recorder.measurement(&m))?;
-            if m.flags & flags::END_OF_RUN != 0 && end_seq.is_none() {
-                end_seq = Some(m.seq);
-                end_seen_ns = monotonic_ns();
-            }
-        }
-        while let Some(e) = estimates.receive()? {
-            write(recorder.estimate(&e))?;
-        }
-        while let Some(c) = commands.receive()? {
-            write(recorder.command(&c))?;
-        }
-        let now = monotonic_ns();
-        if now >= next_interval_ns || stopping || end_seq.is_some() {
-            let elapsed = Duration::from_nanos(now - start_ns);
-            write_interval(
-                &mut hlog,
-                &recorder.latencies,
-                &previous,
-                interval_start,
-                elapsed - interval_start,
-            )
-            .map_err(io_err(&hlog_path))?;
-            previous = recorder.latencies.clone();
-            interval_start = elapsed;
-            next_interval_ns = now + INTERVAL_NS;
-            publish_telemetry(&telemetry, &recorder)?;
-        }
-        if let Some(last) = end_seq {
-            let complete = recorder.commands.last_seq.is_some_and(|s| s >= last)
-                && recorder.estimates.last_seq.is_some_and(|s| s > last);
-            if complete || now - end_seen_ns > END_GRACE_NS {
-                break;
-            }
-        }
-        if stopping {
-            break;
-        }
-        next_poll += POLL_NS;
-        sleep_until(next_poll.max(monotonic_ns()));
+    let inlets = Inlets {
+        measurements: &measurements,
+        estimates: &estimates,
+        commands: &commands,
+        telemetry: &telemetry,
+    };
+    let drained = drain(&mut recorder, &inlets, start_ns);
+
+    // Whatever ended the draining, the files are finished.
+    let now = monotonic_ns();
+    recorder.finish(now);
+    let reason = match &drained {
+        Ok(Some(_)) => "end-of-run".to_string(),
+        Ok(None) => "stopped".to_string(),
+        Err(e) => format!("error: {e}"),
+    };
+    recorder.event(
+        now,
+        &serde_json::json!({
+            "source": "logger",
+            "kind": "recording-end",
+            "seq": recorder.last_measurement.map_or(0, |m| m.seq),
+            "reason": reason,
+            "gaps": recorder.total_gaps(),
+        })
+        .to_string(),
+    );
+    let totals = Box::new(recorder.latencies.clone());
+    let queue = recorder.sink();
+    queue.send_blocking(Item::Interval {
+        totals,
+        elapsed: Duration::from_nanos(now - start_ns),
+    });
+    queue.close(now);
+    let dropped = queue.dropped_json();
+    let outcome = writer
+        .join()
+        .map_err(|_| NodeError::Peer("the logger's writer thread panicked".into()))?;
+    let mut summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
+    // Gaps: everything the file lacks, also what the writer had no room for.
+    for (channel, n) in ["measurement", "estimate", "command"]
+        .iter()
+        .zip(recorder.sink_ref().dropped)
+    {
+        summary["gaps"][channel] = (summary["gaps"][channel].as_u64().unwrap_or(0) + n).into();
     }
-    drop(hlog);
-    let summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
-    let gaps = recorder.total_gaps();
-    recorder.finish().map_err(io_err(&samples_path))?;
+    summary["recording"] = outcome.recording;
+    summary["recording"]["file"] = samples_name.clone().into();
+    summary["recording"]["latency_log_complete"] = outcome.latency_log_complete.into();
+    summary["recording"]["dropped_in_logger"] = dropped;
+    let gaps = missing(&recorder);
     let summary_path = args.run_dir.join(SUMMARY_FILE);
     write_json_atomically(&summary_path, &summary).map_err(io_err(&summary_path))?;
     if gaps > 0 {
         eprintln!("flexloop-logger: {gaps} samples never reached the log (see {SUMMARY_FILE})");
     }
-    Ok(())
+    drained.map(|_| ())
 }
 
-/// `samples.flxlog` for the first logger, `samples.g2.flxlog` for generation 2.
+/// The ports the draining reads from and publishes to.
+struct Inlets<'a> {
+    measurements: &'a Inlet<Measurement>,
+    estimates: &'a Inlet<Estimate>,
+    commands: &'a Inlet<Command>,
+    telemetry: &'a Outlet<Telemetry>,
+}
+
+/// Drains every channel every 2 ms until the run ends (returns the last
+/// tick) or a stop is requested (`None`).
+fn drain(
+    recorder: &mut Recorder<Queue>,
+    ports: &Inlets<'_>,
+    start_ns: u64,
+) -> Result<Option<u64>, NodeError> {
+    let mut next_interval_ns = start_ns + INTERVAL_NS;
+    let mut end_seq: Option<u64> = None;
+    let mut end_seen_ns = 0u64;
+    let mut next_poll = start_ns;
+    loop {
+        let stopping = shutdown::requested();
+        while let Some(m) = ports.measurements.receive()? {
+            recorder.measurement(&m);
+            if m.flags & flags::END_OF_RUN != 0 && end_seq.is_none() {
+                end_seq = Some(m.seq);
+                end_seen_ns = monotonic_ns();
+            }
+        }
+        while let Some(e) = ports.estimates.receive()? {
+            recorder.estimate(&e);
+        }
+        while let Some(c) = ports.commands.receive()? {
+            recorder.command(&c);
+        }
+        let now = monotonic_ns();
+        if now >= next_interval_ns {
+            // Once a second: the histograms' copy is the only allocation here.
+            let totals = Box::new(recorder.latencies.clone());
+            recorder
+                .sink()
+                .interval(totals, Duration::from_nanos(now - start_ns));
+            next_interval_ns = now + INTERVAL_NS;
+            publish_telemetry(ports.telemetry, recorder)?;
+        }
+        if let Some(last) = end_seq {
+            let complete = recorder.commands.last_seq.is_some_and(|s| s >= last)
+                && recorder.estimates.last_seq.is_some_and(|s| s > last);
+            if complete || now - end_seen_ns > END_GRACE_NS {
+                publish_telemetry(ports.telemetry, recorder)?;
+                return Ok(end_seq);
+            }
+        }
+        if stopping {
+            publish_telemetry(ports.telemetry, recorder)?;
+            return Ok(None);
+        }
+        next_poll += POLL_NS;
+        sleep_until(next_poll.max(monotonic_ns()));
+    }
+}
+
+/// Samples the file lacks: never received, or no room in the writer's queue.
+fn missing(recorder: &Recorder<Queue>) -> u64 {
+    recorder.total_gaps() + recorder.sink_ref().dropped.iter().sum::<u64>()
+}
+
+fn wall_clock_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// `samples.mcap` for the first logger, `samples.g2.mcap` for generation 2.
 pub fn generation_file(name: &str, generation: u32) -> String {
     match (generation, name.rsplit_once('.')) {
         (0, _) | (_, None) => name.to_string(),
@@ -175,36 +263,7 @@ pub fn generation_file(name: &str, generation: u32) -> String {
     }
 }
 
-fn write_interval<W: std::io::Write>(
-    hlog: &mut hdrhistogram::serialization::interval_log::IntervalLogWriter<
-        '_,
-        '_,
-        W,
-        V2DeflateSerializer,
-    >,
-    current: &LoopLatencies,
-    previous: &LoopLatencies,
-    start: Duration,
-    duration: Duration,
-) -> std::io::Result<()> {
-    for metric in Metric::ALL {
-        let mut interval = current.get(metric).histogram().clone();
-        interval
-            .subtract(previous.get(metric).histogram())
-            .map_err(|e| std::io::Error::other(format!("{e:?}")))?;
-        if interval.is_empty() {
-            continue;
-        }
-        hlog.write_histogram(&interval, start, duration, Tag::new(metric.name()))
-            .map_err(|e| std::io::Error::other(format!("{e:?}")))?;
-    }
-    Ok(())
-}
-
-fn publish_telemetry<W: std::io::Write>(
-    out: &Outlet<Telemetry>,
-    recorder: &Recorder<W>,
-) -> Result<(), NodeError> {
+fn publish_telemetry(out: &Outlet<Telemetry>, recorder: &Recorder<Queue>) -> Result<(), NodeError> {
     let m = recorder.last_measurement.unwrap_or_default();
     out.publish(|t| {
         t.published_ns = monotonic_ns();
@@ -214,7 +273,7 @@ fn publish_telemetry<W: std::io::Write>(
         t.late_commands = m.late_commands;
         t.stalled_ticks = m.stalled_ticks;
         t.stall_misses = m.stall_misses;
-        t.gaps = recorder.total_gaps();
+        t.gaps = missing(recorder);
         t.stale_estimates = recorder.stale_estimates;
         t.round_trip = recorder
             .latencies

@@ -1,6 +1,6 @@
 //! The run summary the logger writes (`summary.json`) and `flexloop` reads.
 
-use flexloop_components::Recorder;
+use flexloop_components::{RecordSink, Recorder};
 use flexloop_runtime::latency::{LoopLatencies, Metric, QUANTILE_LABELS};
 use serde_json::{Value, json};
 use std::io::Write;
@@ -23,8 +23,8 @@ pub fn latencies_json(latencies: &LoopLatencies, budget_ns: u64) -> Value {
 }
 
 /// The whole summary of a run, from the logger's recorder.
-pub fn run_summary<W: Write>(
-    recorder: &Recorder<W>,
+pub fn run_summary<O: RecordSink>(
+    recorder: &Recorder<O>,
     scenario: &flexloop_scenario::Scenario,
     period_ns: u64,
     logger_cpu_ns: u64,

@@ -6,10 +6,13 @@
 //! - [`channels`]: every service name and every QoS setting, in one place, so
 //!   that all processes open the services with identical settings.
 //! - [`handover`]: component state and activation for swaps and restarts.
+//! - [`layout`]: every recorded message's fields as data (ROS1 definitions,
+//!   export columns).
 //! - [`time`]: the monotonic nanosecond clock all timestamps use.
 
 pub mod channels;
 pub mod handover;
+pub mod layout;
 pub mod messages;
 pub mod time;
 

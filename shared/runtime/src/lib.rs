@@ -8,11 +8,14 @@
 //! - [`wait`]: `ppoll` on event file descriptors with a precise timeout.
 //! - [`shutdown`]: SIGINT/SIGTERM to a flag the loops poll.
 //! - [`usage`]: CPU time of this process.
+//! - [`spsc`]: a bounded single-producer, single-consumer queue of plain data
+//!   (polling thread to worker thread: no allocation, lock or system call).
 
 pub mod clock;
 pub mod latency;
 pub mod realtime;
 pub mod shutdown;
+pub mod spsc;
 pub mod usage;
 pub mod wait;
 

@@ -1,0 +1,229 @@
+//! `flexloop export RUN --csv [--out DIR]`: a run's sample file as one CSV
+//! per channel, for spreadsheets and MATLAB (`readtable`).
+//!
+//! One header row (field names, units in parentheses), then one row per
+//! message in file order. The first column is the tick's time `seq · Ts`.
+//! Arrays keep the entries the run uses (`y[0]` … up to the messages'
+//! `n_outputs`, x̂ up to `n_states`, the observer's feedthrough table as its
+//! used rows and columns `direct[i][j]`); everything else is as recorded.
+
+use flexloop_components::LogReader;
+use flexloop_node::logger::SAMPLES_FILE;
+use flexloop_protocol::layout::{self, Field, MessageLayout, Scalar};
+use std::ffi::OsString;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+pub const CSV_DIR: &str = "csv";
+
+pub fn export(args: Vec<OsString>) -> Result<i32, String> {
+    use lexopt::prelude::*;
+    let mut parser = lexopt::Parser::from_args(args);
+    let (mut run, mut out, mut csv) = (None, None, false);
+    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+        match arg {
+            Long("csv") => csv = true,
+            Long("out") => out = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?)),
+            Value(v) if run.is_none() => run = Some(PathBuf::from(v)),
+            other => return Err(other.unexpected().to_string()),
+        }
+    }
+    let run =
+        run.ok_or("export needs a run directory or sample file: flexloop export RUN --csv")?;
+    if !csv {
+        return Err("export needs a format: --csv (the only one)".into());
+    }
+    let (file, default_out) = sample_file_of(&run)?;
+    let log = LogReader::open(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+    if log.torn_tail {
+        eprintln!(
+            "flexloop export: {} is unfinished ({}); exporting the complete chunks it holds",
+            file.display(),
+            log.tail_error.as_deref().unwrap_or("no footer")
+        );
+    }
+    let period_s = log
+        .meta("period_ns")
+        .and_then(|p| p.parse::<f64>().ok())
+        .map(|ns| ns * 1e-9)
+        .ok_or_else(|| format!("{}: metadata `period_ns` missing", file.display()))?;
+    let out = out.unwrap_or(default_out);
+    std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let tables: [(&str, MessageLayout, Vec<&[u8]>); 3] = [
+        (
+            "measurement",
+            layout::MEASUREMENT,
+            log.measurements().map(as_bytes).collect(),
+        ),
+        (
+            "estimate",
+            layout::ESTIMATE,
+            log.estimates().map(as_bytes).collect(),
+        ),
+        (
+            "command",
+            layout::COMMAND,
+            log.commands().map(as_bytes).collect(),
+        ),
+    ];
+    for (name, layout, rows) in &tables {
+        let path = out.join(format!("{name}.csv"));
+        write_messages(&path, layout, rows, period_s)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("{} ({} rows)", path.display(), rows.len());
+    }
+    let path = out.join("events.csv");
+    write_events(&path, &log).map_err(|e| format!("{}: {e}", path.display()))?;
+    println!("{} ({} rows)", path.display(), log.events.len());
+    Ok(0)
+}
+
+/// The sample file a RUN argument names and where its CSVs go by default.
+fn sample_file_of(run: &Path) -> Result<(PathBuf, PathBuf), String> {
+    if run.is_dir() {
+        let file = run.join(SAMPLES_FILE);
+        if !file.is_file() {
+            return Err(format!(
+                "{}: no {SAMPLES_FILE} in it (not a run directory?)",
+                run.display()
+            ));
+        }
+        return Ok((file, run.join(CSV_DIR)));
+    }
+    if run.is_file() {
+        let stem = run
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "samples".into());
+        let parent = run.parent().unwrap_or(Path::new("."));
+        return Ok((run.to_path_buf(), parent.join(format!("{stem}-{CSV_DIR}"))));
+    }
+    Err(format!(
+        "{}: no such run directory or sample file",
+        run.display()
+    ))
+}
+
+fn as_bytes<T: Copy>(value: &T) -> &[u8] {
+    // SAFETY: the messages are #[repr(C)] plain data without padding (see
+    // flexloop_protocol::layout), so all their bytes are initialised.
+    unsafe { std::slice::from_raw_parts((value as *const T).cast::<u8>(), size_of::<T>()) }
+}
+
+fn scalar_at(bytes: &[u8], scalar: Scalar, offset: usize) -> Number {
+    let at = |n: usize| &bytes[offset..offset + n];
+    match scalar {
+        Scalar::U64 => Number::Int(u64::from_ne_bytes(at(8).try_into().expect("8 bytes"))),
+        Scalar::U32 => Number::Int(u64::from(u32::from_ne_bytes(
+            at(4).try_into().expect("4 bytes"),
+        ))),
+        Scalar::F64 => Number::Float(f64::from_ne_bytes(at(8).try_into().expect("8 bytes"))),
+    }
+}
+
+enum Number {
+    Int(u64),
+    Float(f64),
+}
+
+impl std::fmt::Display for Number {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Number::Int(v) => write!(f, "{v}"),
+            // Shortest round-trip form, with an exponent for tiny and huge values.
+            Number::Float(v) => write!(f, "{v:?}"),
+        }
+    }
+}
+
+/// The largest count field `name` takes over `rows` (0 without the field).
+fn max_count(layout: &MessageLayout, rows: &[&[u8]], name: &str) -> usize {
+    let Some(field) = layout.field(name) else {
+        return 0;
+    };
+    rows.iter()
+        .map(|b| match scalar_at(b, field.scalar, field.offset) {
+            Number::Int(v) => v as usize,
+            Number::Float(_) => 0,
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+fn write_messages(
+    path: &Path,
+    layout: &MessageLayout,
+    rows: &[&[u8]],
+    period_s: f64,
+) -> std::io::Result<()> {
+    let outputs = max_count(layout, rows, "n_outputs");
+    let inputs = max_count(layout, rows, "n_inputs");
+    let states = max_count(layout, rows, "n_states");
+    // Every column: the field and the array index it reads.
+    let columns: Vec<(&Field, usize, String)> = layout
+        .fields
+        .iter()
+        .flat_map(|f| {
+            (0..layout::used_len(f, outputs, inputs, states)).map(move |i| {
+                let name = layout::element_name(f, i, outputs, inputs);
+                let header = if f.unit.is_empty() {
+                    name
+                } else {
+                    format!("{name} ({})", f.unit)
+                };
+                (f, layout::element_index(f, i, outputs, inputs), header)
+            })
+        })
+        .collect();
+    let seq = layout.field("seq").expect("every message has a seq");
+    let mut out = BufWriter::new(std::fs::File::create(path)?);
+    write!(out, "t (s)")?;
+    for (_, _, header) in &columns {
+        write!(out, ",{header}")?;
+    }
+    writeln!(out)?;
+    for row in rows {
+        let Number::Int(k) = scalar_at(row, seq.scalar, seq.offset) else {
+            unreachable!("seq is an integer");
+        };
+        write!(out, "{:?}", k as f64 * period_s)?;
+        for (field, index, _) in &columns {
+            let offset = field.offset + index * field.scalar.size();
+            write!(out, ",{}", scalar_at(row, field.scalar, offset))?;
+        }
+        writeln!(out)?;
+    }
+    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+}
+
+fn write_events(path: &Path, log: &LogReader) -> std::io::Result<()> {
+    let mut out = BufWriter::new(std::fs::File::create(path)?);
+    writeln!(out, "log_time (ns),source,kind,phase,seq,event (json)")?;
+    let text = |v: &serde_json::Value| match v {
+        serde_json::Value::Null => String::new(),
+        serde_json::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    };
+    for e in &log.events {
+        let json = e.json.to_string().replace('"', "\"\"");
+        writeln!(
+            out,
+            "{},{},{},{},{},\"{json}\"",
+            e.log_time_ns,
+            csv_text(&text(&e.json["source"])),
+            csv_text(&text(&e.json["kind"])),
+            csv_text(&text(&e.json["phase"])),
+            text(&e.json["seq"]),
+        )?;
+    }
+    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+}
+
+/// A text cell, quoted when it holds a separator or a quote.
+fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
