@@ -142,7 +142,11 @@ fn refused(dir: &std::path::Path, path: &std::path::Path, field: &str, reason: &
         assert!(err.contains(r), "{field}: no `{r}` in {err}");
     }
     assert!(processes_mentioning(&dir.display().to_string()).is_empty());
-    assert!(!dir.join("run").join("samples.flxlog").exists());
+    assert!(
+        !dir.join("run")
+            .join(flexloop_node::logger::SAMPLES_FILE)
+            .exists()
+    );
 }
 
 #[test]
