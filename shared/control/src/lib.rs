@@ -21,6 +21,7 @@ pub mod design_error;
 pub mod discretise;
 pub mod feedforward;
 pub mod freq;
+mod in_place;
 pub mod io_observer;
 pub mod kalman;
 pub mod lecture;

@@ -27,6 +27,7 @@
 //! not allocate.
 
 use crate::design_error::{DesignError, check_matrix};
+use crate::in_place::{cholesky_solve_in_place, mul_into};
 use crate::kalman::steady_state_kalman;
 use crate::lti::DiscreteStateSpace;
 use crate::scheduling::{KalmanSchedule, ScheduledMatrices};
@@ -371,56 +372,6 @@ impl ScheduledObserver {
         }
         self.prepare(next_position)
     }
-}
-
-/// out = α A B + β out, column by column with gemv (allocation-free; see
-/// the note in [`crate::scheduling`]).
-fn mul_into(out: &mut DMatrix<f64>, alpha: f64, a: &DMatrix<f64>, b: &DMatrix<f64>, beta: f64) {
-    for j in 0..b.ncols() {
-        out.column_mut(j).gemv(alpha, a, &b.column(j), beta);
-    }
-}
-
-/// Solves S X = B in place (X overwrites B) by Cholesky, without allocating.
-fn cholesky_solve_in_place(s: &mut DMatrix<f64>, b: &mut DMatrix<f64>) -> Result<(), StepError> {
-    let p = s.nrows();
-    for j in 0..p {
-        let mut d = s[(j, j)];
-        for k in 0..j {
-            d -= s[(j, k)] * s[(j, k)];
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return Err(StepError::NotPositiveDefinite(
-                "innovation covariance C P Cᵀ + R",
-            ));
-        }
-        let d = d.sqrt();
-        s[(j, j)] = d;
-        for i in j + 1..p {
-            let mut v = s[(i, j)];
-            for k in 0..j {
-                v -= s[(i, k)] * s[(j, k)];
-            }
-            s[(i, j)] = v / d;
-        }
-    }
-    for col in 0..b.ncols() {
-        for i in 0..p {
-            let mut v = b[(i, col)];
-            for k in 0..i {
-                v -= s[(i, k)] * b[(k, col)];
-            }
-            b[(i, col)] = v / s[(i, i)];
-        }
-        for i in (0..p).rev() {
-            let mut v = b[(i, col)];
-            for k in i + 1..p {
-                v -= s[(k, i)] * b[(k, col)];
-            }
-            b[(i, col)] = v / s[(i, i)];
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]
