@@ -24,8 +24,8 @@ fn feedforward_state(core: &ControllerCore) -> Vec<f64> {
 /// In the middle of the first scan's motion.
 const JOIN_AT: u64 = 1200;
 
-#[test]
-fn a_joining_controller_takes_the_feedforward_over_and_matches_a_full_replay() {
+/// The default design's controller run to `JOIN_AT`, and the state it hands over.
+fn active_at_join() -> (Scenario, LoopDesign, ControllerCore, Handover) {
     let scenario = default_scenario();
     let design = LoopDesign::from_scenario(&scenario).unwrap();
     let mut active = ControllerCore::new(&design, 0);
@@ -33,6 +33,12 @@ fn a_joining_controller_takes_the_feedforward_over_and_matches_a_full_replay() {
     let mut state = Handover::default();
     active.save(&mut state);
     state.seq = JOIN_AT - 1;
+    (scenario, design, active, state)
+}
+
+#[test]
+fn a_joining_controller_takes_the_feedforward_over_and_matches_a_full_replay() {
+    let (_, design, mut active, state) = active_at_join();
     assert!(
         state.feedforward_len > 0,
         "the thesis design has a modified feedforward"
@@ -57,13 +63,7 @@ fn a_joining_controller_takes_the_feedforward_over_and_matches_a_full_replay() {
 
 #[test]
 fn another_feedforward_is_not_taken_over() {
-    let scenario = default_scenario();
-    let design = LoopDesign::from_scenario(&scenario).unwrap();
-    let mut active = ControllerCore::new(&design, 0);
-    active.fast_forward(JOIN_AT);
-    let mut state = Handover::default();
-    active.save(&mut state);
-    state.seq = JOIN_AT - 1;
+    let (scenario, design, _, state) = active_at_join();
 
     let mut later_scan = scenario.clone();
     later_scan.reference.start_s += 0.01;

@@ -65,3 +65,32 @@ pub(crate) fn cholesky_solve_in_place(
     }
     Ok(())
 }
+
+/// The Kalman filter's covariance time update in place:
+/// P ← A (P − M C P) Aᵀ + W, then symmetrised. `cp` holds C P and `gain_m`
+/// the measurement-update gain M; `posterior` and `scratch` are n×n work space.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn propagate_covariance(
+    p: &mut DMatrix<f64>,
+    a: &DMatrix<f64>,
+    a_t: &DMatrix<f64>,
+    gain_m: &DMatrix<f64>,
+    cp: &DMatrix<f64>,
+    process_noise: &DMatrix<f64>,
+    posterior: &mut DMatrix<f64>,
+    scratch: &mut DMatrix<f64>,
+) {
+    posterior.copy_from(p);
+    mul_into(posterior, -1.0, gain_m, cp, 1.0);
+    mul_into(scratch, 1.0, a, posterior, 0.0);
+    p.copy_from(process_noise);
+    mul_into(p, 1.0, scratch, a_t, 1.0);
+    let n = p.nrows();
+    for i in 0..n {
+        for j in i + 1..n {
+            let v = 0.5 * (p[(i, j)] + p[(j, i)]);
+            p[(i, j)] = v;
+            p[(j, i)] = v;
+        }
+    }
+}

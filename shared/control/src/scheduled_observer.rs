@@ -27,7 +27,7 @@
 //! not allocate.
 
 use crate::design_error::{DesignError, check_matrix};
-use crate::in_place::{cholesky_solve_in_place, mul_into};
+use crate::in_place::{cholesky_solve_in_place, mul_into, propagate_covariance};
 use crate::kalman::steady_state_kalman;
 use crate::lti::DiscreteStateSpace;
 use crate::scheduling::{KalmanSchedule, ScheduledMatrices};
@@ -356,19 +356,16 @@ impl ScheduledObserver {
         std::mem::swap(&mut self.x, &mut self.x_next);
         if self.design.gains == GainScheduling::TimeVarying {
             // P(k+1|k) = A (P − M C P) Aᵀ + G Q Gᵀ with M from `prepare`, kept symmetric.
-            self.tmp.copy_from(&self.p);
-            mul_into(&mut self.tmp, -1.0, &self.gain_m, &self.cp, 1.0);
-            mul_into(&mut self.tmp2, 1.0, a, &self.tmp, 0.0);
-            self.p.copy_from(&self.w_proc);
-            mul_into(&mut self.p, 1.0, &self.tmp2, &self.a_t, 1.0);
-            let n = self.p.nrows();
-            for i in 0..n {
-                for j in i + 1..n {
-                    let v = 0.5 * (self.p[(i, j)] + self.p[(j, i)]);
-                    self.p[(i, j)] = v;
-                    self.p[(j, i)] = v;
-                }
-            }
+            propagate_covariance(
+                &mut self.p,
+                a,
+                &self.a_t,
+                &self.gain_m,
+                &self.cp,
+                &self.w_proc,
+                &mut self.tmp,
+                &mut self.tmp2,
+            );
         }
         self.prepare(next_position)
     }

@@ -20,7 +20,7 @@
 //! the constructors; `step` and `interpolate` do not allocate.
 
 use crate::design_error::{DesignError, check_matrix};
-use crate::in_place::{cholesky_solve_in_place, mul_into};
+use crate::in_place::{cholesky_solve_in_place, mul_into, propagate_covariance};
 use crate::kalman::{KalmanWeights, steady_state_kalman};
 use crate::linalg::spectral_radius;
 use crate::lti::DiscreteStateSpace;
@@ -582,19 +582,16 @@ impl TimeVaryingKalman {
         self.x_next.gemv(1.0, &self.m.l, &self.innovation, 1.0);
         std::mem::swap(&mut self.x, &mut self.x_next);
         // P(k+1|k) = A (P − M C P) Aᵀ + G Q Gᵀ, kept symmetric.
-        self.p_post.copy_from(&self.p);
-        mul_into(&mut self.p_post, -1.0, &self.gain_m, &self.cp, 1.0);
-        mul_into(&mut self.tmp, 1.0, a, &self.p_post, 0.0);
-        self.p.copy_from(&self.w);
-        mul_into(&mut self.p, 1.0, &self.tmp, &self.a_t, 1.0);
-        let n = self.p.nrows();
-        for i in 0..n {
-            for j in i + 1..n {
-                let v = 0.5 * (self.p[(i, j)] + self.p[(j, i)]);
-                self.p[(i, j)] = v;
-                self.p[(j, i)] = v;
-            }
-        }
+        propagate_covariance(
+            &mut self.p,
+            a,
+            &self.a_t,
+            &self.gain_m,
+            &self.cp,
+            &self.w,
+            &mut self.p_post,
+            &mut self.tmp,
+        );
         Ok(self.x.as_slice())
     }
 }
