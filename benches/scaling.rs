@@ -10,8 +10,8 @@
 //! - `observer_block`: one `LtiRunner::step` of the block, ŷ = C s + D·in and
 //!   s ← A s + B·in. This is the whole per-sample arithmetic of the observer
 //!   and the controller's share of it, with no message around it, so it runs
-//!   past the protocol's MAX_STATES = 64 (the 128-state point).
-//! - `observer_core`: `ObserverCore::step` on protocol messages (up to 64
+//!   past the protocol's MAX_STATES.
+//! - `observer_core`: `ObserverCore::step` on protocol messages (up to 128
 //!   states): the block plus the estimate map, the innovation and filling the
 //!   `Estimate` message.
 //!

@@ -5,7 +5,6 @@ use crate::conductor::Switch;
 use crate::{LoopArgs, prepare, probes, registry, run_supervised_with};
 use flexloop_components::LogReader;
 use flexloop_node::Role;
-use flexloop_node::args::realtime_settings;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
@@ -18,7 +17,6 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let scenario = prepared.scenario.clone();
     let run_dir = prepared.plan.run_dir.clone();
     let prefix = prepared.plan.prefix.clone();
-    let period_ns = scenario.period_ns();
     eprintln!(
         "flexloop bench: {} for {} s at {} Hz, run directory {}",
         scenario.name,
@@ -52,33 +50,16 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     if let Some(e) = &swap_error {
         eprintln!("flexloop bench: swapping stopped: {e}");
     }
-    eprintln!(
-        "flexloop bench: loop ran {:.1} s",
-        started.elapsed().as_secs_f64()
-    );
+    // CPU shares are over the loop's run, not the probes after it.
+    let wall_ns = started.elapsed().as_nanos().max(1) as f64;
+    eprintln!("flexloop bench: loop ran {:.1} s", wall_ns / 1e9);
     let summary = flexloop_node::summary::read_summary(&run_dir)?;
 
     let samples = (scenario.timing.rate_hz * 2.0) as u64;
-    let (timer, pingpong, sockets) = if args.probes {
-        eprintln!(
-            "flexloop bench: measuring the wake-up floor, an iceoryx2 ping-pong and a Unix-socket ring (2 s each)"
-        );
-        let plant_rt = realtime_settings(&scenario, Role::Plant);
-        let observer_rt = realtime_settings(&scenario, Role::Observer);
-        let controller_rt = realtime_settings(&scenario, Role::Controller);
-        let timer = probes::timer_probe(&plant_rt, period_ns, samples);
-        let pp = probes::event_ping_pong(
-            &format!("{prefix}probe_"),
-            &plant_rt,
-            &controller_rt,
-            period_ns,
-            samples,
-        )?;
-        let sockets =
-            probes::socket_ring(&plant_rt, &observer_rt, &controller_rt, period_ns, samples)?;
-        (Some(timer), Some(pp), Some(sockets))
+    let floors = if args.probes {
+        Some(probes::Floors::measure(&scenario, &prefix, samples)?)
     } else {
-        (None, None, None)
+        None
     };
 
     let ticks = summary["ticks"].as_u64().unwrap_or(0);
@@ -124,29 +105,18 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     for metric in Metric::ALL {
         row(metric.name(), &summary["latency"][metric.name()]);
     }
-    let probe_json = |h: &Option<flexloop_runtime::latency::LatencyHistogram>| {
-        h.as_ref().map(|h| {
-            let p = h.percentiles();
-            let mut m = serde_json::Map::new();
-            m.insert("count".into(), json!(p.count));
-            for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
-                m.insert(format!("{label}_ns"), json!(value));
-            }
-            Value::Object(m)
-        })
-    };
-    let timer_json = probe_json(&timer);
-    let pp_json = probe_json(&pingpong);
-    let sockets_json = probe_json(&sockets);
-    if let Some(t) = &timer_json {
-        row("probe: timer wake-up", t);
+    let floors_json = floors.as_ref().map(probes::Floors::json);
+    if let Some(f) = &floors_json {
+        for (key, label) in probes::Floors::ROWS {
+            row(label, &f[key]);
+        }
     }
-    if let Some(p) = &pp_json {
-        row("probe: iox2 ping-pong", p);
-    }
-    if let Some(s) = &sockets_json {
-        row("probe: socket ring", s);
-    }
+    let probe = |key: &str| floors_json.as_ref().map(|f| f[key].clone());
+    let (timer_json, pp_json, sockets_json) = (
+        probe("timer_wakeup"),
+        probe("iceoryx2_event_ping_pong"),
+        probe("unix_socket_ring"),
+    );
 
     println!();
     println!(
@@ -163,7 +133,6 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         );
     }
     let mut cpu = serde_json::Map::new();
-    let wall_ns = started.elapsed().as_nanos().max(1) as f64;
     // Per role, over all its instances (swaps and restarts start more).
     let cpu_line: Vec<String> = Role::ALL
         .iter()
@@ -186,11 +155,14 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let p50 = |v: &Value| v["p50_ns"].as_u64().unwrap_or(0) as f64;
     let rt = &summary["latency"]["round_trip"];
     let hop = &summary["latency"]["plant_to_controller"];
-    if let (Some(t), Some(p)) = (&timer_json, &pp_json) {
+    if let (Some(t), Some(p), Some(polling)) =
+        (&timer_json, &pp_json, probe("iceoryx2_polling_ping_pong"))
+    {
         println!(
-            "ratios at p50: round trip / timer wake-up {:.2}, plant->controller hop / one-way ping-pong {:.2}",
+            "ratios at p50: round trip / timer wake-up {:.2}, plant->controller hop / one-way ping-pong {:.2}, round trip / polling ping-pong {:.1}",
             p50(rt) / p50(t).max(1.0),
-            p50(hop) / (p50(p) / 2.0).max(1.0)
+            p50(hop) / (p50(p) / 2.0).max(1.0),
+            p50(rt) / p50(&polling).max(1.0)
         );
     }
     if let Some(s) = &sockets_json {
@@ -230,11 +202,7 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     let bench_json = json!({
         "swaps": swaps,
         "summary": summary,
-        "probes": {
-            "timer_wakeup": timer_json,
-            "iceoryx2_event_ping_pong": pp_json,
-            "unix_socket_ring": sockets_json,
-        },
+        "probes": floors_json,
         "cpu_ns": Value::Object(cpu),
         "wall_ns": wall_ns,
     });

@@ -1,15 +1,88 @@
-//! The machine's own floors, measured in the same run as the loop:
-//! a cyclictest-like timer probe and a raw iceoryx2 event ping-pong, both
-//! under the plant's priority and CPU.
+//! The machine's own floors, measured in the same run as the loop: a
+//! cyclictest-like timer probe, a raw iceoryx2 event ping-pong and a polling
+//! one (both under the plant's priority and CPU), and the loop's chain by
+//! hand over Unix sockets.
 
+use flexloop_node::Role;
+use flexloop_node::args::realtime_settings;
 use flexloop_protocol::channels::events;
 use flexloop_runtime::clock::{TickGrid, sleep_until};
 use flexloop_runtime::latency::LatencyHistogram;
+use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_runtime::monotonic_ns;
 use flexloop_runtime::realtime::{self, RealtimeSettings};
 use flexloop_runtime::wait::{Readiness, wait_readable};
+use flexloop_scenario::Scenario;
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
+use serde_json::{Value, json};
 use std::time::Duration;
+
+/// The four floors, measured one after the other with the scenario's
+/// priorities and CPUs at its rate.
+pub struct Floors {
+    pub timer_wakeup: LatencyHistogram,
+    pub event_ping_pong: LatencyHistogram,
+    pub polling_ping_pong: LatencyHistogram,
+    pub socket_ring: LatencyHistogram,
+}
+
+impl Floors {
+    /// JSON keys and table labels, in the table's order.
+    pub const ROWS: [(&str, &str); 4] = [
+        ("timer_wakeup", "probe: timer wake-up"),
+        ("iceoryx2_event_ping_pong", "probe: iox2 ping-pong"),
+        ("iceoryx2_polling_ping_pong", "probe: iox2 polling"),
+        ("unix_socket_ring", "probe: socket ring"),
+    ];
+
+    pub fn measure(scenario: &Scenario, prefix: &str, samples: u64) -> Result<Self, String> {
+        eprintln!(
+            "flexloop bench: measuring the wake-up floor, an iceoryx2 event and a polling ping-pong, and a Unix-socket ring ({:.1} s each)",
+            samples as f64 / scenario.timing.rate_hz
+        );
+        let period_ns = scenario.period_ns();
+        let plant = realtime_settings(scenario, Role::Plant);
+        let observer = realtime_settings(scenario, Role::Observer);
+        let controller = realtime_settings(scenario, Role::Controller);
+        Ok(Self {
+            timer_wakeup: timer_probe(&plant, period_ns, samples),
+            event_ping_pong: event_ping_pong(
+                &format!("{prefix}probe_"),
+                &plant,
+                &controller,
+                period_ns,
+                samples,
+            )?,
+            polling_ping_pong: polling_ping_pong(
+                &format!("{prefix}poll_"),
+                &plant,
+                period_ns,
+                samples,
+            )?,
+            socket_ring: socket_ring(&plant, &observer, &controller, period_ns, samples)?,
+        })
+    }
+
+    /// `{key: {count, p50_ns, …}}` for every floor, keys as in [`Self::ROWS`].
+    pub fn json(&self) -> Value {
+        let one = |h: &LatencyHistogram| {
+            let p = h.percentiles();
+            let mut m = serde_json::Map::new();
+            m.insert("count".into(), json!(p.count));
+            for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
+                m.insert(format!("{label}_ns"), json!(value));
+            }
+            Value::Object(m)
+        };
+        json!({
+            "timer_wakeup": one(&self.timer_wakeup),
+            "iceoryx2_event_ping_pong": one(&self.event_ping_pong),
+            "iceoryx2_polling_ping_pong": one(&self.polling_ping_pong),
+            "unix_socket_ring": one(&self.socket_ring),
+        })
+    }
+}
 
 /// Lateness of absolute wake-ups on the tick grid.
 pub fn timer_probe(settings: &RealtimeSettings, period_ns: u64, samples: u64) -> LatencyHistogram {
@@ -105,9 +178,130 @@ pub fn event_ping_pong(
         }
         h
     });
+    // The ping ran on this thread: give its real-time settings back before
+    // anything else runs here (threads spawned later would inherit them).
+    realtime::step_down(ping.cpu);
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let _ = pong_thread.join();
     drop((listener, notifier, node));
+    flexloop_transport::remove_leftovers(prefix);
+    Ok(result)
+}
+
+/// Round trip of one iceoryx2 sample each way between two threads that
+/// poll their subscribers instead of waiting for an event: the shared-memory
+/// floor without any wake-up, what a spinning (`dedicated-cores`) loop could
+/// reach. The ping thread runs with `ping`'s settings on the tick grid and
+/// spins only until its pong arrives (at most ten periods); the pong thread
+/// spins for the whole probe, so it runs without real-time priority on
+/// another CPU than the ping's (on a 2-CPU machine: the logger's).
+pub fn polling_ping_pong(
+    prefix: &str,
+    ping: &RealtimeSettings,
+    period_ns: u64,
+    samples: u64,
+) -> Result<LatencyHistogram, String> {
+    let domain = flexloop_transport::Domain::new(prefix).map_err(|e| e.to_string())?;
+    let open = |node: &Node<ipc::Service>, name: &str| {
+        let service_name: ServiceName = name.try_into().map_err(|e| format!("{e:?}"))?;
+        node.service_builder(&service_name)
+            .publish_subscribe::<u64>()
+            .open_or_create()
+            .map_err(|e| format!("{e:?}"))
+    };
+    let ping_cpu = ping.cpu.unwrap_or(0);
+    let pong_cpu = (0..realtime::online_cpus())
+        .find(|cpu| *cpu != ping_cpu)
+        .unwrap_or(ping_cpu);
+    let pong_settings = RealtimeSettings {
+        fifo_priority: None,
+        cpu: Some(pong_cpu),
+        ..ping.clone()
+    };
+    // Our ports first, so that the pong's publisher finds our subscriber.
+    let node = domain.node("poll-ping").map_err(|e| e.to_string())?;
+    let subscriber = open(&node, "probe/poll-pong")?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    let publisher = open(&node, "probe/poll-ping")?
+        .publisher_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    let pong_domain = domain.clone();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stop_pong = stop.clone();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let pong_thread = std::thread::spawn(move || -> Result<(), String> {
+        let node = pong_domain.node("poll-pong").map_err(|e| e.to_string())?;
+        let subscriber = open(&node, "probe/poll-ping")?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| format!("{e:?}"))?;
+        let publisher = open(&node, "probe/poll-pong")?
+            .publisher_builder()
+            .create()
+            .map_err(|e| format!("{e:?}"))?;
+        publisher
+            .update_connections()
+            .map_err(|e| format!("{e:?}"))?;
+        let _rt = realtime::apply("bench-poll-pong", &pong_settings);
+        let _ = ready_tx.send(());
+        let mut idle_polls = 0u32;
+        while !stop_pong.load(std::sync::atomic::Ordering::Relaxed) {
+            match subscriber.receive() {
+                Ok(Some(sample)) => {
+                    let _ = publisher.send_copy(*sample);
+                }
+                _ => {
+                    // Checking the stop flag every poll would cost an atomic
+                    // load per spin; every 4096th is plenty.
+                    idle_polls = idle_polls.wrapping_add(1);
+                    if idle_polls.is_multiple_of(4096) {
+                        std::thread::yield_now();
+                    }
+                    std::hint::spin_loop();
+                }
+            }
+        }
+        Ok(())
+    });
+    let _ = ready_rx.recv_timeout(Duration::from_secs(5));
+    // The pong's subscriber came after our publisher.
+    publisher
+        .update_connections()
+        .map_err(|e| format!("{e:?}"))?;
+    let result = std::thread::scope(|_| {
+        let _rt = realtime::apply("bench-poll-ping", ping);
+        let grid = TickGrid::starting_in(period_ns, 1_000_000);
+        let mut h = LatencyHistogram::new();
+        for k in 0..samples {
+            sleep_until(grid.tick_ns(k));
+            let sent = monotonic_ns();
+            if publisher.send_copy(k).is_err() {
+                continue;
+            }
+            let give_up = sent + 10 * period_ns;
+            loop {
+                match subscriber.receive() {
+                    Ok(Some(sample)) if *sample == k => {
+                        h.record_span(sent, monotonic_ns());
+                        break;
+                    }
+                    Ok(Some(_)) => {}
+                    Ok(None) if monotonic_ns() < give_up => std::hint::spin_loop(),
+                    _ => break,
+                }
+            }
+        }
+        h
+    });
+    // The ping ran on this thread: give its real-time settings back before
+    // anything else runs here (threads spawned later would inherit them).
+    realtime::step_down(ping.cpu);
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = pong_thread.join();
+    drop((subscriber, publisher, node));
     flexloop_transport::remove_leftovers(prefix);
     Ok(result)
 }

@@ -129,6 +129,50 @@ pub fn thesis_reduced(output: usize) -> Result<ReducedModel, ModelError> {
     thesis_plant(output)?.truncate(4, &[4, 5, 6])
 }
 
+/// Node counts a [`uniform_chain`] may have: 2 (one flexible mode) to 64
+/// (128 states, the largest observer the loop's messages carry).
+pub const UNIFORM_CHAIN_NODES: std::ops::RangeInclusive<usize> = 2..=64;
+
+/// The model-size stand-in (`bench --sweep`): `nodes` equal masses sharing
+/// the thesis chain's 12.5 kg, joined by equal springs, free–free, ζ = 0.005
+/// on every flexible mode, the force on the first node and the sensor at
+/// node round(5·(nodes−1)/7), where the thesis measures y5 of m0..m7. The
+/// springs keep the first flexible mode at the thesis chain's, so a loop
+/// designed for one size suits all of them; the higher modes spread up to
+/// 2·sin((nodes−1)π/(2·nodes))/sin(π/(2·nodes)) times the first. 2·nodes
+/// states, invented to show how cost grows, not a structure from the thesis.
+pub fn uniform_chain(nodes: usize) -> Result<NodalModel, ModelError> {
+    if !UNIFORM_CHAIN_NODES.contains(&nodes) {
+        return Err(ModelError::OutOfRange(format!(
+            "{nodes} nodes (a uniform chain has {} to {})",
+            UNIFORM_CHAIN_NODES.start(),
+            UNIFORM_CHAIN_NODES.end()
+        )));
+    }
+    let first_mode = thesis_chain_modal()?
+        .frequencies_hz()
+        .get(1)
+        .copied()
+        .ok_or_else(|| ModelError::OutOfRange("the thesis chain has no flexible mode".into()))?;
+    let mass = CHAIN_MASS / nodes as f64;
+    // Free–free uniform chain: ω_j = 2 √(k/m) sin(jπ / 2n).
+    let half_angle = (PI / (2.0 * nodes as f64)).sin();
+    let spring = mass * (2.0 * PI * first_mode / (2.0 * half_angle)).powi(2);
+    chain(
+        &vec![mass; nodes],
+        &vec![spring; nodes - 1],
+        ModalDamping::Uniform(CHAIN_ZETA),
+        &[0],
+        &[uniform_chain_sensor(nodes)],
+    )
+}
+
+/// The node a [`uniform_chain`] measures: 5/7 of its length, as y5 of the
+/// thesis' m0..m7.
+pub fn uniform_chain_sensor(nodes: usize) -> usize {
+    ((5 * nodes.saturating_sub(1)) as f64 / 7.0).round() as usize
+}
+
 /// Ex. 2.3.1 (control.md §1.2): five 2 kg masses, springs 1e5 N/m, dampers
 /// 5 N s/m along the springs (so ζ_i = b ω_i / (2k)), forces f1..f5 on every
 /// mass, outputs x1..x5. Free–free (one rigid mode).
@@ -331,6 +375,32 @@ mod tests {
     use super::*;
 
     const THESIS_HZ: [f64; 7] = [470.06, 941.88, 1396.06, 1805.13, 2145.46, 2399.72, 2556.45];
+
+    #[test]
+    fn uniform_chains_keep_the_thesis_first_mode_and_total_mass() {
+        for nodes in [2, 8, 17, 64] {
+            let m = ModalModel::from_nodal(&uniform_chain(nodes).unwrap()).unwrap();
+            assert_eq!(m.modes(), nodes);
+            assert_eq!(m.n_rigid, 1);
+            let f = m.frequencies_hz();
+            assert!(
+                (f[1] - THESIS_HZ[0]).abs() < 0.01,
+                "{nodes} nodes: {}",
+                f[1]
+            );
+            // Free–free uniform chain: the modes follow sin(jπ / 2n).
+            let expected_last = f[1] * ((nodes - 1) as f64 * PI / (2.0 * nodes as f64)).sin()
+                / (PI / (2.0 * nodes as f64)).sin();
+            assert!(
+                (f[nodes - 1] / expected_last - 1.0).abs() < 1e-6,
+                "{nodes} nodes"
+            );
+            let rigid_gain = m.phi_a[(0, 0)] * m.phi_s[(0, 0)];
+            assert!((rigid_gain - 1.0 / CHAIN_MASS).abs() < 1e-12);
+        }
+        assert!(uniform_chain(1).is_err());
+        assert!(uniform_chain(65).is_err());
+    }
 
     #[test]
     fn thesis_chain_frequencies_and_rigid_gain() {

@@ -21,7 +21,7 @@ pub const MAX_OUTPUTS: usize = 8;
 /// Inputs (actuators) a model may have.
 pub const MAX_INPUTS: usize = 8;
 /// States an observer may report.
-pub const MAX_STATES: usize = 64;
+pub const MAX_STATES: usize = 128;
 /// Observer block outputs: [ŷ_flex; u_d].
 pub const MAX_OBSERVER_OUTPUTS: usize = MAX_OUTPUTS + MAX_INPUTS;
 /// Observer block inputs: [y; u_a; u_pending] (u_pending only with an extra
@@ -107,7 +107,7 @@ pub struct Measurement {
 /// block's feedthrough, constant for a steady-state observer.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Estimate.v2")]
+#[type_name("flexloop.Estimate.v3")]
 pub struct Estimate {
     /// The tick this estimate is for (k).
     pub seq: u64,

@@ -272,9 +272,7 @@ pub fn set_fifo_priority(priority: u8) -> Result<(), String> {
 /// Lets the calling thread run on every online CPU but `cpu` (refused if
 /// that leaves none).
 pub fn avoid_cpu(cpu: usize) -> Result<(), String> {
-    // SAFETY: sysconf is a plain query.
-    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as usize;
-    let online = online.min(libc::CPU_SETSIZE as usize);
+    let online = online_cpus().min(libc::CPU_SETSIZE as usize);
     if online < 2 || cpu >= online {
         return Err(format!("no CPU besides {cpu}"));
     }
@@ -289,6 +287,12 @@ pub fn avoid_cpu(cpu: usize) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+/// CPUs online on this machine (whatever this thread's affinity allows).
+pub fn online_cpus() -> usize {
+    // SAFETY: sysconf is a plain query.
+    (unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }).max(1) as usize
 }
 
 /// Number of CPUs this process may run on.

@@ -136,7 +136,9 @@ impl LoopDesign {
         let parts = match s.plant.model.as_str() {
             "double-integrator" => double_integrator(s, ts, extra_delay)?,
             "thesis-chain" => thesis_chain(s, ts, extra_delay)?,
-            "mimo-example" | "oat-like" | "two-inertia" => modal_stand_in(s, ts, extra_delay)?,
+            "mimo-example" | "oat-like" | "two-inertia" | "uniform-chain" => {
+                modal_stand_in(s, ts, extra_delay)?
+            }
             other => {
                 return Err(err(
                     "plant.model",
@@ -801,6 +803,17 @@ fn modal_stand_in(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Sc
                 models::OAT_FREQ_HZ.len(),
             )
         }
+        "uniform-chain" => {
+            let nodes = s.plant.nodes.unwrap_or_default();
+            let nodal = models::uniform_chain(nodes)
+                .map_err(|e| ScenarioError::new(&s.source, Some("plant.nodes"), e.to_string()))?;
+            let sensor = models::uniform_chain_sensor(nodes);
+            (
+                ModalModel::from_nodal(&nodal).map_err(model_err)?,
+                vec![format!("node {sensor} of 0..{}", nodes - 1)],
+                nodes - 1,
+            )
+        }
         _ => {
             let output = s.plant.two_inertia_output();
             let both = ModalModel::from_nodal(&models::two_inertia()).map_err(model_err)?;
@@ -1209,6 +1222,42 @@ start_s = 0.01
             assert_eq!(d.feedforward.len(), nu);
             assert!(d.modified_feedforward.is_some());
         }
+    }
+
+    #[test]
+    fn a_uniform_chain_has_an_observer_of_twice_its_nodes() {
+        let text = shipped_text("uniform-chain");
+        // 64 nodes (128 states) designs too, in 20 s of a debug build: `bench --sweep` runs it.
+        for nodes in [2, 8, 24] {
+            let d = design(&text.replace("nodes = 32", &format!("nodes = {nodes}"))).unwrap();
+            assert_eq!(d.observer.estimate_map.nrows(), 2 * nodes);
+            assert_eq!(d.flexible_modes.len(), nodes - 1);
+            assert_eq!(d.plant.states(), 2 * nodes);
+            let radius = flexloop_control::linalg::spectral_radius(&d.closed_loop.a).unwrap();
+            assert!(radius < 1.0, "{nodes} nodes: {radius}");
+        }
+        for (replace, with, reason) in [
+            ("nodes = 32\n", "", "needs its number of masses"),
+            ("nodes = 32", "nodes = 65", "must lie in 2..=64"),
+            ("nodes = 32", "nodes = 32\noutput = 3", "one sensor"),
+        ] {
+            let e = design(&text.replace(replace, with))
+                .unwrap_err()
+                .to_string();
+            let field = if reason == "one sensor" {
+                "plant.output"
+            } else {
+                "plant.nodes"
+            };
+            assert!(e.contains(field) && e.contains(reason), "{e}");
+        }
+        let e = design(&shipped_text("oat-like").replace("[plant]", "[plant]\nnodes = 4"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("plant.nodes") && e.contains("only the uniform chain"),
+            "{e}"
+        );
     }
 
     #[test]

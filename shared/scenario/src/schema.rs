@@ -96,6 +96,9 @@ pub struct PlantSection {
     /// motor side); absent: 1. The other models measure every sensor.
     #[serde(default = "default_output")]
     pub output: usize,
+    /// Uniform chain (the model-size stand-in of `bench --sweep`): its number
+    /// of equal masses, 2..=64 (2·nodes states).
+    pub nodes: Option<usize>,
     /// OAT-like model: which three of the four out-of-plane encoders
     /// (1..=4) are read, the thesis' "position" (control.md §1.8).
     pub encoders: Option<Vec<usize>>,
@@ -135,12 +138,13 @@ pub struct PlantSection {
 pub const SENSOR_POSITION_MAX: f64 = 7.0;
 
 /// The built-in plant models.
-pub const MODELS: [&str; 5] = [
+pub const MODELS: [&str; 6] = [
     "double-integrator",
     "thesis-chain",
     "mimo-example",
     "oat-like",
     "two-inertia",
+    "uniform-chain",
 ];
 
 /// OAT-like model: the encoders read when the file names none.
@@ -850,6 +854,14 @@ impl Scenario {
                     ));
                 }
             }
+            "uniform-chain" => {
+                if self.plant.output_given {
+                    return Err(self.err(
+                        "plant.output",
+                        "the uniform chain has one sensor, at 5/7 of its length",
+                    ));
+                }
+            }
             "mimo-example" | "oat-like" => {
                 if self.plant.output_given {
                     return Err(self.err(
@@ -868,6 +880,38 @@ impl Scenario {
                         format!("the chain has outputs 1..=7, got {output}"),
                     ));
                 }
+            }
+        }
+        let nodes_range = flexloop_control::models::UNIFORM_CHAIN_NODES;
+        match (model, self.plant.nodes) {
+            ("uniform-chain", None) => {
+                return Err(self.err(
+                    "plant.nodes",
+                    format!(
+                        "the uniform chain needs its number of masses ({} to {})",
+                        nodes_range.start(),
+                        nodes_range.end()
+                    ),
+                ));
+            }
+            ("uniform-chain", Some(n)) if !nodes_range.contains(&n) => {
+                return Err(self.err(
+                    "plant.nodes",
+                    format!(
+                        "must lie in {}..={} (2·nodes states; the loop carries at most {} \
+                         observer states), got {n}",
+                        nodes_range.start(),
+                        nodes_range.end(),
+                        flexloop_protocol::MAX_STATES
+                    ),
+                ));
+            }
+            ("uniform-chain", Some(_)) | (_, None) => {}
+            (_, Some(_)) => {
+                return Err(self.err(
+                    "plant.nodes",
+                    format!("only the uniform chain has a number of nodes, not `{model}`"),
+                ));
             }
         }
         if let Some(encoders) = &self.plant.encoders {
