@@ -5,6 +5,7 @@
 //! seeing each other. No test asserts a timing threshold.
 
 mod bad_input;
+mod bench;
 mod loop_processes;
 mod mimo;
 mod positions;

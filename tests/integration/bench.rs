@@ -1,0 +1,152 @@
+//! `flexloop bench` and `bench --sweep`: what they run and what they write.
+//! Only counts and structure are asserted, never a latency.
+
+use crate::util::{describe, flexloop, processes_mentioning, run_bounded, temp_dir};
+use serde_json::Value;
+use std::time::Duration;
+
+fn json(path: &std::path::Path) -> Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap()
+}
+
+#[test]
+fn bench_measures_the_loop_and_every_floor() {
+    let dir = temp_dir("bench-floors");
+    let run = dir.join("run");
+    let mut cmd = flexloop();
+    // thesis-mc designs at 2 kHz (the default's AD band-passes sit above
+    // its Nyquist frequency).
+    cmd.args([
+        "bench",
+        "thesis-mc",
+        "--duration",
+        "0.5",
+        "--rate",
+        "2000",
+        "--no-realtime",
+    ])
+    .arg("--run-dir")
+    .arg(&run);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for row in [
+        "round_trip",
+        "tick_to_command",
+        "probe: timer wake-up",
+        "probe: iox2 ping-pong",
+        "probe: iox2 polling",
+        "probe: socket ring",
+        "verdict:",
+    ] {
+        assert!(stdout.contains(row), "no `{row}` in\n{stdout}");
+    }
+    let bench = json(&run.join("bench.json"));
+    assert_eq!(bench["summary"]["ticks"], 1000);
+    // Each floor probes two seconds of ticks at the loop's rate; a polling
+    // pong that never answers would leave its histogram empty.
+    for key in [
+        "timer_wakeup",
+        "iceoryx2_event_ping_pong",
+        "iceoryx2_polling_ping_pong",
+        "unix_socket_ring",
+    ] {
+        let count = bench["probes"][key]["count"].as_u64().unwrap();
+        assert!(count > 0 && count <= 4000, "{key}: {count}");
+    }
+    assert!(processes_mentioning(&run.display().to_string()).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_sweep_runs_every_point_and_writes_tables_and_plots() {
+    let dir = temp_dir("bench-sweep");
+    let out_dir = dir.join("sweep");
+    let mut cmd = flexloop();
+    cmd.args([
+        "bench",
+        "--sweep",
+        "--series",
+        "rate,states",
+        "--rates",
+        "1000,2000",
+        "--states",
+        "8,12",
+        "--duration",
+        "0.6",
+        "--no-probes",
+        "--no-realtime",
+    ])
+    .arg("--run-dir")
+    .arg(&out_dir);
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    let sweep = json(&out_dir.join("sweep.json"));
+    let points = sweep["points"].as_array().unwrap();
+    let labels: Vec<&str> = points
+        .iter()
+        .map(|p| p["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        labels,
+        [
+            "rate-1000hz",
+            "rate-2000hz",
+            "default",
+            "states-8",
+            "states-12"
+        ]
+    );
+    for p in points {
+        let r = &p["result"];
+        assert!(r["error"].is_null(), "{}: {}", p["label"], r["error"]);
+        let rate = p["rate_hz"].as_f64().unwrap();
+        assert_eq!(
+            r["ticks"].as_f64().unwrap(),
+            (rate * 0.6).round(),
+            "{}",
+            p["label"]
+        );
+        assert!(r["round_trip"]["p50_ns"].as_u64().unwrap() > 0);
+        // Every run is its own run directory with the logger's summary.
+        let label = p["label"].as_str().unwrap();
+        assert!(out_dir.join(label).join("summary.json").is_file());
+    }
+    // The uniform chain of n/2 masses has an observer of exactly n states;
+    // the thesis' reduced observer has 9 (rigid + 3 modes, a noise state).
+    let states: Vec<u64> = points
+        .iter()
+        .map(|p| p["result"]["states"].as_u64().unwrap())
+        .collect();
+    assert_eq!(states, [9, 9, 9, 8, 12]);
+    let markdown = std::fs::read_to_string(out_dir.join("sweep.md")).unwrap();
+    assert!(markdown.contains("### Latency per point"), "{markdown}");
+    assert!(markdown.contains("compute p50 ∝ n^"), "{markdown}");
+    for figure in ["sweep-rate.svg", "sweep-states.svg"] {
+        let svg = std::fs::read_to_string(out_dir.join(figure)).unwrap();
+        flexloop_plot::xml::check_well_formed(&svg).unwrap_or_else(|e| panic!("{figure}: {e}"));
+        assert!(markdown.contains(figure));
+    }
+    assert!(processes_mentioning(&out_dir.display().to_string()).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_sweep_refuses_bad_lists_by_flag() {
+    for (args, flag) in [
+        (&["--states", "7"][..], "--states"),
+        (&["--rates", "2000,x"][..], "--rates"),
+        (&["--series", "size"][..], "--series"),
+    ] {
+        let mut cmd = flexloop();
+        cmd.args(["bench", "--sweep"]).args(args);
+        let out = run_bounded(cmd, Duration::from_secs(30));
+        assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(flag),
+            "{}",
+            describe(&out)
+        );
+    }
+}
