@@ -263,6 +263,9 @@ pub struct Prepared {
 /// the run directory.
 pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
     let scenario = Scenario::load(&args.scenario, &args.overrides).map_err(|e| e.to_string())?;
+    scenario
+        .check_machine(flexloop_runtime::realtime::online_cpus())
+        .map_err(|e| e.to_string())?;
     flexloop_scenario::LoopDesign::from_scenario(&scenario).map_err(|e| e.to_string())?;
     let run_dir = match &args.run_dir {
         Some(d) => d.clone(),

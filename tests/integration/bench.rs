@@ -150,3 +150,78 @@ fn the_sweep_refuses_bad_lists_by_flag() {
         );
     }
 }
+
+/// `realtime.profile = "dedicated-cores"` with plant, observer and
+/// controller on CPUs 1, 2, 3 and the logger on 0.
+fn dedicated_copy(dir: &std::path::Path) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(crate::util::scenario("default")).unwrap();
+    let text = text
+        .replace("[realtime]", "[realtime]\nprofile = \"dedicated-cores\"")
+        .replace(
+            "plant = { priority = 79, cpu = 0 }",
+            "plant = { priority = 79, cpu = 1 }",
+        )
+        .replace(
+            "observer = { priority = 80, cpu = 0 }",
+            "observer = { priority = 80, cpu = 2 }",
+        )
+        .replace(
+            "controller = { priority = 81, cpu = 0 }",
+            "controller = { priority = 81, cpu = 3 }",
+        )
+        .replace(
+            "logger = { priority = 10, cpu = 1 }",
+            "logger = { priority = 10, cpu = 0 }",
+        );
+    assert!(
+        text.contains("cpu = 3"),
+        "the default scenario's placement changed"
+    );
+    let file = dir.join("dedicated.toml");
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+/// Commands of a lockstep run, bit for bit.
+fn commands(run: &std::path::Path) -> Vec<u64> {
+    let log = flexloop_components::LogReader::open(&run.join("samples.mcap")).unwrap();
+    log.commands().map(|c| c.u[0].to_bits()).collect()
+}
+
+#[test]
+fn dedicated_cores_spins_the_same_loop_or_is_refused_on_too_few_cpus() {
+    let dir = temp_dir("bench-dedicated");
+    let file = dedicated_copy(&dir);
+    let lockstep = |scenario: &std::path::Path, run: &std::path::Path| {
+        let mut cmd = flexloop();
+        cmd.arg("run")
+            .arg(scenario)
+            .args(["--mode", "lockstep", "--duration", "0.05", "--no-realtime"])
+            .arg("--run-dir")
+            .arg(run);
+        run_bounded(cmd, Duration::from_secs(120))
+    };
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let out = lockstep(&file, &dir.join("dedicated"));
+    if cpus < 4 {
+        assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains("realtime.profile") && stderr.contains("needs at least 4 CPUs"),
+            "{stderr}"
+        );
+        assert!(!dir.join("dedicated").join("samples.mcap").exists());
+    } else {
+        // Spinning changes how the processes wait, not what they compute.
+        assert!(out.status.success(), "{}", describe(&out));
+        let shared = lockstep(&crate::util::scenario("default"), &dir.join("shared"));
+        assert!(shared.status.success(), "{}", describe(&shared));
+        let (spun, waited) = (
+            commands(&dir.join("dedicated")),
+            commands(&dir.join("shared")),
+        );
+        assert_eq!(spun.len(), 500);
+        assert_eq!(spun, waited);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

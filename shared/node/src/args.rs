@@ -126,6 +126,14 @@ impl ServiceArgs {
 }
 
 /// The scenario's real-time settings for `role`.
+/// How the loop's processes wait, from the scenario's `realtime.profile`.
+pub fn wait_mode(scenario: &Scenario) -> flexloop_runtime::wait::WaitMode {
+    match scenario.realtime.profile {
+        flexloop_scenario::Profile::SharedCores => flexloop_runtime::wait::WaitMode::Events,
+        flexloop_scenario::Profile::DedicatedCores => flexloop_runtime::wait::WaitMode::Spin,
+    }
+}
+
 pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
     let rt = &scenario.realtime;
     let process = match role {

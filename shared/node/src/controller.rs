@@ -1,6 +1,6 @@
 //! The controller process: wakes on y(k), publishes u(k).
 
-use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
@@ -8,7 +8,7 @@ use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
 use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
-use flexloop_runtime::wait::wait_readable;
+use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
 use flexloop_transport::{Domain, Inlet, Outlet};
@@ -84,6 +84,13 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // `RealtimeSettings::scheduling_part`.
     let _scheduling = realtime::apply(Role::Controller.name(), &shadow_scheduling(&rt, args));
     let mut priority_raised = !args.join;
+    // A shadow or standby follows on a shared CPU: it waits on events until
+    // it is named for the loop's CPU (and, under dedicated-cores, spins there).
+    let mut waits = if priority_raised {
+        wait_mode(&scenario)
+    } else {
+        WaitMode::Events
+    };
     let lockstep = scenario.timing.mode == Mode::Lockstep;
     let period_ns = scenario.period_ns();
     // In realtime, wait for a late estimate at most half a period after the
@@ -99,8 +106,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut next_seq = 0u64;
     let mut done = false;
     while !done && !shutdown::requested() {
-        wait_readable(&[measurements.fd()], 100_000_000)
-            .map_err(|e| NodeError::Peer(e.to_string()))?;
+        wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
+            measurements.has_samples().unwrap_or(true)
+        })
+        .map_err(|e| NodeError::Peer(e.to_string()))?;
         measurements.clear_events()?;
         // The active instance acts on the newest measurement only (an older
         // one is already late); a shadow steps through all of them in order,
@@ -122,6 +131,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         if !priority_raised && ((named && backlog.older().is_empty()) || active) {
             raise_priority(&rt);
             priority_raised = true;
+            waits = wait_mode(&scenario);
         }
         if !active && takeover.was_active {
             // Replaced at a sample boundary: the new instance owns this one.
@@ -142,8 +152,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     stale_estimates += 1;
                     break;
                 }
-                wait_readable(&[estimates.fd()], deadline - now)
-                    .map_err(|e| NodeError::Peer(e.to_string()))?;
+                wait_for_input(waits, &[estimates.fd()], deadline - now, || {
+                    estimates.has_samples().unwrap_or(true)
+                })
+                .map_err(|e| NodeError::Peer(e.to_string()))?;
                 ring.take(&estimates, activation.current())?;
                 if ring.find(m.seq).is_some() {
                     break;

@@ -1,6 +1,6 @@
 //! The observer process: wakes on y(k), publishes the estimate for tick k+1.
 
-use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
@@ -9,7 +9,7 @@ use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
 use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT, OBSERVER_STATE, OBSERVER_WAKEUP};
 use flexloop_protocol::{Estimate, Handover, Measurement, flags};
-use flexloop_runtime::wait::wait_readable;
+use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_transport::{Domain, Inlet, Outlet};
 
@@ -54,6 +54,13 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // `RealtimeSettings::scheduling_part` and the controller.
     let _scheduling = realtime::apply(Role::Observer.name(), &shadow_scheduling(&rt, args));
     let mut priority_raised = !args.join;
+    // A shadow follows on a shared CPU: it waits on events until it is
+    // named for the loop's CPU (and, under dedicated-cores, spins there).
+    let mut waits = if priority_raised {
+        wait_mode(&scenario)
+    } else {
+        WaitMode::Events
+    };
     // A replacement for an observer that died before tick 0 must start the
     // loop like the first one did: no wake-up from the plant for 200 ms
     // means the loop has not started (a first estimate that turns out not
@@ -95,8 +102,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut skipped = 0u64;
     let mut done = false;
     'samples: while !done && !shutdown::requested() {
-        wait_readable(&[measurements.fd()], 100_000_000)
-            .map_err(|e| NodeError::Peer(e.to_string()))?;
+        wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
+            measurements.has_samples().unwrap_or(true)
+        })
+        .map_err(|e| NodeError::Peer(e.to_string()))?;
         measurements.clear_events()?;
         // Every measurement, in order: a Kalman predictor must not skip one.
         while let Some(m) = measurements.receive()? {
@@ -114,6 +123,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             {
                 raise_priority(&rt);
                 priority_raised = true;
+                waits = wait_mode(&scenario);
             }
             if owner != args.generation {
                 if was_active {

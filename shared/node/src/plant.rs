@@ -1,12 +1,12 @@
 //! The plant process: owns the clock, applies commands, publishes y(k).
 
-use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT, OBSERVER_WAKEUP};
 use flexloop_protocol::{Command, Measurement, flags};
-use flexloop_runtime::clock::{TickGrid, sleep_until};
+use flexloop_runtime::clock::{TickGrid, wait_until};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
@@ -69,6 +69,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let stall_threshold_ns = period_ns / 2;
     let last_tick = scenario.ticks().map(|n| n.saturating_sub(1));
     let grid = TickGrid::starting_in(period_ns, 2_000_000);
+    let waits = wait_mode(&scenario);
 
     let mut k: u64 = 0;
     loop {
@@ -82,7 +83,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             (now, now)
         } else {
             let tick_ns = grid.tick_ns(k);
-            sleep_until(tick_ns);
+            wait_until(waits, tick_ns);
             let woke_ns = monotonic_ns();
             core.set_activation(activation.refresh()?);
             while let Some(cmd) = commands.receive()? {

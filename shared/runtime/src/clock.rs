@@ -5,6 +5,20 @@
 //! whole milliseconds, so they cannot drive 10 kHz).
 
 use crate::monotonic_ns;
+use crate::wait::WaitMode;
+
+/// Waits for `deadline_ns`: sleeping ([`WaitMode::Events`]) or spinning on
+/// the clock ([`WaitMode::Spin`], a CPU of its own, no wake-up latency).
+pub fn wait_until(mode: WaitMode, deadline_ns: u64) {
+    match mode {
+        WaitMode::Events => sleep_until(deadline_ns),
+        WaitMode::Spin => {
+            while monotonic_ns() < deadline_ns {
+                std::hint::spin_loop();
+            }
+        }
+    }
+}
 
 /// Sleeps until `deadline_ns` on CLOCK_MONOTONIC; returns at once if it passed.
 ///

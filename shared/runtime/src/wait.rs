@@ -1,9 +1,48 @@
-//! Waiting on event file descriptors with a precise timeout.
+//! Waiting for a loop process's next input: on event file descriptors with
+//! a precise timeout, or by spinning on the input itself.
 //!
 //! iceoryx2's `Listener::timed_wait` uses SO_RCVTIMEO (jiffies, 4-9 ms here);
 //! `ppoll` with a timespec uses hrtimers, so a wait can end at a tick deadline.
 
+use crate::monotonic_ns;
 use std::os::fd::RawFd;
+
+/// How a loop process waits (the scenario's `realtime.profile`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WaitMode {
+    /// Block in the kernel until an event or the deadline (`ppoll`,
+    /// `clock_nanosleep`): the loop's processes share CPUs (`shared-cores`).
+    Events,
+    /// Spin on the input and the clock, without a system call: each loop
+    /// process owns an isolated CPU (`dedicated-cores`), so nothing else
+    /// needs it and the wake-up's latency is gone.
+    Spin,
+}
+
+/// Waits until `ready()` holds or, with [`WaitMode::Events`], one of `fds`
+/// is readable; at most `timeout_ns`. Spinning reports `Ready(1)`.
+pub fn wait_for_input(
+    mode: WaitMode,
+    fds: &[RawFd],
+    timeout_ns: u64,
+    mut ready: impl FnMut() -> bool,
+) -> std::io::Result<Readiness> {
+    match mode {
+        WaitMode::Events => wait_readable(fds, timeout_ns),
+        WaitMode::Spin => {
+            let deadline = monotonic_ns().saturating_add(timeout_ns);
+            loop {
+                if ready() {
+                    return Ok(Readiness::Ready(1));
+                }
+                if monotonic_ns() >= deadline {
+                    return Ok(Readiness::TimedOut);
+                }
+                std::hint::spin_loop();
+            }
+        }
+    }
+}
 
 /// Outcome of [`wait_readable`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,6 +101,29 @@ pub fn wait_readable(fds: &[RawFd], timeout_ns: u64) -> std::io::Result<Readines
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spinning_returns_when_ready_and_times_out_otherwise() {
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let setter = flag.clone();
+        let t = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+            setter.store(true, std::sync::atomic::Ordering::Release);
+        });
+        let ready = || flag.load(std::sync::atomic::Ordering::Acquire);
+        // Bounded: 10 s is a failure, never the expected way out.
+        assert_eq!(
+            wait_for_input(WaitMode::Spin, &[], 10_000_000_000, ready).unwrap(),
+            Readiness::Ready(1)
+        );
+        t.join().unwrap();
+        let since = monotonic_ns();
+        assert_eq!(
+            wait_for_input(WaitMode::Spin, &[], 2_000_000, || false).unwrap(),
+            Readiness::TimedOut
+        );
+        assert!(monotonic_ns() - since >= 2_000_000);
+    }
 
     #[test]
     fn times_out_and_sees_readable_pipe() {

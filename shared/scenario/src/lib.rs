@@ -17,4 +17,4 @@ pub mod sensor_scan;
 
 pub use design::{LoopDesign, ObserverBlock};
 pub use error::ScenarioError;
-pub use schema::{Mode, Overrides, Scenario};
+pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, Profile, Scenario};

@@ -376,9 +376,37 @@ pub struct ProcessRealtime {
     pub cpu: Option<usize>,
 }
 
+/// How the loop's processes share the machine's CPUs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Profile {
+    /// Event wake-ups: the processes sleep between samples and may share a
+    /// CPU (the chain pinned to one, as on a 2-CPU machine).
+    #[default]
+    SharedCores,
+    /// Plant, observer and controller each spin on a CPU of their own (the
+    /// clock and their inputs, no wake-up): for machines with isolated cores.
+    DedicatedCores,
+}
+
+impl Profile {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Profile::SharedCores => "shared-cores",
+            Profile::DedicatedCores => "dedicated-cores",
+        }
+    }
+}
+
+/// CPUs a spinning profile needs: one per loop process, one for the logger
+/// and the rest of the system.
+pub const DEDICATED_CORES_MIN_CPUS: usize = 4;
+
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RealtimeSection {
+    #[serde(default)]
+    pub profile: Profile,
     #[serde(default = "yes")]
     pub lock_memory: bool,
     #[serde(default = "default_slack")]
@@ -405,6 +433,7 @@ fn default_slack() -> u64 {
 impl Default for RealtimeSection {
     fn default() -> Self {
         Self {
+            profile: Profile::default(),
             lock_memory: true,
             timer_slack_ns: default_slack(),
             hold_cpu_dma_latency: true,
@@ -665,6 +694,7 @@ impl Scenario {
             non_negative("observer.q_nu", q)?;
         }
         self.validate_sensor_scan()?;
+        self.validate_profile()?;
         non_negative("observer.damping_increase", self.observer.damping_increase)?;
         if let Some(z) = self.observer.damping_target
             && !(z.is_finite() && z > 0.0 && z < 1.0)
@@ -761,6 +791,78 @@ impl Scenario {
                 return Err(self.err(
                     field,
                     format!("SCHED_FIFO priority must be 1..=99, got {prio}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A spinning profile needs a CPU of its own for each loop process.
+    fn validate_profile(&self) -> Result<(), ScenarioError> {
+        let rt = &self.realtime;
+        if rt.profile != Profile::DedicatedCores {
+            return Ok(());
+        }
+        let mut taken: Vec<(usize, &str)> = Vec::new();
+        for (field, p) in [
+            ("realtime.plant.cpu", &rt.plant),
+            ("realtime.observer.cpu", &rt.observer),
+            ("realtime.controller.cpu", &rt.controller),
+        ] {
+            let Some(cpu) = p.cpu else {
+                return Err(self.err(
+                    field,
+                    "dedicated-cores spins each loop process on a CPU of its own: name it",
+                ));
+            };
+            if let Some((_, other)) = taken.iter().find(|(c, _)| *c == cpu) {
+                return Err(self.err(
+                    field,
+                    format!("dedicated-cores needs a CPU of its own; {cpu} is also {other}"),
+                ));
+            }
+            taken.push((cpu, field));
+        }
+        if let Some(cpu) = rt.logger.cpu
+            && let Some((_, other)) = taken.iter().find(|(c, _)| *c == cpu)
+        {
+            return Err(self.err(
+                "realtime.logger.cpu",
+                format!("CPU {cpu} spins for {other} under dedicated-cores"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether this machine can run the scenario's profile: a spinning one
+    /// is refused below [`DEDICATED_CORES_MIN_CPUS`] CPUs (three spinning
+    /// processes would starve everything else, the logger and the kernel's
+    /// own threads included) and on CPUs it does not have.
+    pub fn check_machine(&self, online_cpus: usize) -> Result<(), ScenarioError> {
+        if self.realtime.profile != Profile::DedicatedCores {
+            return Ok(());
+        }
+        if online_cpus < DEDICATED_CORES_MIN_CPUS {
+            return Err(self.err(
+                "realtime.profile",
+                format!(
+                    "dedicated-cores spins plant, observer and controller each on a CPU of its \
+                     own and needs at least {DEDICATED_CORES_MIN_CPUS} CPUs; this machine has \
+                     {online_cpus}: use shared-cores"
+                ),
+            ));
+        }
+        let rt = &self.realtime;
+        for (field, p) in [
+            ("realtime.plant.cpu", &rt.plant),
+            ("realtime.observer.cpu", &rt.observer),
+            ("realtime.controller.cpu", &rt.controller),
+            ("realtime.logger.cpu", &rt.logger),
+        ] {
+            if let Some(cpu) = p.cpu.filter(|c| *c >= online_cpus) {
+                return Err(self.err(
+                    field,
+                    format!("CPU {cpu} does not exist here (CPUs 0..{online_cpus})"),
                 ));
             }
         }

@@ -263,6 +263,14 @@ impl<T: Debug + ZeroCopySend + 'static> Inlet<T> {
             .map_err(|e| TransportError::new(self.channel, "receive", e))
     }
 
+    /// Whether a sample is queued (for a process that spins instead of
+    /// waiting for the event).
+    pub fn has_samples(&self) -> Result<bool, TransportError> {
+        self.subscriber
+            .has_samples()
+            .map_err(|e| TransportError::new(self.channel, "poll", e))
+    }
+
     /// Publishers currently connected.
     pub fn publishers(&self) -> usize {
         self.service.dynamic_config().number_of_publishers()
