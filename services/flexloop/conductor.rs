@@ -697,7 +697,9 @@ impl Conductor {
     /// The command's step at `from_seq` and the largest ordinary steps
     /// before and after it.
     fn step_at(&self, from_seq: u64) -> (f64, f64, f64) {
-        // What the plant applied: the owner's command, else the standby's.
+        // What the plant applied: the owner's command, else the standby's,
+        // else (neither seen: late or lost on a busy machine) the input it
+        // held, the newest command before.
         let u_of = |seq: u64| {
             let of = |owner: bool| {
                 self.recent_u
@@ -706,7 +708,13 @@ impl Conductor {
                     .find(|(s, o, _)| *s == seq && *o == owner)
                     .map(|(_, _, u)| *u)
             };
-            of(true).or_else(|| of(false))
+            of(true).or_else(|| of(false)).or_else(|| {
+                self.recent_u
+                    .iter()
+                    .filter(|(s, _, _)| *s < seq)
+                    .max_by_key(|(s, o, _)| (*s, *o))
+                    .map(|(_, _, u)| *u)
+            })
         };
         let step = |seq: u64| -> Option<f64> {
             let (a, b) = (u_of(seq.checked_sub(1)?)?, u_of(seq)?);
