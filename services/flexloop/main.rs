@@ -8,6 +8,7 @@ mod bench;
 mod conductor;
 mod design;
 mod export;
+mod logging_cost;
 mod positions;
 mod probes;
 mod progress;
@@ -62,11 +63,14 @@ const USAGE: &str = "usage:
       with --swap-every, replace the controller and the observer in turn every S seconds
       and count the misses inside the swap windows apart from the rest
   flexloop bench --sweep [--series rate,states,axes] [--rates HZ,...] [--states N,...] [--duration S (4)]
-               [--no-probes] [--no-realtime] [--run-dir DIR]
+               [--no-probes] [--no-realtime] [--keep-logs] [--run-dir DIR]
       one run per point: the default scenario at 1, 2, 5, 10, 20, 40 kHz, uniform chains with
       16, 32, 64, 128 observer states and the 2×2 and 3-DOF models at 10 kHz; latency, misses,
       compute and CPU per sample per process, the highest rate under 1 miss in 10 000, the
-      cost's growth exponent, the floors; sweep.md, sweep.json and SVG plots in the run directory";
+      cost's growth exponent, the floors; sweep.md, sweep.json and SVG plots in the run directory
+  flexloop bench --logging-cost [SCENARIO] [--duration S (10)] [--rate HZ] [--no-realtime] [--run-dir DIR]
+      run the loop twice, with the logger and without one, and compare the plant's own
+      round-trip histograms: what recording costs at p50 and p99.99";
 
 fn main() {
     let args: Vec<OsString> = std::env::args_os().skip(1).collect();
@@ -94,6 +98,9 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
     match command.to_str() {
         Some("up") => up(LoopArgs::parse(rest, false)?),
         Some("bench") if rest.iter().any(|a| a == "--sweep") => sweep::sweep(rest),
+        Some("bench") if rest.iter().any(|a| a == "--logging-cost") => {
+            logging_cost::logging_cost(rest)
+        }
         Some("bench") => bench::bench(LoopArgs::parse(rest, true)?),
         Some("run") => run::run(LoopArgs::parse(rest, false)?),
         Some("tune-ff") => run::tune_ff(rest),

@@ -78,12 +78,13 @@ struct Options {
     duration_s: f64,
     probes: bool,
     no_realtime: bool,
+    keep_logs: bool,
     out: Option<PathBuf>,
 }
 
 const USAGE: &str =
     "flexloop bench --sweep [--series rate,states,axes] [--rates HZ,...] [--states N,...]
-                     [--duration S (4, per point)] [--no-probes] [--no-realtime] [--run-dir DIR]";
+                     [--duration S (4, per point)] [--no-probes] [--no-realtime] [--keep-logs] [--run-dir DIR]";
 
 fn list<T: std::str::FromStr>(text: &str, flag: &str) -> Result<Vec<T>, String> {
     text.split(',')
@@ -105,6 +106,7 @@ impl Options {
             duration_s: 4.0,
             probes: true,
             no_realtime: false,
+            keep_logs: false,
             out: None,
         };
         let mut parser = lexopt::Parser::from_args(args);
@@ -133,6 +135,7 @@ impl Options {
                 }
                 Long("no-probes") => o.probes = false,
                 Long("no-realtime") => o.no_realtime = true,
+                Long("keep-logs") => o.keep_logs = true,
                 Long("run-dir") => o.out = Some(PathBuf::from(value(&mut parser)?)),
                 other => return Err(format!("{}\nusage: {USAGE}", other.unexpected())),
             }
@@ -439,6 +442,10 @@ fn run_point(point: &Point, o: &Options, root: &Path) -> Result<Measured, String
         }
         out
     };
+    if !o.keep_logs {
+        // 15–60 MB per point; the summary and the latency log stay.
+        let _ = std::fs::remove_file(run_dir.join(flexloop_node::logger::SAMPLES_FILE));
+    }
     let counter = |name: &str| summary["counters"][name].as_u64().unwrap_or(0);
     let (cpu_per_sample_ns, cpu_share) = cpu.result();
     Ok(Measured {

@@ -225,3 +225,51 @@ fn dedicated_cores_spins_the_same_loop_or_is_refused_on_too_few_cpus() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn logging_cost_runs_the_loop_with_and_without_a_logger() {
+    let dir = temp_dir("bench-logging-cost");
+    let out_dir = dir.join("cost");
+    let mut cmd = flexloop();
+    cmd.args([
+        "bench",
+        "--logging-cost",
+        "thesis-mc",
+        "--duration",
+        "0.5",
+        "--rate",
+        "2000",
+        "--no-realtime",
+    ])
+    .arg("--run-dir")
+    .arg(&out_dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("round trip, logger off"), "{stdout}");
+    let cost = json(&out_dir.join("logging_cost.json"));
+    for run in ["with_logger", "without_logger"] {
+        let r = &cost[run];
+        assert_eq!(r["ticks"], 1000, "{run}");
+        // One round trip per command of the active controller received: a
+        // tick without one is a miss (the last one's may come after the
+        // plant stopped).
+        let count = r["latency"]["round_trip"]["count"].as_u64().unwrap();
+        let missed = r["counters"]["misses"].as_u64().unwrap()
+            + r["counters"]["stall_misses"].as_u64().unwrap();
+        assert!(
+            count <= 1000 && count + missed + 1 >= 1000,
+            "{run}: {count}, {missed} missed"
+        );
+        assert_eq!(r["latency"]["tick_lateness"]["count"], 1000, "{run}");
+    }
+    let with = out_dir.join("with-logger");
+    let without = out_dir.join("without-logger");
+    // The logger recorded the first run and never ran in the second.
+    assert!(with.join("samples.mcap").is_file() && with.join("summary.json").is_file());
+    assert!(!without.join("samples.mcap").exists() && !without.join("summary.json").exists());
+    let copy = std::fs::read_to_string(out_dir.join("without-logger.toml")).unwrap();
+    assert!(copy.contains("[logger]\nenabled = false"), "{copy}");
+    assert!(processes_mentioning(&out_dir.display().to_string()).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}

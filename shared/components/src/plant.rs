@@ -12,6 +12,7 @@
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{Activation, Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
+use flexloop_runtime::latency::PlantLatencies;
 use flexloop_scenario::LoopDesign;
 use flexloop_scenario::reference::Reference;
 use flexloop_scenario::schema::SafeAction;
@@ -94,6 +95,7 @@ pub struct PlantCore {
     previous_tick_stalled: bool,
     applied_seq: u64,
     pub counters: PlantCounters,
+    pub latencies: PlantLatencies,
 }
 
 impl PlantCore {
@@ -129,6 +131,7 @@ impl PlantCore {
             previous_tick_stalled: false,
             applied_seq: NO_SEQ,
             counters: PlantCounters::default(),
+            latencies: PlantLatencies::default(),
         }
     }
 
@@ -154,8 +157,12 @@ impl PlantCore {
         }
         if cmd.generation != self.activation.controller_for(cmd.seq) {
             self.counters.wrong_generation += 1;
-            CommandVerdict::WrongGeneration
-        } else if k == 0 || cmd.seq < due {
+            return CommandVerdict::WrongGeneration;
+        }
+        // Every command of the active instance, late ones included (as the
+        // logger counts them); a rogue or a standby is not the loop's.
+        self.latencies.observe_command(cmd);
+        if k == 0 || cmd.seq < due {
             self.counters.late_commands += 1;
             CommandVerdict::Stale
         } else if cmd.seq > due {
@@ -218,6 +225,7 @@ impl PlantCore {
         stalled: bool,
         out: &mut Measurement,
     ) {
+        self.latencies.tick_lateness.record_span(tick_ns, woke_ns);
         let mut tick_flags = 0;
         // The value entering the delay line this tick: the on-time command, or
         // on a miss the last value that entered it (hold).

@@ -105,3 +105,30 @@ fn without_a_standby_action_its_commands_are_rejected_and_the_plant_holds() {
     let zero = run(SafeAction::Zero, 10, 5);
     assert_eq!(zero[8].u_applied[0], 0.0);
 }
+
+#[test]
+fn the_plant_times_the_active_instances_commands_only() {
+    let mut plant = plant(SafeAction::Standby);
+    for k in 0..3u64 {
+        let mut m = Measurement::default();
+        plant.tick(k, 1_000 * k, 1_000 * k + 7, false, &mut m);
+        plant.advance();
+        let mut own = command(k, 0, 1.0, false);
+        own.tick_ns = 1_000 * k;
+        own.measurement_published_ns = 1_000 * k + 10;
+        own.published_ns = 1_000 * k + 10 + 50 * (k + 1);
+        plant.offer(&own, k + 1, u64::MAX);
+        // A standby's and a rogue's commands are not the loop's round trip.
+        plant.offer(&command(k, 1, -5.0, true), k + 1, u64::MAX);
+        plant.offer(&command(k, 7, 9.0, false), k + 1, u64::MAX);
+    }
+    let l = &plant.latencies;
+    assert_eq!(l.tick_lateness.count(), 3);
+    assert_eq!(l.round_trip.count(), 3);
+    assert_eq!(l.tick_to_command.count(), 3);
+    // Round trips of 50, 100 and 150 ns; tick to command 10 ns more.
+    assert_eq!(l.round_trip.histogram().max(), 150);
+    assert_eq!(l.round_trip.histogram().min(), 50);
+    assert_eq!(l.tick_to_command.histogram().max(), 160);
+    assert_eq!(l.tick_lateness.histogram().max(), 7);
+}

@@ -1,25 +1,60 @@
 //! The run summary the logger writes (`summary.json`) and `flexloop` reads.
 
 use flexloop_components::{RecordSink, Recorder};
-use flexloop_runtime::latency::{LoopLatencies, Metric, QUANTILE_LABELS};
+use flexloop_runtime::latency::{
+    LatencyHistogram, LoopLatencies, Metric, PlantLatencies, QUANTILE_LABELS,
+};
 use serde_json::{Value, json};
 use std::io::Write;
+
+/// The plant's own latency file in the run directory (written at its exit).
+pub const PLANT_LATENCY_FILE: &str = "plant_latency.json";
+
+/// Count, percentiles and how many samples exceeded `budget_ns`.
+fn histogram_json(h: &LatencyHistogram, budget_ns: u64) -> Value {
+    let p = h.percentiles();
+    let mut entry = serde_json::Map::new();
+    entry.insert("count".into(), json!(p.count));
+    for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
+        entry.insert(format!("{label}_ns"), json!(value));
+    }
+    entry.insert("over_one_period".into(), json!(h.count_above(budget_ns)));
+    Value::Object(entry)
+}
 
 /// Percentiles of every metric, plus how many samples exceeded `budget_ns`.
 pub fn latencies_json(latencies: &LoopLatencies, budget_ns: u64) -> Value {
     let mut map = serde_json::Map::new();
     for metric in Metric::ALL {
-        let h = latencies.get(metric);
-        let p = h.percentiles();
-        let mut entry = serde_json::Map::new();
-        entry.insert("count".into(), json!(p.count));
-        for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
-            entry.insert(format!("{label}_ns"), json!(value));
-        }
-        entry.insert("over_one_period".into(), json!(h.count_above(budget_ns)));
-        map.insert(metric.name().into(), Value::Object(entry));
+        map.insert(
+            metric.name().into(),
+            histogram_json(latencies.get(metric), budget_ns),
+        );
     }
     Value::Object(map)
+}
+
+/// What the plant measured itself: its counters and its latencies (the
+/// same metric names as the logger's summary).
+pub fn plant_latency_json(
+    counters: &flexloop_components::plant::PlantCounters,
+    latencies: &PlantLatencies,
+    period_ns: u64,
+) -> Value {
+    json!({
+        "ticks": counters.ticks,
+        "counters": {
+            "misses": counters.misses,
+            "late_commands": counters.late_commands,
+            "stalled_ticks": counters.stalled_ticks,
+            "stall_misses": counters.stall_misses,
+        },
+        "latency": {
+            Metric::TickLateness.name(): histogram_json(&latencies.tick_lateness, period_ns),
+            Metric::RoundTrip.name(): histogram_json(&latencies.round_trip, period_ns),
+            Metric::TickToCommand.name(): histogram_json(&latencies.tick_to_command, period_ns),
+        },
+    })
 }
 
 /// The whole summary of a run, from the logger's recorder.

@@ -158,6 +158,27 @@ impl Metric {
     }
 }
 
+/// What the plant measures itself, from its own clock and the stamps of the
+/// commands it receives (the spans the logger rebuilds): a run without a
+/// logger still has its round trip.
+#[derive(Debug, Clone, Default)]
+pub struct PlantLatencies {
+    /// Scheduled tick → plant awake.
+    pub tick_lateness: LatencyHistogram,
+    /// y(k) published → u(k) published (available to the plant).
+    pub round_trip: LatencyHistogram,
+    /// Scheduled tick k → u(k) available.
+    pub tick_to_command: LatencyHistogram,
+}
+
+impl PlantLatencies {
+    pub fn observe_command(&mut self, c: &Command) {
+        self.round_trip
+            .record_span(c.measurement_published_ns, c.published_ns);
+        self.tick_to_command.record_span(c.tick_ns, c.published_ns);
+    }
+}
+
 /// One histogram per [`Metric`], fed from the messages themselves.
 #[derive(Debug, Clone, Default)]
 pub struct LoopLatencies {
