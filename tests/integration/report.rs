@@ -181,3 +181,35 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
     assert!(err.contains("latency.hlog"), "{err}");
     assert_clean(&dir);
 }
+
+/// The two-inertia setup measures angles and commands currents: its report
+/// says µrad and A, never nm or N.
+#[test]
+fn a_report_of_the_two_inertia_setup_is_in_its_units() {
+    let dir = temp_dir("report-two-inertia");
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(scenario("two-inertia"))
+        .args([
+            "--mode",
+            "lockstep",
+            "--no-realtime",
+            "--duration",
+            "0.3",
+            "--run-dir",
+        ])
+        .arg(&dir);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let out = report(&dir, &[]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let files = dir.join("report");
+    let md = std::fs::read_to_string(files.join("report.md")).unwrap();
+    assert!(md.contains("µrad") && md.contains("| A |"), "{md}");
+    assert!(!md.contains(" nm") && !md.contains("| N |"), "{md}");
+    let tracking = std::fs::read_to_string(files.join("tracking-error.svg")).unwrap();
+    assert!(tracking.contains("e_true [µrad]"), "{tracking}");
+    let command = std::fs::read_to_string(files.join("command.svg")).unwrap();
+    assert!(command.contains("input [A]"), "{command}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -90,7 +90,7 @@ pub fn document(data: &RunData) -> Document {
         "Estimated against true flexible output".into(),
     ));
     if let Ok(c) = &data.flexible {
-        doc.push(Block::Table(flexible_table(c)));
+        doc.push(Block::Table(flexible_table(c, data.length)));
     }
     doc.push(figure(figures::flexible(data)));
     doc.push(figure(figures::flexible_error(data)));
@@ -117,9 +117,9 @@ pub fn document(data: &RunData) -> Document {
     doc
 }
 
-/// rms values of the flexible comparison, in nm.
-fn flexible_table(c: &FlexibleComparison) -> Table {
-    let nm = |v: f64| number(v * 1e9);
+/// rms values of the flexible comparison, in the report's unit of length.
+fn flexible_table(c: &FlexibleComparison, length: super::Length) -> Table {
+    let nm = |v: f64| number(length.of(v));
     let modes = c.modelled_modes;
     let mut rows = vec![
         vec![
@@ -156,7 +156,10 @@ fn flexible_table(c: &FlexibleComparison) -> Table {
         nm(c.residual_rms),
     ]);
     Table {
-        header: vec![format!("rms over {} ticks", c.time_s.len()), "nm".into()],
+        header: vec![
+            format!("rms over {} ticks", c.time_s.len()),
+            length.unit.into(),
+        ],
         rows,
         numeric_from: 1,
     }
@@ -299,7 +302,7 @@ fn counters_table(data: &RunData) -> Table {
 
 fn control_table(data: &RunData) -> Table {
     let m = &data.run.metrics;
-    let nm = |v: f64| number(v * 1e9);
+    let nm = |v: f64| number(data.length.of(v));
     let newton = number;
     let mut rows: Vec<[String; 3]> = Vec::new();
     if let Some(rms) = m.rms_e_true_scan {
@@ -309,7 +312,7 @@ fn control_table(data: &RunData) -> Table {
                 if m.scans.len() > 1 { "s" } else { "" }
             ),
             nm(rms),
-            "nm".into(),
+            data.length.unit.into(),
         ]);
         let largest = |f: fn(&flexloop_analysis::metrics::ScanMetrics) -> f64| {
             m.scans.iter().map(f).fold(0.0, f64::max)
@@ -317,17 +320,17 @@ fn control_table(data: &RunData) -> Table {
         rows.push([
             "largest |MA| in a scan".into(),
             nm(largest(|s| s.max_abs_ma)),
-            "nm".into(),
+            data.length.unit.into(),
         ]);
         rows.push([
             "largest MSD in a scan".into(),
             nm(largest(|s| s.max_msd)),
-            "nm".into(),
+            data.length.unit.into(),
         ]);
         rows.push([
             "peak |e_true| in a scan".into(),
             nm(largest(|s| s.peak_e_true)),
-            "nm".into(),
+            data.length.unit.into(),
         ]);
     } else {
         rows.push([
@@ -340,25 +343,37 @@ fn control_table(data: &RunData) -> Table {
         [
             "peak |e_true| over the run".into(),
             nm(m.e_true.peak),
-            "nm".into(),
+            data.length.unit.into(),
         ],
         [
             "rms e_true over the run".into(),
             nm(m.e_true.rms),
-            "nm".into(),
+            data.length.unit.into(),
         ],
-        ["effort: rms u".into(), newton(m.u.rms), "N".into()],
-        ["effort: peak |u|".into(), newton(m.u.peak), "N".into()],
-        ["rms u_fb (feedback)".into(), newton(m.u_fb.rms), "N".into()],
+        [
+            "effort: rms u".into(),
+            newton(m.u.rms),
+            data.run.design.input_unit.into(),
+        ],
+        [
+            "effort: peak |u|".into(),
+            newton(m.u.peak),
+            data.run.design.input_unit.into(),
+        ],
+        [
+            "rms u_fb (feedback)".into(),
+            newton(m.u_fb.rms),
+            data.run.design.input_unit.into(),
+        ],
         [
             "rms u_ff (feedforward)".into(),
             newton(m.u_ff.rms),
-            "N".into(),
+            data.run.design.input_unit.into(),
         ],
         [
             "rms u_d (active damping)".into(),
             newton(m.u_d.rms),
-            "N".into(),
+            data.run.design.input_unit.into(),
         ],
         [
             "innovation mean".into(),
@@ -394,20 +409,21 @@ fn control_table(data: &RunData) -> Table {
 }
 
 fn scans_table(data: &RunData) -> Table {
-    let nm = |v: f64| number(v * 1e9);
+    let nm = |v: f64| number(data.length.of(v));
     Table {
         header: [
-            "scan",
-            "from [s]",
-            "to [s]",
-            "samples",
-            "rms [nm]",
-            "peak [nm]",
-            "max |MA| [nm]",
-            "max MSD [nm]",
+            "scan", "from [s]", "to [s]", "samples", "rms", "peak", "max |MA|", "max MSD",
         ]
-        .map(String::from)
-        .to_vec(),
+        .iter()
+        .enumerate()
+        .map(|(i, h)| {
+            if i >= 4 {
+                format!("{h} [{}]", data.length.unit)
+            } else {
+                h.to_string()
+            }
+        })
+        .collect(),
         rows: data
             .run
             .metrics

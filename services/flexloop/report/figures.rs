@@ -1,5 +1,5 @@
 //! The report's figures, each built from the run's data in display units
-//! (µs, nm, N) with its caption.
+//! (µs, nm or µrad, N or A) with its caption.
 
 use super::{Event, RunData};
 use flexloop_analysis::flexible::FlexibleComparison;
@@ -276,7 +276,12 @@ pub fn tracking_error(data: &RunData, zoom: bool) -> Plot {
         )
     };
     let mut x = Axis::linear("time [s]");
-    let mut points = per_tick(&trace.rows, |r| r.seq, trace.ts, |r| r.e_true() * 1e9);
+    let mut points = per_tick(
+        &trace.rows,
+        |r| r.seq,
+        trace.ts,
+        |r| data.length.of(r.e_true()),
+    );
     if zoom {
         match window {
             Some((a, b)) => {
@@ -286,7 +291,12 @@ pub fn tracking_error(data: &RunData, zoom: bool) -> Plot {
             None => points.clear(),
         }
     }
-    let mut figure = Figure::new(id, title, x, Axis::linear("e_true [nm]"));
+    let mut figure = Figure::new(
+        id,
+        title,
+        x,
+        Axis::linear(&format!("e_true [{}]", data.length.unit)),
+    );
     figure.colored_line("e_true = r − y_true", points, BLACK);
     if !zoom {
         for (i, s) in scans.iter().enumerate() {
@@ -336,7 +346,15 @@ pub fn command(data: &RunData, small_parts: bool) -> Plot {
         id,
         title,
         Axis::linear("time [s]"),
-        Axis::linear("force [N]"),
+        Axis::linear(&format!(
+            "{} [{}]",
+            if data.run.design.input_unit == "N" {
+                "force"
+            } else {
+                "input"
+            },
+            data.run.design.input_unit
+        )),
     );
     if !small_parts {
         figure.colored_line("u_ff (feedforward)", series(|r| r.u_ff), ORANGE);
@@ -374,12 +392,16 @@ pub fn flexible(data: &RunData) -> Plot {
         "flexible-output",
         "Flexible output at the sensor: estimated against true",
         Axis::linear("time [s]"),
-        Axis::linear("flexible output [nm]"),
+        Axis::linear(&format!("flexible output [{}]", data.length.unit)),
     );
     let caption = match &data.flexible {
         Ok(c) => {
             let line = |v: &[f64]| -> Vec<(f64, f64)> {
-                c.time_s.iter().zip(v).map(|(t, y)| (*t, y * 1e9)).collect()
+                c.time_s
+                    .iter()
+                    .zip(v)
+                    .map(|(t, y)| (*t, data.length.of(*y)))
+                    .collect()
             };
             figure
                 .colored_line("true, all flexible modes", line(&c.true_flexible), BLACK)
@@ -395,7 +417,7 @@ pub fn flexible(data: &RunData) -> Plot {
             for s in figure.series.iter_mut().skip(2) {
                 s.dashed = true;
             }
-            flexible_caption(c)
+            flexible_caption(c, data.length)
         }
         Err(reason) => {
             figure.empty_note = format!("no comparison: {reason}");
@@ -414,7 +436,7 @@ pub fn flexible_error(data: &RunData) -> Plot {
         "flexible-error",
         "Estimation error of the flexible output",
         Axis::linear("time [s]"),
-        Axis::linear("error [nm]"),
+        Axis::linear(&format!("error [{}]", data.length.unit)),
     );
     let caption = match &data.flexible {
         Ok(c) => {
@@ -422,7 +444,7 @@ pub fn flexible_error(data: &RunData) -> Plot {
                 c.time_s
                     .iter()
                     .zip(a.iter().zip(b))
-                    .map(|(t, (a, b))| (*t, (a - b) * 1e9))
+                    .map(|(t, (a, b))| (*t, data.length.of(a - b)))
                     .collect()
             };
             let modes = c.modelled_modes;
@@ -442,11 +464,12 @@ pub fn flexible_error(data: &RunData) -> Plot {
             let left_out = FlexibleComparison::rms_difference(&c.true_flexible, &c.true_modelled);
             format!(
                 "The observer's errors against the modes it models (1–{modes}) on their own scale: \
-                 its estimation error proper ({:.3} nm rms for the prediction). Not drawn: the \
-                 motion of the flexible modes its reduced model leaves out ({:.3} nm rms), by which \
+                 its estimation error proper ({:.3} {unit} rms for the prediction). Not drawn: the \
+                 motion of the flexible modes its reduced model leaves out ({:.3} {unit} rms), by which \
                  even a perfect estimate differs from y − rigid motion.",
-                own * 1e9,
-                left_out * 1e9
+                data.length.of(own),
+                data.length.of(left_out),
+                unit = data.length.unit
             )
         }
         Err(reason) => {
@@ -461,18 +484,20 @@ pub fn flexible_error(data: &RunData) -> Plot {
     }
 }
 
-fn flexible_caption(c: &FlexibleComparison) -> String {
+fn flexible_caption(c: &FlexibleComparison, length: super::Length) -> String {
     format!(
         "What is compared (control.md §5.1): ŷ_flex = C_f x̂ is the output of the flexible modes the \
          observer models (rigid columns zero, no T_DC·u). Its true counterpart, the plant's own \
          flexible motion at the sensor (y − rigid motion), is not in the log: it is rebuilt offline \
          by running the plant model (all modes, the same modal coordinates as the observer's reduced \
          model) from rest on the logged applied input u_a(k); the rebuild matches the logged y_true \
-         to {:.3} pm rms{}. Black: all flexible modes; green: the modes the observer models \
+         to {:.3} {} rms{}. Black: all flexible modes; green: the modes the observer models \
          (1–{}); blue dashed: the observer's prediction C_f x̂(k|k−1) from the estimate message; \
          red dashed (with MC): the ŷ_flex(k) the controller subtracted, y + e_meas − r from the \
          command message, which also holds y(k)'s feedthrough.{}",
-        c.residual_rms * 1e12,
+        // A thousandth of the report's unit: pm, or nrad.
+        length.of(c.residual_rms) * 1e3,
+        if length.unit == "nm" { "pm" } else { "nrad" },
         if c.residual_rms > 1e-12 {
             " (not exact: the run's force noise is not logged)"
         } else {

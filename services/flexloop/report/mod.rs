@@ -37,8 +37,38 @@ pub struct Event {
     pub detail: String,
 }
 
+/// How the report shows the outputs' errors: nm for positions in m, µrad
+/// for the two-inertia setup's angles in rad.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Length {
+    pub per_si: f64,
+    pub unit: &'static str,
+}
+
+impl Length {
+    pub fn for_unit(si_unit: &str) -> Self {
+        match si_unit {
+            "rad" => Self {
+                per_si: 1e6,
+                unit: "µrad",
+            },
+            _ => Self {
+                per_si: 1e9,
+                unit: "nm",
+            },
+        }
+    }
+
+    /// `v` (in the SI unit) in this unit.
+    pub fn of(self, v: f64) -> f64 {
+        v * self.per_si
+    }
+}
+
 /// Everything the report reads from a run directory.
 pub struct RunData {
+    /// The unit of the outputs' errors in tables and figures.
+    pub length: Length,
     pub dir: PathBuf,
     pub run: RunReport,
     pub latency: LatencyLog,
@@ -68,6 +98,7 @@ impl RunData {
             .filter(|f| dir.join(f).exists())
             .collect();
         Ok(Self {
+            length: Length::for_unit(run.design.output_unit),
             dir: dir.to_path_buf(),
             run,
             latency,
