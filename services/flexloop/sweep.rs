@@ -446,13 +446,21 @@ fn run_point(point: &Point, o: &Options, root: &Path) -> Result<Measured, String
         // 15–60 MB per point; the summary and the latency log stay.
         let _ = std::fs::remove_file(run_dir.join(flexloop_node::logger::SAMPLES_FILE));
     }
-    let counter = |name: &str| summary["counters"][name].as_u64().unwrap_or(0);
+    // Ticks and misses as the plant counted them (the logger's count misses
+    // what it could not keep up with on a busy machine).
+    let own_path = run_dir.join(flexloop_node::summary::PLANT_LATENCY_FILE);
+    let own: Value = std::fs::read_to_string(&own_path)
+        .map_err(|e| format!("{}: {e}", own_path.display()))
+        .and_then(|t| {
+            serde_json::from_str(&t).map_err(|e| format!("{}: {e}", own_path.display()))
+        })?;
+    let counter = |name: &str| own["counters"][name].as_u64().unwrap_or(0);
     let (cpu_per_sample_ns, cpu_share) = cpu.result();
     Ok(Measured {
         states: design.observer.estimate_map.nrows(),
         outputs: design.n_outputs,
         inputs: design.n_inputs,
-        ticks: summary["ticks"].as_u64().unwrap_or(0),
+        ticks: own["ticks"].as_u64().unwrap_or(0),
         misses: counter("misses"),
         stall_misses: counter("stall_misses"),
         stalled: counter("stalled_ticks"),
