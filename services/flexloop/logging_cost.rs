@@ -3,7 +3,7 @@
 //! at all, both timed by the plant itself (its own histograms, from the
 //! commands' stamps), so that the difference is what recording costs.
 
-use crate::{LoopArgs, prepare, registry, run_supervised};
+use crate::{LoopArgs, prepare, run_registered_with};
 use flexloop_node::summary::{PLANT_LATENCY_FILE, write_json_atomically};
 use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_scenario::{Mode, Overrides};
@@ -102,17 +102,7 @@ fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> Result<Value, Strin
         probes: false,
         swap_every_s: None,
     };
-    let prepared = prepare(&args)?;
-    let entry = registry::Entry {
-        prefix: prepared.plan.prefix.clone(),
-        supervisor_pid: std::process::id() as i32,
-        run_dir: run_dir.to_path_buf(),
-        scenario: prepared.scenario.name.clone(),
-    };
-    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
-    let result = run_supervised(prepared);
-    registry::unregister(&entry.prefix);
-    result?;
+    run_registered_with(prepare(&args)?, |_, _| None)?;
     let path = run_dir.join(PLANT_LATENCY_FILE);
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
@@ -123,13 +113,10 @@ pub fn logging_cost(args: Vec<OsString>) -> Result<i32, String> {
     let scenario = crate::resolve_scenario(o.scenario.clone())?;
     let text =
         std::fs::read_to_string(&scenario).map_err(|e| format!("{}: {e}", scenario.display()))?;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    let root = o.out.clone().unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!("{stamp}-logging-cost-{}", std::process::id()))
-    });
+    let root = o
+        .out
+        .clone()
+        .unwrap_or_else(|| crate::stamped_run_dir("logging-cost"));
     std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
     let silent = root.join("without-logger.toml");
     std::fs::write(&silent, without_logger(&text))

@@ -313,13 +313,6 @@ pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
 
 fn up(args: LoopArgs) -> Result<i32, String> {
     let prepared = prepare(&args)?;
-    let entry = registry::Entry {
-        prefix: prepared.plan.prefix.clone(),
-        supervisor_pid: std::process::id() as i32,
-        run_dir: prepared.plan.run_dir.clone(),
-        scenario: prepared.scenario.name.clone(),
-    };
-    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
     eprintln!(
         "flexloop: {} at {} Hz ({}), run directory {}; Ctrl-C or `flexloop down` stops it",
         prepared.scenario.name,
@@ -327,9 +320,7 @@ fn up(args: LoopArgs) -> Result<i32, String> {
         prepared.scenario.timing.mode.as_str(),
         prepared.plan.run_dir.display()
     );
-    let result = run_supervised(prepared);
-    registry::unregister(&entry.prefix);
-    result.map(|_| 0)
+    run_registered_with(prepared, |_, _| None).map(|_| 0)
 }
 
 /// The sample and histogram logs of the logger of `generation`.
@@ -413,6 +404,43 @@ pub fn run_supervised_with(
         )),
         _ => Ok((running, outcome, switches)),
     }
+}
+
+/// As [`run_supervised_with`], registered while it runs (so that `flexloop
+/// down` and `status` find it).
+pub fn run_registered_with(
+    prepared: Prepared,
+    hook: impl FnMut(
+        &mut supervisor::RunningLoop,
+        &mut conductor::Conductor,
+    ) -> Option<supervisor::Outcome>,
+) -> Result<
+    (
+        supervisor::RunningLoop,
+        supervisor::Outcome,
+        Vec<conductor::Switch>,
+    ),
+    String,
+> {
+    let entry = registry::Entry {
+        prefix: prepared.plan.prefix.clone(),
+        supervisor_pid: std::process::id() as i32,
+        run_dir: prepared.plan.run_dir.clone(),
+        scenario: prepared.scenario.name.clone(),
+    };
+    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
+    let result = run_supervised_with(prepared, hook);
+    registry::unregister(&entry.prefix);
+    result
+}
+
+/// `runs/<stamp>-<kind>-<pid>`, for a command's results.
+pub fn stamped_run_dir(kind: &str) -> PathBuf {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    PathBuf::from("runs").join(format!("{stamp}-{kind}-{}", std::process::id()))
 }
 
 /// Closes the sample files of a run whose logger was killed before it

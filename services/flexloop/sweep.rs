@@ -10,7 +10,7 @@
 //! default scenario at 10 kHz.
 
 use crate::supervisor::RunningLoop;
-use crate::{LoopArgs, prepare, probes, registry, run_supervised_with};
+use crate::{LoopArgs, prepare, probes, run_registered_with};
 use flexloop_node::Role;
 use flexloop_plot::{Axis, Figure};
 use flexloop_protocol::Telemetry;
@@ -251,13 +251,10 @@ impl Measured {
 
 pub fn sweep(args: Vec<OsString>) -> Result<i32, String> {
     let o = Options::parse(args)?;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    let root = o.out.clone().unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!("{stamp}-sweep-{}", std::process::id()))
-    });
+    let root = o
+        .out
+        .clone()
+        .unwrap_or_else(|| crate::stamped_run_dir("sweep"));
     std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
     let base = Scenario::load(&default_scenario()?, &base_overrides(&o, BASE_RATE_HZ))
         .map_err(|e| e.to_string())?;
@@ -415,24 +412,15 @@ fn run_point(point: &Point, o: &Options, root: &Path) -> Result<Measured, String
     let prepared = prepare(&args)?;
     let design = LoopDesign::from_scenario(&prepared.scenario).map_err(|e| e.to_string())?;
     let rate_hz = prepared.scenario.timing.rate_hz;
-    let entry = registry::Entry {
-        prefix: prepared.plan.prefix.clone(),
-        supervisor_pid: std::process::id() as i32,
-        run_dir: run_dir.clone(),
-        scenario: prepared.scenario.name.clone(),
-    };
-    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
     let mut cpu = CpuWindow::new(
-        &entry.prefix,
+        &prepared.plan.prefix,
         (o.duration_s * rate_hz * WARM_UP) as u64,
         rate_hz,
     );
-    let result = run_supervised_with(prepared, |running, _| {
+    run_registered_with(prepared, |running, _| {
         cpu.observe(running);
         None
-    });
-    registry::unregister(&entry.prefix);
-    result?;
+    })?;
     let summary = flexloop_node::summary::read_summary(&run_dir)?;
     let percentiles = |name: &str| {
         let v = &summary["latency"][name];
