@@ -699,7 +699,7 @@ impl Conductor {
     fn step_at(&self, from_seq: u64) -> (f64, f64, f64) {
         // What the plant applied: the owner's command, else the standby's,
         // else (neither seen: late or lost on a busy machine) the input it
-        // held, the newest command before.
+        // held, if that was the sample before's; older is not known.
         let u_of = |seq: u64| {
             let of = |owner: bool| {
                 self.recent_u
@@ -711,7 +711,7 @@ impl Conductor {
             of(true).or_else(|| of(false)).or_else(|| {
                 self.recent_u
                     .iter()
-                    .filter(|(s, _, _)| *s < seq)
+                    .filter(|(s, _, _)| s.saturating_add(1) == seq)
                     .max_by_key(|(s, o, _)| (*s, *o))
                     .map(|(_, _, u)| *u)
             })
