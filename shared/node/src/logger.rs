@@ -15,7 +15,7 @@ use crate::run_metadata::run_metadata;
 use crate::summary::{run_summary, write_json_atomically};
 use crate::{NodeError, await_peers};
 use flexloop_components::{Recorder, SampleWriter};
-use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT, TELEMETRY};
+use flexloop_protocol::channels::{COMMAND, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, flags};
 use flexloop_runtime::clock::sleep_until;
 use flexloop_runtime::latency::Metric;
@@ -69,6 +69,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("logger")?;
     let telemetry = Outlet::<Telemetry>::open(&node, &TELEMETRY)?;
+    let progress = Outlet::<u64>::open(&node, &LOGGER_PROGRESS)?;
     let estimates =
         Inlet::<Estimate>::open_polling(&node, &ESTIMATE, ESTIMATE.qos.logger_buffer_size)?;
     let commands = Inlet::<Command>::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)?;
@@ -129,6 +130,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         estimates: &estimates,
         commands: &commands,
         telemetry: &telemetry,
+        progress: &progress,
     };
     let drained = drain(&mut recorder, &inlets, start_ns);
 
@@ -189,6 +191,7 @@ struct Inlets<'a> {
     estimates: &'a Inlet<Estimate>,
     commands: &'a Inlet<Command>,
     telemetry: &'a Outlet<Telemetry>,
+    progress: &'a Outlet<u64>,
 }
 
 /// Drains every channel every 2 ms until the run ends (returns the last
@@ -202,6 +205,7 @@ fn drain(
     let mut end_seq: Option<u64> = None;
     let mut end_seen_ns = 0u64;
     let mut next_poll = start_ns;
+    let mut progress_sent: Option<u64> = None;
     loop {
         let stopping = shutdown::requested();
         while let Some(m) = ports.measurements.receive()? {
@@ -216,6 +220,12 @@ fn drain(
         }
         while let Some(c) = ports.commands.receive()? {
             recorder.command(&c);
+        }
+        if let Some(m) = recorder.last_measurement
+            && Some(m.seq) != progress_sent
+        {
+            ports.progress.publish(|p| *p = m.seq)?;
+            progress_sent = Some(m.seq);
         }
         let now = monotonic_ns();
         if now >= next_interval_ns {

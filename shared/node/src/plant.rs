@@ -4,7 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
-use flexloop_protocol::channels::{COMMAND, MEASUREMENT, OBSERVER_WAKEUP};
+use flexloop_protocol::channels::{COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP};
 use flexloop_protocol::{Command, Measurement, flags};
 use flexloop_runtime::clock::{TickGrid, wait_until};
 use flexloop_runtime::wait::wait_readable;
@@ -31,6 +31,12 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
     let observer_wakeup = Wakeup::open(&node, &OBSERVER_WAKEUP)?;
     let commands = Inlet::<Command>::open(&node, &COMMAND, COMMAND.qos.loop_buffer_size)?;
+    // Lockstep only: how far the logger has drained (see `LoggerPace`).
+    let logger_progress = Inlet::<u64>::open_polling(
+        &node,
+        &LOGGER_PROGRESS,
+        LOGGER_PROGRESS.qos.loop_buffer_size,
+    )?;
 
     // Start-up handshake: the observer and the logger subscribe once they are
     // connected and locked; the controller opens its command port last, once
@@ -70,6 +76,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let last_tick = scenario.ticks().map(|n| n.saturating_sub(1));
     let grid = TickGrid::starting_in(period_ns, 2_000_000);
     let waits = wait_mode(&scenario);
+    let mut logger_pace = LoggerPace::new(lockstep && scenario.logger.enabled);
 
     let mut k: u64 = 0;
     loop {
@@ -79,6 +86,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 // Stopping too: the command for this last tick is on its way.
                 wait_for_command(&commands, &mut activation, &mut core, k, &mut last_command)?;
             }
+            logger_pace.wait_for_logger(&logger_progress, k)?;
             let now = monotonic_ns();
             (now, now)
         } else {
@@ -125,6 +133,68 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         eprintln!("flexloop-plant: {}: {e}", path.display());
     }
     Ok(())
+}
+
+/// Lockstep runs flat out; the logger drains every 2 ms into queues of
+/// `logger_buffer_size` samples. Without pacing, a fast loop on a busy
+/// machine outruns it and the recording has gaps, so a lockstep plant stays
+/// at most [`LoggerPace::LEAD`] samples ahead of what the logger has drained.
+/// A logger silent for [`LoggerPace::PATIENCE`] (killed, restarting) is not
+/// waited for again until it reports progress.
+struct LoggerPace {
+    enabled: bool,
+    drained: Option<u64>,
+    silent: bool,
+}
+
+impl LoggerPace {
+    /// Half the logger's queue.
+    const LEAD: u64 = MEASUREMENT.qos.logger_buffer_size as u64 / 2;
+    const PATIENCE: Duration = Duration::from_secs(2);
+
+    fn new(enabled: bool) -> Self {
+        Self {
+            enabled,
+            drained: None,
+            silent: false,
+        }
+    }
+
+    fn take(&mut self, progress: &Inlet<u64>) -> Result<bool, NodeError> {
+        let mut moved = false;
+        while let Some(seq) = progress.receive()? {
+            moved |= self.drained != Some(*seq);
+            self.drained = Some(*seq);
+        }
+        Ok(moved)
+    }
+
+    fn wait_for_logger(&mut self, progress: &Inlet<u64>, k: u64) -> Result<(), NodeError> {
+        if !self.enabled {
+            return Ok(());
+        }
+        if self.take(progress)? {
+            self.silent = false;
+        }
+        let ahead = |drained: Option<u64>| k > drained.map_or(0, |d| d + 1) + Self::LEAD;
+        if self.silent || !ahead(self.drained) {
+            return Ok(());
+        }
+        let since = std::time::Instant::now();
+        while ahead(self.drained) && !shutdown::requested() {
+            if since.elapsed() > Self::PATIENCE {
+                eprintln!(
+                    "flexloop-plant: the logger has drained nothing for {:?} (at tick {k}); not waiting for it",
+                    Self::PATIENCE
+                );
+                self.silent = true;
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_micros(200));
+            self.take(progress)?;
+        }
+        Ok(())
+    }
 }
 
 /// Lockstep: block until the command for tick `k` arrived (or shutdown). A

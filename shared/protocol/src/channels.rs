@@ -76,6 +76,22 @@ pub const TELEMETRY: Channel = Channel {
     },
 };
 
+/// The newest measurement sequence number the logger has drained, a bare
+/// `u64`: a lockstep plant paces itself on it, so that a loop running flat
+/// out never outruns the recording (a realtime plant never waits for it).
+pub const LOGGER_PROGRESS: Channel = Channel {
+    name: "flexloop/logger-progress",
+    qos: ChannelQos {
+        max_publishers: 4,
+        max_subscribers: 4,
+        max_nodes: 16,
+        history_size: 1,
+        subscriber_max_buffer_size: 4,
+        loop_buffer_size: 4,
+        logger_buffer_size: 4,
+    },
+};
+
 const HANDOVER_QOS: ChannelQos = ChannelQos {
     max_publishers: 4,
     max_subscribers: 6,
@@ -111,12 +127,13 @@ pub const ACTIVATION: Channel = Channel {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 8] = [
+pub const ALL: [Channel; 9] = [
     MEASUREMENT,
     OBSERVER_WAKEUP,
     ESTIMATE,
     COMMAND,
     TELEMETRY,
+    LOGGER_PROGRESS,
     CONTROLLER_STATE,
     OBSERVER_STATE,
     ACTIVATION,
