@@ -30,6 +30,8 @@ const COMMAND_HISTORY: usize = 4096;
 /// Ordinary sample-to-sample changes are measured over this many samples
 /// before and after the switch.
 const BEFORE_SWITCH: u64 = 100;
+/// The shortest span the loop's pace is measured over.
+const PACE_MIN_SPAN: Duration = Duration::from_millis(100);
 
 /// What one swap or restart did.
 #[derive(Debug, Clone)]
@@ -613,12 +615,7 @@ impl Conductor {
         let now_seq = self.last_seq.unwrap_or(0);
         // Far enough ahead that every process sees the announcement first:
         // 50 ms at the loop's real pace (lockstep runs faster than its rate).
-        let observed = match (self.pace.front(), self.pace.back()) {
-            (Some((t0, s0)), Some((t1, s1))) if t1 > t0 => {
-                (s1 - s0) as f64 / t1.duration_since(*t0).as_secs_f64()
-            }
-            _ => 0.0,
-        };
+        let observed = observed_pace(&self.pace).unwrap_or(0.0);
         let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
         let from_seq = now_seq + margin;
         self.announce(role, generation, from_seq)?;
@@ -724,6 +721,16 @@ impl Conductor {
     }
 }
 
+/// Samples per second over the (when, newest sample) points, once they
+/// span [`PACE_MIN_SPAN`]: over a shorter span one poll that drains a
+/// backlog reads as a burst (two polls 70 µs apart at the loop's start once
+/// gave 2.3 MHz, and a boundary 11 s away that the run never reached).
+fn observed_pace(pace: &VecDeque<(Instant, u64)>) -> Option<f64> {
+    let ((t0, s0), (t1, s1)) = (pace.front()?, pace.back()?);
+    let span = t1.checked_duration_since(*t0)?;
+    (span >= PACE_MIN_SPAN).then(|| s1.saturating_sub(*s0) as f64 / span.as_secs_f64())
+}
+
 /// Request files waiting for the supervisor, oldest first.
 fn pending_requests(run_dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(run_dir.join(REQUESTS_DIR)) else {
@@ -776,4 +783,25 @@ pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value
     }
     let _ = std::fs::remove_file(&request);
     Err("the supervisor did not answer the swap request".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pace_needs_a_long_enough_span() {
+        let t0 = Instant::now();
+        // A backlog drained by two polls 70 µs apart is no pace at all.
+        let burst = VecDeque::from([(t0, 94), (t0 + Duration::from_micros(70), 258)]);
+        assert_eq!(observed_pace(&burst), None);
+        assert_eq!(observed_pace(&VecDeque::new()), None);
+        let steady = VecDeque::from([
+            (t0, 1000),
+            (t0 + Duration::from_millis(50), 1500),
+            (t0 + Duration::from_millis(200), 3000),
+        ]);
+        let pace = observed_pace(&steady).unwrap();
+        assert!((pace - 10_000.0).abs() < 1e-6, "{pace}");
+    }
 }

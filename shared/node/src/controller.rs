@@ -4,6 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
+use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
@@ -19,6 +20,7 @@ const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 100_000_000;
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
+    let clock = StartupClock::start();
     let (scenario, design) = args.load()?;
     let mut core = ControllerCore::new(&design, args.generation);
     core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
@@ -91,6 +93,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // an estimate one tick old (counted) costs less than a missed command.
     let estimate_wait_ns = period_ns / 2;
 
+    if args.join {
+        clock.report_joined(args.role);
+    }
     let mut backlog = Backlog::default();
     let mut takeover = Takeover::default();
     let mut shadow_command = Command::default();

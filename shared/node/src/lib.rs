@@ -11,6 +11,7 @@ pub mod observer;
 pub mod plant;
 pub mod recording;
 pub mod run_metadata;
+pub mod startup;
 pub mod summary;
 
 use std::fmt;

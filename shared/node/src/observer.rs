@@ -4,6 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
+use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
@@ -14,6 +15,7 @@ use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_transport::{Domain, Inlet, Outlet};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
+    let clock = StartupClock::start();
     let (scenario, design) = args.load()?;
     let mut core = ObserverCore::for_design(&design)
         .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
@@ -87,6 +89,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         estimates.notify()?;
     }
 
+    if args.join {
+        clock.report_joined(args.role);
+    }
     let mut handovers = HandoverRing::default();
     let mut shadow_estimate = Box::<Estimate>::default();
     let mut copied = false;
