@@ -6,9 +6,11 @@
 use crate::supervisor::{Outcome, RunningLoop};
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
-    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, OBSERVER_STATE,
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY,
+    OBSERVER_STATE,
 };
-use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, flags};
+use flexloop_protocol::handover::{ACTIVE, CATCHING_UP};
+use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_scenario::schema::{RestartPolicy, SafeAction};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
@@ -32,6 +34,22 @@ const COMMAND_HISTORY: usize = 4096;
 const BEFORE_SWITCH: u64 = 100;
 /// The shortest span the loop's pace is measured over.
 const PACE_MIN_SPAN: Duration = Duration::from_millis(100);
+/// How far back the supervisor keeps measurements for a restarted observer:
+/// the crash noticed (20 ms), the back-off (100 ms, doubled per restart), the
+/// replacement's start-up (tens of ms), with room to spare.
+const REPLAY_SPAN: Duration = Duration::from_secs(2);
+const MAX_REPLAY_SAMPLES: usize = 1 << 16;
+/// Replayed measurements in flight at most: the replay queue's depth.
+const REPLAY_WINDOW: u64 = MEASUREMENT_REPLAY.qos.loop_buffer_size as u64;
+
+/// The replay to one restarted observer.
+struct ReplayFeed {
+    generation: u32,
+    /// The next measurement to replay.
+    next: u64,
+    /// The last one the observer reported having stepped.
+    progress: u64,
+}
 
 /// What one swap or restart did.
 #[derive(Debug, Clone)]
@@ -76,6 +94,14 @@ pub struct Conductor {
     commands: Inlet<Command>,
     /// Opened once the loop runs: the observer counts its readers at start-up.
     estimates: Option<Inlet<Estimate>>,
+    /// Opened once the loop runs too (the plant counts its readers): fills
+    /// `recent_measurements`.
+    measurements: Option<Inlet<Measurement>>,
+    /// The last [`REPLAY_SPAN`] of measurements, oldest first, for an
+    /// observer restarted after a crash (see `flexloop_node::replay`).
+    recent_measurements: VecDeque<Measurement>,
+    replay_out: Outlet<Measurement>,
+    replay: Option<ReplayFeed>,
     node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -123,6 +149,9 @@ impl Conductor {
             Outlet::<Handover>::open(&node, &CONTROLLER_STATE).map_err(err)?,
             Outlet::<Handover>::open(&node, &OBSERVER_STATE).map_err(err)?,
         ];
+        let replay_out = Outlet::<Measurement>::open(&node, &MEASUREMENT_REPLAY).map_err(err)?;
+        let replay_capacity = ((scenario.timing.rate_hz * REPLAY_SPAN.as_secs_f64()) as usize)
+            .clamp(1024, MAX_REPLAY_SAMPLES);
         let current = Activation {
             published_ns: flexloop_runtime::monotonic_ns(),
             ..Activation::INITIAL
@@ -137,6 +166,10 @@ impl Conductor {
             observer_states,
             commands,
             estimates: None,
+            measurements: None,
+            recent_measurements: VecDeque::with_capacity(replay_capacity),
+            replay_out,
+            replay: None,
             node,
             domain,
             current,
@@ -168,6 +201,22 @@ impl Conductor {
         if self.estimates.is_none() && self.last_seq.is_some() {
             self.estimates = Inlet::<Estimate>::open_polling(&self.node, &ESTIMATE, 16).ok();
         }
+        if self.measurements.is_none() && self.last_seq.is_some() {
+            self.measurements = Inlet::<Measurement>::open_polling(
+                &self.node,
+                &MEASUREMENT,
+                MEASUREMENT.qos.logger_buffer_size,
+            )
+            .ok();
+        }
+        if let Some(measurements) = &self.measurements {
+            while let Ok(Some(m)) = measurements.receive() {
+                if self.recent_measurements.len() == self.recent_measurements.capacity() {
+                    self.recent_measurements.pop_front();
+                }
+                self.recent_measurements.push_back(*m);
+            }
+        }
         if let Some(estimates) = &self.estimates {
             while let Ok(Some(e)) = estimates.receive() {
                 let seq = e.seq.saturating_sub(1);
@@ -180,7 +229,13 @@ impl Conductor {
                 _ => &self.observer_states,
             };
             while let Ok(Some(h)) = inlet.receive() {
-                if h.shadow != 0 {
+                if h.shadow == CATCHING_UP {
+                    if let Some(feed) = &mut self.replay
+                        && feed.generation == h.generation
+                    {
+                        feed.progress = feed.progress.max(h.seq);
+                    }
+                } else if h.shadow != ACTIVE {
                     if !self.shadows_seen.contains(&(role, h.generation)) {
                         self.shadows_seen.push((role, h.generation));
                     }
@@ -568,6 +623,9 @@ impl Conductor {
                     .all(|c| c.exit.is_some())
             {
                 let _ = self.states_out[slot].publish(|h| *h = last);
+                if role == Role::Observer {
+                    self.feed_replay(generation, last.seq);
+                }
             }
             if flexloop_runtime::shutdown::requested()
                 || running.child(Role::Plant).is_some_and(|p| p.exit.is_some())
@@ -598,6 +656,36 @@ impl Conductor {
                 ));
             }
             std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// Replays to the restarted observer `generation` the measurements after
+    /// the dead predecessor's last state (after `state_seq`), no further
+    /// than [`REPLAY_WINDOW`] past the progress it reported, so that its
+    /// queue never overflows. A ring that no longer holds the first of them
+    /// replays from its oldest: the observer sees the hole and says so.
+    fn feed_replay(&mut self, generation: u32, state_seq: u64) {
+        // Nothing before the observer listens: the channel keeps no history.
+        if self.replay_out.subscribers() == 0 {
+            return;
+        }
+        let feed = match &mut self.replay {
+            Some(feed) if feed.generation == generation => feed,
+            _ => self.replay.insert(ReplayFeed {
+                generation,
+                next: state_seq + 1,
+                progress: state_seq,
+            }),
+        };
+        let limit = feed.progress + REPLAY_WINDOW;
+        let first = self
+            .recent_measurements
+            .partition_point(|m| m.seq < feed.next);
+        for m in self.recent_measurements.range(first..) {
+            if m.seq > limit || self.replay_out.publish(|r| *r = *m).is_err() {
+                break;
+            }
+            feed.next = m.seq + 1;
         }
     }
 

@@ -8,6 +8,7 @@ use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
+use flexloop_protocol::handover::{ACTIVE, FOLLOWING};
 use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
@@ -203,14 +204,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     c.published_ns = monotonic_ns();
                 })?;
             }
-            publish_state(
-                &states_out,
-                m.seq,
-                args.generation,
-                true,
-                &shadow_command.u[..design.n_inputs],
-                |h| core.save(h),
-            )?;
+            // Following only once a handed-over state is there (as the
+            // observer: after a crash the supervisor hands the dead one's on
+            // until it sees this instance follow).
+            if handovers.newest().is_some() {
+                publish_state(
+                    &states_out,
+                    m.seq,
+                    args.generation,
+                    FOLLOWING,
+                    &shadow_command.u[..design.n_inputs],
+                    |h| core.save(h),
+                )?;
+            }
             // A shadow ends with the run like everyone else.
             done = m.flags & flags::END_OF_RUN != 0;
             continue;
@@ -244,7 +250,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             &states_out,
             m.seq,
             args.generation,
-            false,
+            ACTIVE,
             &sent_u[..design.n_inputs],
             |h| core.save(h),
         )?;

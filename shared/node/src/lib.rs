@@ -10,6 +10,7 @@ pub mod logger;
 pub mod observer;
 pub mod plant;
 pub mod recording;
+pub mod replay;
 pub mod run_metadata;
 pub mod startup;
 pub mod summary;
