@@ -570,7 +570,57 @@ impl Conductor {
             json!({"scenario": scenario_path.display().to_string(), "switch": switch.json()}),
         );
         self.switches.push(switch.clone());
+        if role == Role::Controller {
+            self.renew_standby(running);
+        }
         Ok(switch)
+    }
+
+    /// After a swap to another controller design the standby must follow
+    /// the new one: with the old design it can neither copy the active
+    /// state nor compute the command the active one would have sent, and a
+    /// promotion would step. A standby of the new design starts; once it
+    /// follows the loop, the old one is stopped (until then it covers).
+    fn renew_standby(&mut self, running: &mut RunningLoop) {
+        if self.scenario.supervision.safe_action != SafeAction::Standby {
+            return;
+        }
+        let Some(active) = running.child(Role::Controller).map(|c| c.scenario.clone()) else {
+            return;
+        };
+        let old: Vec<(i32, u32)> = running
+            .children
+            .iter()
+            .filter(|c| c.standby && c.exit.is_none() && c.scenario != active)
+            .map(|c| (c.pid, c.generation))
+            .collect();
+        if old.is_empty() {
+            return;
+        }
+        let generation = self.next_generation(running, Role::Controller);
+        let started = running.start_standby(&active, generation).and_then(|pid| {
+            self.await_shadow(running, Role::Controller, generation)
+                .inspect_err(|_| running.terminate(pid))
+                .map(|_| pid)
+        });
+        match started {
+            Ok(pid) => {
+                for (pid, _) in &old {
+                    running.terminate(*pid);
+                }
+                let replaced: Vec<u32> = old.iter().map(|(_, g)| *g).collect();
+                self.event(
+                    "standby",
+                    Role::Controller,
+                    generation,
+                    json!({"pid": pid, "scenario": active.display().to_string(), "replaces": replaced}),
+                );
+            }
+            Err(e) => {
+                // The old standby stays: better one of the old design than none.
+                self.event("standby-failed", Role::Controller, generation, json!(e));
+            }
+        }
     }
 
     /// The replacement must fit the running loop: same rate, mode and plant,

@@ -456,3 +456,97 @@ fn a_restarted_observer_replays_its_way_to_the_state_the_crashed_one_would_have_
     );
     assert_clean(&dir);
 }
+
+#[test]
+fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
+    let dir = temp_dir("swap-standby-retuned");
+    // Two-inertia, a PID in the controller retuned from 5 to 4 Hz; lockstep,
+    // so that every instance sees every estimate in time.
+    let text = std::fs::read_to_string(scenario("two-inertia")).unwrap();
+    assert!(text.contains("bandwidth_hz = 5.0"));
+    let with_standby = format!("{text}\n[supervision]\nsafe_action = \"standby\"\n");
+    let (file, retuned) = (dir.join("standby.toml"), dir.join("retuned.toml"));
+    std::fs::write(&file, &with_standby).unwrap();
+    std::fs::write(
+        &retuned,
+        with_standby.replace("bandwidth_hz = 5.0", "bandwidth_hz = 4.0"),
+    )
+    .unwrap();
+    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 100);
+    let standbys = |dir: &Path| -> Vec<String> {
+        processes_mentioning(&dir.display().to_string())
+            .into_iter()
+            .filter(|p| p.contains("flexloop-controller") && p.contains("--standby"))
+            .collect()
+    };
+    let since = Instant::now();
+    while standbys(&dir).is_empty() {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no standby started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    swap(&prefix, "controller", &retuned);
+    // The swap returns once the new standby follows and the old one is
+    // told to stop: one standby is left, of the new design.
+    let since = Instant::now();
+    loop {
+        let running = standbys(&dir);
+        if running.len() == 1 && running[0].contains("retuned.toml") {
+            break;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "standbys after the swap: {running:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let renewed = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "standby" && e["detail"]["replaces"].is_array())
+        .expect("a standby event for the renewal");
+    assert!(
+        renewed["detail"]["scenario"]
+            .as_str()
+            .unwrap()
+            .ends_with("retuned.toml")
+    );
+    // It follows the new controller: its commands (kept by the plant for a
+    // fallback, recorded by the logger) are the active one's, bit for bit,
+    // whenever it found the active state of the sample before (it acts on
+    // the newest sample only and may miss one when it lags: the promotion
+    // copies the state anyway). A standby of the old design matches none.
+    std::thread::sleep(Duration::from_millis(300));
+    stop(&prefix, child);
+    let standby_generation = renewed["generation"].as_u64().unwrap() as u32;
+    let active_generation = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "swap")
+        .unwrap()["generation"]
+        .as_u64()
+        .unwrap() as u32;
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let active: HashMap<u64, [f64; 8]> = log
+        .commands()
+        .filter(|c| c.generation == active_generation && c.flags & flags::STANDBY == 0)
+        .map(|c| (c.seq, c.u))
+        .collect();
+    let (mut compared, mut identical) = (0, 0);
+    for c in log
+        .commands()
+        .filter(|c| c.generation == standby_generation && c.flags & flags::STANDBY != 0)
+    {
+        if let Some(u) = active.get(&c.seq) {
+            compared += 1;
+            identical += usize::from(c.u == *u);
+        }
+    }
+    assert!(compared > 100, "{compared} standby commands compared");
+    assert!(
+        identical * 2 > compared,
+        "{identical} of {compared} standby commands identical to the active one's"
+    );
+    assert_clean(&dir);
+}
