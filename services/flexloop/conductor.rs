@@ -483,7 +483,7 @@ impl Conductor {
             return promoted;
         }
         let generation = self.next_generation(running, role);
-        let pid = running.start_replacement(role, &scenario, generation)?;
+        let pid = running.start_restart(role, &scenario, generation)?;
         if self.last_seq.is_none() && role != Role::Logger {
             // Before tick 0 there is nothing to take over: the replacement
             // owns every sample and starts the loop as the first one would.

@@ -29,16 +29,16 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
-    // A replacement's queue holds what arrives while it catches up (see
+    // A restart's queue holds what arrives while it catches up (see
     // `catch_up`): 51 ms at 10 kHz.
-    let depth = if args.join {
+    let depth = if args.restart {
         MEASUREMENT.qos.logger_buffer_size
     } else {
         MEASUREMENT.qos.loop_buffer_size
     };
     let measurements =
         Inlet::<Measurement>::open_woken_by(&node, &MEASUREMENT, &OBSERVER_WAKEUP, depth)?;
-    let replay = if args.join {
+    let replay = if args.restart {
         Some(Inlet::<Measurement>::open_polling(
             &node,
             &MEASUREMENT_REPLAY,
