@@ -6,9 +6,11 @@
 use crate::supervisor::{Outcome, RunningLoop};
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
-    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, OBSERVER_STATE,
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY,
+    OBSERVER_STATE,
 };
-use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, flags};
+use flexloop_protocol::handover::{ACTIVE, CATCHING_UP};
+use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_scenario::schema::{RestartPolicy, SafeAction};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
@@ -30,6 +32,24 @@ const COMMAND_HISTORY: usize = 4096;
 /// Ordinary sample-to-sample changes are measured over this many samples
 /// before and after the switch.
 const BEFORE_SWITCH: u64 = 100;
+/// The shortest span the loop's pace is measured over.
+const PACE_MIN_SPAN: Duration = Duration::from_millis(100);
+/// How far back the supervisor keeps measurements for a restarted observer:
+/// the crash noticed (20 ms), the back-off (100 ms, doubled per restart), the
+/// replacement's start-up (tens of ms), with room to spare.
+const REPLAY_SPAN: Duration = Duration::from_secs(2);
+const MAX_REPLAY_SAMPLES: usize = 1 << 16;
+/// Replayed measurements in flight at most: the replay queue's depth.
+const REPLAY_WINDOW: u64 = MEASUREMENT_REPLAY.qos.loop_buffer_size as u64;
+
+/// The replay to one restarted observer.
+struct ReplayFeed {
+    generation: u32,
+    /// The next measurement to replay.
+    next: u64,
+    /// The last one the observer reported having stepped.
+    progress: u64,
+}
 
 /// What one swap or restart did.
 #[derive(Debug, Clone)]
@@ -74,6 +94,14 @@ pub struct Conductor {
     commands: Inlet<Command>,
     /// Opened once the loop runs: the observer counts its readers at start-up.
     estimates: Option<Inlet<Estimate>>,
+    /// Opened once the loop runs too (the plant counts its readers): fills
+    /// `recent_measurements`.
+    measurements: Option<Inlet<Measurement>>,
+    /// The last [`REPLAY_SPAN`] of measurements, oldest first, for an
+    /// observer restarted after a crash (see `flexloop_node::replay`).
+    recent_measurements: VecDeque<Measurement>,
+    replay_out: Outlet<Measurement>,
+    replay: Option<ReplayFeed>,
     node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -121,6 +149,9 @@ impl Conductor {
             Outlet::<Handover>::open(&node, &CONTROLLER_STATE).map_err(err)?,
             Outlet::<Handover>::open(&node, &OBSERVER_STATE).map_err(err)?,
         ];
+        let replay_out = Outlet::<Measurement>::open(&node, &MEASUREMENT_REPLAY).map_err(err)?;
+        let replay_capacity = ((scenario.timing.rate_hz * REPLAY_SPAN.as_secs_f64()) as usize)
+            .clamp(1024, MAX_REPLAY_SAMPLES);
         let current = Activation {
             published_ns: flexloop_runtime::monotonic_ns(),
             ..Activation::INITIAL
@@ -135,6 +166,10 @@ impl Conductor {
             observer_states,
             commands,
             estimates: None,
+            measurements: None,
+            recent_measurements: VecDeque::with_capacity(replay_capacity),
+            replay_out,
+            replay: None,
             node,
             domain,
             current,
@@ -166,6 +201,22 @@ impl Conductor {
         if self.estimates.is_none() && self.last_seq.is_some() {
             self.estimates = Inlet::<Estimate>::open_polling(&self.node, &ESTIMATE, 16).ok();
         }
+        if self.measurements.is_none() && self.last_seq.is_some() {
+            self.measurements = Inlet::<Measurement>::open_polling(
+                &self.node,
+                &MEASUREMENT,
+                MEASUREMENT.qos.logger_buffer_size,
+            )
+            .ok();
+        }
+        if let Some(measurements) = &self.measurements {
+            while let Ok(Some(m)) = measurements.receive() {
+                if self.recent_measurements.len() == self.recent_measurements.capacity() {
+                    self.recent_measurements.pop_front();
+                }
+                self.recent_measurements.push_back(*m);
+            }
+        }
         if let Some(estimates) = &self.estimates {
             while let Ok(Some(e)) = estimates.receive() {
                 let seq = e.seq.saturating_sub(1);
@@ -178,7 +229,13 @@ impl Conductor {
                 _ => &self.observer_states,
             };
             while let Ok(Some(h)) = inlet.receive() {
-                if h.shadow != 0 {
+                if h.shadow == CATCHING_UP {
+                    if let Some(feed) = &mut self.replay
+                        && feed.generation == h.generation
+                    {
+                        feed.progress = feed.progress.max(h.seq);
+                    }
+                } else if h.shadow != ACTIVE {
                     if !self.shadows_seen.contains(&(role, h.generation)) {
                         self.shadows_seen.push((role, h.generation));
                     }
@@ -426,7 +483,7 @@ impl Conductor {
             return promoted;
         }
         let generation = self.next_generation(running, role);
-        let pid = running.start_replacement(role, &scenario, generation)?;
+        let pid = running.start_restart(role, &scenario, generation)?;
         if self.last_seq.is_none() && role != Role::Logger {
             // Before tick 0 there is nothing to take over: the replacement
             // owns every sample and starts the loop as the first one would.
@@ -513,7 +570,57 @@ impl Conductor {
             json!({"scenario": scenario_path.display().to_string(), "switch": switch.json()}),
         );
         self.switches.push(switch.clone());
+        if role == Role::Controller {
+            self.renew_standby(running);
+        }
         Ok(switch)
+    }
+
+    /// After a swap to another controller design the standby must follow
+    /// the new one: with the old design it can neither copy the active
+    /// state nor compute the command the active one would have sent, and a
+    /// promotion would step. A standby of the new design starts; once it
+    /// follows the loop, the old one is stopped (until then it covers).
+    fn renew_standby(&mut self, running: &mut RunningLoop) {
+        if self.scenario.supervision.safe_action != SafeAction::Standby {
+            return;
+        }
+        let Some(active) = running.child(Role::Controller).map(|c| c.scenario.clone()) else {
+            return;
+        };
+        let old: Vec<(i32, u32)> = running
+            .children
+            .iter()
+            .filter(|c| c.standby && c.exit.is_none() && c.scenario != active)
+            .map(|c| (c.pid, c.generation))
+            .collect();
+        if old.is_empty() {
+            return;
+        }
+        let generation = self.next_generation(running, Role::Controller);
+        let started = running.start_standby(&active, generation).and_then(|pid| {
+            self.await_shadow(running, Role::Controller, generation)
+                .inspect_err(|_| running.terminate(pid))
+                .map(|_| pid)
+        });
+        match started {
+            Ok(pid) => {
+                for (pid, _) in &old {
+                    running.terminate(*pid);
+                }
+                let replaced: Vec<u32> = old.iter().map(|(_, g)| *g).collect();
+                self.event(
+                    "standby",
+                    Role::Controller,
+                    generation,
+                    json!({"pid": pid, "scenario": active.display().to_string(), "replaces": replaced}),
+                );
+            }
+            Err(e) => {
+                // The old standby stays: better one of the old design than none.
+                self.event("standby-failed", Role::Controller, generation, json!(e));
+            }
+        }
     }
 
     /// The replacement must fit the running loop: same rate, mode and plant,
@@ -566,6 +673,9 @@ impl Conductor {
                     .all(|c| c.exit.is_some())
             {
                 let _ = self.states_out[slot].publish(|h| *h = last);
+                if role == Role::Observer {
+                    self.feed_replay(generation, last.seq);
+                }
             }
             if flexloop_runtime::shutdown::requested()
                 || running.child(Role::Plant).is_some_and(|p| p.exit.is_some())
@@ -599,6 +709,36 @@ impl Conductor {
         }
     }
 
+    /// Replays to the restarted observer `generation` the measurements after
+    /// the dead predecessor's last state (after `state_seq`), no further
+    /// than [`REPLAY_WINDOW`] past the progress it reported, so that its
+    /// queue never overflows. A ring that no longer holds the first of them
+    /// replays from its oldest: the observer sees the hole and says so.
+    fn feed_replay(&mut self, generation: u32, state_seq: u64) {
+        // Nothing before the observer listens: the channel keeps no history.
+        if self.replay_out.subscribers() == 0 {
+            return;
+        }
+        let feed = match &mut self.replay {
+            Some(feed) if feed.generation == generation => feed,
+            _ => self.replay.insert(ReplayFeed {
+                generation,
+                next: state_seq + 1,
+                progress: state_seq,
+            }),
+        };
+        let limit = feed.progress + REPLAY_WINDOW;
+        let first = self
+            .recent_measurements
+            .partition_point(|m| m.seq < feed.next);
+        for m in self.recent_measurements.range(first..) {
+            if m.seq > limit || self.replay_out.publish(|r| *r = *m).is_err() {
+                break;
+            }
+            feed.next = m.seq + 1;
+        }
+    }
+
     /// Announces the boundary, waits until the loop passed it (and the old
     /// instance, if any, exited), and measures the command's step there.
     fn activate_and_measure(
@@ -613,12 +753,7 @@ impl Conductor {
         let now_seq = self.last_seq.unwrap_or(0);
         // Far enough ahead that every process sees the announcement first:
         // 50 ms at the loop's real pace (lockstep runs faster than its rate).
-        let observed = match (self.pace.front(), self.pace.back()) {
-            (Some((t0, s0)), Some((t1, s1))) if t1 > t0 => {
-                (s1 - s0) as f64 / t1.duration_since(*t0).as_secs_f64()
-            }
-            _ => 0.0,
-        };
+        let observed = observed_pace(&self.pace).unwrap_or(0.0);
         let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
         let from_seq = now_seq + margin;
         self.announce(role, generation, from_seq)?;
@@ -732,6 +867,16 @@ impl Conductor {
     }
 }
 
+/// Samples per second over the (when, newest sample) points, once they
+/// span [`PACE_MIN_SPAN`]: over a shorter span one poll that drains a
+/// backlog reads as a burst (two polls 70 µs apart at the loop's start once
+/// gave 2.3 MHz, and a boundary 11 s away that the run never reached).
+fn observed_pace(pace: &VecDeque<(Instant, u64)>) -> Option<f64> {
+    let ((t0, s0), (t1, s1)) = (pace.front()?, pace.back()?);
+    let span = t1.checked_duration_since(*t0)?;
+    (span >= PACE_MIN_SPAN).then(|| s1.saturating_sub(*s0) as f64 / span.as_secs_f64())
+}
+
 /// Request files waiting for the supervisor, oldest first.
 fn pending_requests(run_dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(run_dir.join(REQUESTS_DIR)) else {
@@ -784,4 +929,25 @@ pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value
     }
     let _ = std::fs::remove_file(&request);
     Err("the supervisor did not answer the swap request".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pace_needs_a_long_enough_span() {
+        let t0 = Instant::now();
+        // A backlog drained by two polls 70 µs apart is no pace at all.
+        let burst = VecDeque::from([(t0, 94), (t0 + Duration::from_micros(70), 258)]);
+        assert_eq!(observed_pace(&burst), None);
+        assert_eq!(observed_pace(&VecDeque::new()), None);
+        let steady = VecDeque::from([
+            (t0, 1000),
+            (t0 + Duration::from_millis(50), 1500),
+            (t0 + Duration::from_millis(200), 3000),
+        ]);
+        let pace = observed_pace(&steady).unwrap();
+        assert!((pace - 10_000.0).abs() < 1e-6, "{pace}");
+    }
 }

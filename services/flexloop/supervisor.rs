@@ -111,6 +111,8 @@ enum Joining {
     AsReplacement,
     /// A running loop, as the standby controller.
     AsStandby,
+    /// A running loop, in place of an instance that crashed.
+    AsRestart,
 }
 
 fn spawn(
@@ -132,6 +134,9 @@ fn spawn(
         }
         Joining::AsStandby => {
             cmd.arg("--standby");
+        }
+        Joining::AsRestart => {
+            cmd.arg("--restart");
         }
     }
     cmd.arg("--scenario")
@@ -219,6 +224,16 @@ impl RunningLoop {
         generation: u32,
     ) -> Result<i32, String> {
         self.start_joining(role, scenario, generation, Joining::AsReplacement)
+    }
+
+    /// Starts another instance of `role` in place of one that crashed.
+    pub fn start_restart(
+        &mut self,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+    ) -> Result<i32, String> {
+        self.start_joining(role, scenario, generation, Joining::AsRestart)
     }
 
     /// Starts a standby controller that follows the running loop.

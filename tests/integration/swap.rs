@@ -2,12 +2,13 @@
 //! and a plant that refuses commands it must not apply.
 
 use crate::util::*;
-use flexloop_components::{InProcessLoop, LogReader};
+use flexloop_components::{InProcessLoop, LogReader, ObserverCore};
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
-use flexloop_protocol::{Command, Measurement, flags};
+use flexloop_protocol::{Command, Estimate, Measurement, flags};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, Outlet};
 use serde_json::Value;
+use std::collections::HashMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -381,4 +382,171 @@ fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
         assert!(log.measurements().last().unwrap().flags & flags::END_OF_RUN != 0);
         assert_clean(&dir);
     }
+}
+
+#[test]
+fn a_restarted_observer_replays_its_way_to_the_state_the_crashed_one_would_have_had() {
+    let dir = temp_dir("swap-observer-replay");
+    let (child, prefix) = start(&dir, "two-inertia", &["--rate", "1000"]);
+    wait_for_ticks(&dir, 300);
+    let pid = *pids_of(&dir, "observer").last().expect("an observer");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let since = Instant::now();
+    while !events(&dir)
+        .iter()
+        .any(|e| e["kind"] == "restart" && e["role"] == "observer")
+    {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "observer did not come back: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Some estimates of the restarted observer's own.
+    std::thread::sleep(Duration::from_millis(300));
+    stop(&prefix, child);
+    let said = std::fs::read_to_string(dir.join("observer.g1.stderr")).unwrap();
+    assert!(
+        said.contains("replayed") && !said.contains("hole"),
+        "{said}"
+    );
+
+    // The observer that never stopped: designed from the same file and
+    // stepped here through every measurement the plant published.
+    let overrides = Overrides {
+        rate_hz: Some(1000.0),
+        ..Overrides::default()
+    };
+    let file = scenario("two-inertia");
+    let design = LoopDesign::from_scenario(&Scenario::load(&file, &overrides).unwrap()).unwrap();
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let seqs: Vec<u64> = log.measurements().map(|m| m.seq).collect();
+    assert!(seqs[0] == 0 && seqs.windows(2).all(|w| w[1] == w[0] + 1));
+    let mut uninterrupted = ObserverCore::for_design(&design).unwrap();
+    let mut expected = HashMap::new();
+    for m in log.measurements() {
+        let mut e = Estimate::default();
+        uninterrupted.step(m, &mut e);
+        expected.insert(e.seq, e);
+    }
+    // Every estimate the restarted observer published is that one's.
+    let mut compared = 0;
+    for e in log.estimates().filter(|e| e.generation == 1) {
+        let x = &expected[&e.seq];
+        let scale = x.x_hat.iter().fold(1e-9_f64, |a, v| a.max(v.abs()));
+        for (got, want) in e
+            .x_hat
+            .iter()
+            .chain(&e.free)
+            .zip(x.x_hat.iter().chain(&x.free))
+        {
+            assert!(
+                (got - want).abs() <= 1e-12 * scale,
+                "estimate {}: {got} against {want} uninterrupted",
+                e.seq
+            );
+        }
+        compared += 1;
+    }
+    assert!(
+        compared > 100,
+        "{compared} estimates of the restarted observer"
+    );
+    assert_clean(&dir);
+}
+
+#[test]
+fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
+    let dir = temp_dir("swap-standby-retuned");
+    // Two-inertia, a PID in the controller retuned from 5 to 4 Hz; lockstep,
+    // so that every instance sees every estimate in time.
+    let text = std::fs::read_to_string(scenario("two-inertia")).unwrap();
+    assert!(text.contains("bandwidth_hz = 5.0"));
+    let with_standby = format!("{text}\n[supervision]\nsafe_action = \"standby\"\n");
+    let (file, retuned) = (dir.join("standby.toml"), dir.join("retuned.toml"));
+    std::fs::write(&file, &with_standby).unwrap();
+    std::fs::write(
+        &retuned,
+        with_standby.replace("bandwidth_hz = 5.0", "bandwidth_hz = 4.0"),
+    )
+    .unwrap();
+    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 100);
+    let standbys = |dir: &Path| -> Vec<String> {
+        processes_mentioning(&dir.display().to_string())
+            .into_iter()
+            .filter(|p| p.contains("flexloop-controller") && p.contains("--standby"))
+            .collect()
+    };
+    let since = Instant::now();
+    while standbys(&dir).is_empty() {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no standby started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    swap(&prefix, "controller", &retuned);
+    // The swap returns once the new standby follows and the old one is
+    // told to stop: one standby is left, of the new design.
+    let since = Instant::now();
+    loop {
+        let running = standbys(&dir);
+        if running.len() == 1 && running[0].contains("retuned.toml") {
+            break;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "standbys after the swap: {running:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let renewed = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "standby" && e["detail"]["replaces"].is_array())
+        .expect("a standby event for the renewal");
+    assert!(
+        renewed["detail"]["scenario"]
+            .as_str()
+            .unwrap()
+            .ends_with("retuned.toml")
+    );
+    // It follows the new controller: its commands (kept by the plant for a
+    // fallback, recorded by the logger) are the active one's, bit for bit,
+    // whenever it found the active state of the sample before (it acts on
+    // the newest sample only and may miss one when it lags: the promotion
+    // copies the state anyway). A standby of the old design matches none.
+    std::thread::sleep(Duration::from_millis(300));
+    stop(&prefix, child);
+    let standby_generation = renewed["generation"].as_u64().unwrap() as u32;
+    let active_generation = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "swap")
+        .unwrap()["generation"]
+        .as_u64()
+        .unwrap() as u32;
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let active: HashMap<u64, [f64; 8]> = log
+        .commands()
+        .filter(|c| c.generation == active_generation && c.flags & flags::STANDBY == 0)
+        .map(|c| (c.seq, c.u))
+        .collect();
+    let (mut compared, mut identical) = (0, 0);
+    for c in log
+        .commands()
+        .filter(|c| c.generation == standby_generation && c.flags & flags::STANDBY != 0)
+    {
+        if let Some(u) = active.get(&c.seq) {
+            compared += 1;
+            identical += usize::from(c.u == *u);
+        }
+    }
+    assert!(compared > 100, "{compared} standby commands compared");
+    assert!(
+        identical * 2 > compared,
+        "{identical} of {compared} standby commands identical to the active one's"
+    );
+    assert_clean(&dir);
 }

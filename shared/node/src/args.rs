@@ -43,9 +43,13 @@ pub struct ServiceArgs {
     /// A controller that follows the active one in shadow and publishes its
     /// commands for the plant's safe action (scenario `safe_action = "standby"`).
     pub standby: bool,
+    /// Replaces an instance that crashed (implies `join`): its last state
+    /// comes from the supervisor, which replays the measurements since to
+    /// an observer.
+    pub restart: bool,
 }
 
-pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby]";
+pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby] [--restart]";
 
 impl ServiceArgs {
     pub fn parse(role: Role, args: impl IntoIterator<Item = OsString>) -> Result<Self, NodeError> {
@@ -59,6 +63,7 @@ impl ServiceArgs {
         let mut generation = 0;
         let mut join = false;
         let mut standby = false;
+        let mut restart = false;
         while let Some(arg) = parser.next().map_err(|e| usage(e.to_string()))? {
             let value = |p: &mut lexopt::Parser| -> Result<String, NodeError> {
                 p.value()
@@ -92,6 +97,7 @@ impl ServiceArgs {
                 Long("no-realtime") => overrides.no_realtime = true,
                 Long("join") => join = true,
                 Long("standby") if role == Role::Controller => standby = true,
+                Long("restart") => restart = true,
                 Long("generation") => {
                     generation = value(&mut parser)?
                         .parse()
@@ -112,8 +118,9 @@ impl ServiceArgs {
             run_dir: run_dir.ok_or_else(|| usage("--run-dir is required".into()))?,
             overrides,
             generation,
-            join: join || standby,
+            join: join || standby || restart,
             standby,
+            restart,
         })
     }
 
@@ -189,6 +196,24 @@ mod tests {
         assert_eq!(a.overrides.rate_hz, Some(2000.0));
         assert_eq!(a.overrides.mode, Some(Mode::Lockstep));
         assert!(a.overrides.no_realtime);
+    }
+
+    #[test]
+    fn a_restart_joins_the_running_loop() {
+        let a = ServiceArgs::parse(
+            Role::Observer,
+            os(&[
+                "--scenario",
+                "s",
+                "--prefix",
+                "p",
+                "--run-dir",
+                "r",
+                "--restart",
+            ]),
+        )
+        .unwrap();
+        assert!(a.restart && a.join && !a.standby);
     }
 
     #[test]

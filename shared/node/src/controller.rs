@@ -4,9 +4,11 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
+use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
+use flexloop_protocol::handover::{ACTIVE, FOLLOWING};
 use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
@@ -19,6 +21,7 @@ const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 100_000_000;
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
+    let clock = StartupClock::start();
     let (scenario, design) = args.load()?;
     let mut core = ControllerCore::new(&design, args.generation);
     core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
@@ -98,6 +101,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // an estimate one tick old (counted) costs less than a missed command.
     let estimate_wait_ns = period_ns / 2;
 
+    if args.join {
+        clock.report_joined(args.role);
+    }
     let mut backlog = Backlog::default();
     let mut takeover = Takeover::default();
     let mut shadow_command = Command::default();
@@ -210,14 +216,19 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     c.published_ns = monotonic_ns();
                 })?;
             }
-            publish_state(
-                &states_out,
-                m.seq,
-                args.generation,
-                true,
-                &shadow_command.u[..design.n_inputs],
-                |h| core.save(h),
-            )?;
+            // Following only once a handed-over state is there (as the
+            // observer: after a crash the supervisor hands the dead one's on
+            // until it sees this instance follow).
+            if handovers.newest().is_some() {
+                publish_state(
+                    &states_out,
+                    m.seq,
+                    args.generation,
+                    FOLLOWING,
+                    &shadow_command.u[..design.n_inputs],
+                    |h| core.save(h),
+                )?;
+            }
             // A shadow ends with the run like everyone else.
             done = m.flags & flags::END_OF_RUN != 0;
             continue;
@@ -251,7 +262,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             &states_out,
             m.seq,
             args.generation,
-            false,
+            ACTIVE,
             &sent_u[..design.n_inputs],
             |h| core.save(h),
         )?;

@@ -90,12 +90,13 @@ impl HandoverRing {
     }
 }
 
-/// Publishes this instance's state after each sample (no notification).
+/// Publishes this instance's state after each sample (no notification);
+/// `shadow`: [`flexloop_protocol::handover::ACTIVE`], `FOLLOWING` or `CATCHING_UP`.
 pub fn publish_state(
     out: &Outlet<Handover>,
     seq: u64,
     generation: u32,
-    shadow: bool,
+    shadow: u32,
     u: &[f64],
     save: impl FnOnce(&mut Handover),
 ) -> Result<(), NodeError> {
@@ -103,7 +104,7 @@ pub fn publish_state(
         save(h);
         h.seq = seq;
         h.generation = generation;
-        h.shadow = u32::from(shadow);
+        h.shadow = shadow;
         h.u[..u.len()].copy_from_slice(u);
     })?;
     Ok(())

@@ -10,7 +10,9 @@ pub mod logger;
 pub mod observer;
 pub mod plant;
 pub mod recording;
+pub mod replay;
 pub mod run_metadata;
+pub mod startup;
 pub mod summary;
 
 use std::fmt;

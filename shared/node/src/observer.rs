@@ -4,16 +4,23 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
+use crate::replay::{CatchUp, Replayed};
+use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
-use flexloop_protocol::channels::{ESTIMATE, MEASUREMENT, OBSERVER_STATE, OBSERVER_WAKEUP};
+use flexloop_protocol::channels::{
+    ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP,
+};
+use flexloop_protocol::handover::{ACTIVE, CATCHING_UP, FOLLOWING};
 use flexloop_protocol::{Estimate, Handover, Measurement, flags};
 use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_transport::{Domain, Inlet, Outlet};
+use std::time::{Duration, Instant};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
+    let clock = StartupClock::start();
     let (scenario, design) = args.load()?;
     let mut core = ObserverCore::for_design(&design)
         .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
@@ -22,12 +29,24 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
-    let measurements = Inlet::<Measurement>::open_woken_by(
-        &node,
-        &MEASUREMENT,
-        &OBSERVER_WAKEUP,
-        MEASUREMENT.qos.loop_buffer_size,
-    )?;
+    // A restart's queue holds what arrives while it catches up (see
+    // `catch_up`): 51 ms at 10 kHz.
+    let depth = if args.restart {
+        MEASUREMENT.qos.logger_buffer_size
+    } else {
+        MEASUREMENT.qos.loop_buffer_size
+    };
+    let measurements =
+        Inlet::<Measurement>::open_woken_by(&node, &MEASUREMENT, &OBSERVER_WAKEUP, depth)?;
+    let replay = if args.restart {
+        Some(Inlet::<Measurement>::open_polling(
+            &node,
+            &MEASUREMENT_REPLAY,
+            MEASUREMENT_REPLAY.qos.loop_buffer_size,
+        )?)
+    } else {
+        None
+    };
     if !await_peers(
         || Ok(measurements.publishers() >= 1),
         || "no measurement publisher (plant)".into(),
@@ -94,6 +113,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         estimates.notify()?;
     }
 
+    if args.join {
+        clock.report_joined(args.role);
+    }
     let mut handovers = HandoverRing::default();
     let mut shadow_estimate = Box::<Estimate>::default();
     let mut copied = false;
@@ -132,17 +154,55 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 }
                 // Shadow: follow the active instance's state, publish nothing.
                 handovers.take(&states_in, args.generation)?;
-                let before = m.seq.checked_sub(1).and_then(|s| handovers.find(s));
-                let from = before.or(if copied { None } else { handovers.newest() });
-                if let Some(h) = from
+                if let Some(h) = m.seq.checked_sub(1).and_then(|s| handovers.find(s)) {
+                    copied |= core.load(h);
+                } else if !copied
+                    && let Some(h) = handovers.newest()
+                    && h.seq < m.seq
                     && core.load(h)
                 {
                     copied = true;
+                    if h.seq + 1 < m.seq
+                        && let Some(replay) = &replay
+                    {
+                        // A restart: the dead predecessor's last state is
+                        // samples old; step through every one since.
+                        let live = *m;
+                        let caught = catch_up(
+                            &mut core,
+                            h.seq,
+                            &live,
+                            replay,
+                            &measurements,
+                            &states_out,
+                            args.generation,
+                            &mut shadow_estimate,
+                        )?;
+                        eprintln!("flexloop-observer: {caught}");
+                        expected_seq = Some(caught.last_seq + 1);
+                        publish_state(
+                            &states_out,
+                            caught.last_seq,
+                            args.generation,
+                            FOLLOWING,
+                            &[],
+                            |h| core.save(h),
+                        )?;
+                        done |= caught.end_of_run;
+                        continue;
+                    }
                 }
                 core.step(&m, &mut shadow_estimate);
-                publish_state(&states_out, m.seq, args.generation, true, &[], |h| {
-                    core.save(h)
-                })?;
+                // Following only once a handed-over state is there: the
+                // active instance's (a swap) or, after a crash, the one the
+                // supervisor keeps handing on until it sees this instance
+                // follow (published before this instance subscribed, it
+                // would reach it only with the next one).
+                if handovers.newest().is_some() {
+                    publish_state(&states_out, m.seq, args.generation, FOLLOWING, &[], |h| {
+                        core.save(h)
+                    })?;
+                }
                 done |= m.flags & flags::END_OF_RUN != 0;
                 continue;
             }
@@ -154,7 +214,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 e.published_ns = monotonic_ns();
             })?;
             estimates.notify()?;
-            publish_state(&states_out, m.seq, args.generation, false, &[], |h| {
+            publish_state(&states_out, m.seq, args.generation, ACTIVE, &[], |h| {
                 core.save(h)
             })?;
             done |= m.flags & flags::END_OF_RUN != 0;
@@ -166,4 +226,118 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         eprintln!("flexloop-observer: {skipped} measurements never arrived");
     }
     Ok(())
+}
+
+/// How long a restarted observer may take to replay its way to the live
+/// samples before it goes on from where it got (the supervisor's ring holds
+/// two seconds).
+const CATCH_UP_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// What a catch-up did, for the observer's stderr file.
+struct CaughtUp {
+    state_seq: u64,
+    replayed: u64,
+    /// The last measurement stepped (the newest live one held).
+    last_seq: u64,
+    /// Why the sequence has a hole, if it has one.
+    incomplete: Option<String>,
+    end_of_run: bool,
+}
+
+impl std::fmt::Display for CaughtUp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.incomplete {
+            None => write!(
+                f,
+                "took over the state after sample {} and replayed {} measurements up to the live sample {}",
+                self.state_seq, self.replayed, self.last_seq
+            ),
+            Some(why) => write!(
+                f,
+                "took over the state after sample {}, replayed {} measurements, then {why}: going on from sample {} with a hole in between",
+                self.state_seq, self.replayed, self.last_seq
+            ),
+        }
+    }
+}
+
+/// A restarted observer holds the state its dead predecessor last published
+/// (after measurement `state_seq`) and has just received `first_live`: it
+/// steps through the supervisor's replay of the measurements in between,
+/// reporting its progress (which paces the replay), while the live queue
+/// fills, and then through the live samples held meanwhile. Design-time
+/// work in shadow, off the loop's CPU; bounded by [`CATCH_UP_TIMEOUT`].
+#[allow(clippy::too_many_arguments)]
+fn catch_up(
+    core: &mut ObserverCore,
+    state_seq: u64,
+    first_live: &Measurement,
+    replay: &Inlet<Measurement>,
+    live: &Inlet<Measurement>,
+    states_out: &Outlet<Handover>,
+    generation: u32,
+    scratch: &mut Estimate,
+) -> Result<CaughtUp, NodeError> {
+    let mut merge = CatchUp::after(state_seq);
+    merge.hold_live(first_live);
+    let since = Instant::now();
+    let (mut replayed, mut reported) = (0u64, state_seq);
+    let mut incomplete = None;
+    'replay: loop {
+        while let Some(r) = replay.receive()? {
+            match merge.replayed(&r) {
+                Replayed::Step => {
+                    core.step(&r, scratch);
+                    replayed += 1;
+                }
+                Replayed::Skip => {}
+                Replayed::Gap { missing_from, got } => {
+                    incomplete = Some(format!(
+                        "the replay had lost samples {missing_from} to {}",
+                        got - 1
+                    ));
+                    break 'replay;
+                }
+            }
+        }
+        if merge.next_seq() - 1 > reported {
+            reported = merge.next_seq() - 1;
+            publish_state(states_out, reported, generation, CATCHING_UP, &[], |h| {
+                core.save(h)
+            })?;
+        }
+        while let Some(m) = live.receive()? {
+            merge.hold_live(&m);
+        }
+        if merge.reached_live() {
+            break;
+        }
+        if merge.overflowed() {
+            incomplete = Some("the live queue outran the replay".into());
+            break;
+        }
+        if since.elapsed() > CATCH_UP_TIMEOUT || shutdown::requested() {
+            incomplete = Some(format!(
+                "no replay past sample {} within {CATCH_UP_TIMEOUT:?}",
+                merge.next_seq() - 1
+            ));
+            break;
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    // Drops held samples the replay already covered.
+    merge.reached_live();
+    let (mut last_seq, mut end_of_run) = (merge.next_seq() - 1, false);
+    while let Some(m) = merge.take_held() {
+        core.step(&m, scratch);
+        last_seq = m.seq;
+        end_of_run |= m.flags & flags::END_OF_RUN != 0;
+    }
+    Ok(CaughtUp {
+        state_seq,
+        replayed,
+        last_seq,
+        incomplete,
+        end_of_run,
+    })
 }

@@ -62,6 +62,23 @@ pub const COMMAND: Channel = Channel {
     name: "flexloop/command",
     qos: LOOP_QOS,
 };
+/// The supervisor's recent measurements, replayed to an observer restarted
+/// after a crash, so that it steps through every sample since the last
+/// state its predecessor published (paced by the progress it reports: a
+/// queue never holds more than `loop_buffer_size` of them).
+pub const MEASUREMENT_REPLAY: Channel = Channel {
+    name: "flexloop/measurement-replay",
+    qos: ChannelQos {
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 8,
+        history_size: 0,
+        subscriber_max_buffer_size: 256,
+        loop_buffer_size: 256,
+        logger_buffer_size: 256,
+    },
+};
+
 /// Periodic counters and percentiles (logger) for `flexloop status`.
 pub const TELEMETRY: Channel = Channel {
     name: "flexloop/telemetry",
@@ -127,8 +144,9 @@ pub const ACTIVATION: Channel = Channel {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 9] = [
+pub const ALL: [Channel; 10] = [
     MEASUREMENT,
+    MEASUREMENT_REPLAY,
     OBSERVER_WAKEUP,
     ESTIMATE,
     COMMAND,

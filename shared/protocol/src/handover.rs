@@ -14,6 +14,13 @@ use iceoryx2::prelude::*;
 /// States a component can hand over (filter, feedforward and observer states).
 pub const MAX_HANDOVER_STATES: usize = 128;
 
+/// [`Handover::shadow`]: the state of the active instance.
+pub const ACTIVE: u32 = 0;
+/// [`Handover::shadow`]: an instance that follows the loop, not yet active.
+pub const FOLLOWING: u32 = 1;
+/// [`Handover::shadow`]: a restarted instance still replaying the past.
+pub const CATCHING_UP: u32 = 2;
+
 /// A component's state after it processed measurement `seq`.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
@@ -25,7 +32,9 @@ pub struct Handover {
     /// the state only into an identical design.
     pub design_hash: u64,
     pub generation: u32,
-    /// Nonzero while the instance is not (yet) the active one.
+    /// [`ACTIVE`], [`FOLLOWING`] (a shadow or standby, not yet the active
+    /// instance) or [`CATCHING_UP`] (a restarted observer replaying the
+    /// measurements since its predecessor's last state; `seq` is its progress).
     pub shadow: u32,
     pub n_states: u32,
     pub n_inputs: u32,

@@ -121,6 +121,17 @@ impl Reference {
         }
     }
 
+    /// When a profile that repeats starts doing so, and its period: a
+    /// meander's forth and back. None for one that does not repeat.
+    pub fn repetition(&self) -> Option<(f64, f64)> {
+        match self {
+            Reference::Scan {
+                start_s, repeat_s, ..
+            } if *repeat_s > 0.0 => Some((*start_s, 2.0 * repeat_s)),
+            _ => None,
+        }
+    }
+
     /// When the motion is over (None: it never ends).
     pub fn end_s(&self) -> Option<f64> {
         match self {
