@@ -3,14 +3,18 @@
 //! component on request (shadow start, boundary, drain), restarts a crashed
 //! one with back-off, and writes every event to the run's `events.jsonl`.
 
-use crate::supervisor::{Outcome, RunningLoop};
+use crate::supervisor::{Outcome, RunningLoop, UNSERVED};
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
     ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY,
-    OBSERVER_STATE,
+    OBSERVER_STATE, SPARE_ORDER, SPARE_STATUS,
 };
 use flexloop_protocol::handover::{ACTIVE, CATCHING_UP};
-use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
+use flexloop_protocol::spare::{JOIN_AS_REPLACEMENT, JOIN_AS_RESTART, JOIN_AS_STANDBY};
+use flexloop_protocol::{
+    Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, SpareOrder, SpareStatus,
+    flags,
+};
 use flexloop_scenario::schema::{RestartPolicy, SafeAction};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
@@ -23,6 +27,10 @@ use std::time::{Duration, Instant};
 /// Where `flexloop swap` leaves requests for the supervisor and finds answers.
 pub const REQUESTS_DIR: &str = "requests";
 pub use flexloop_node::logger::EVENTS_FILE;
+/// The live processes and what each does (active, standby, spare), rewritten
+/// whenever that changes: for `flexloop status` and for tests that must
+/// stop one particular instance.
+pub const PROCESSES_FILE: &str = "processes.json";
 /// How long a replacement may take to start and follow the loop in shadow.
 const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long the replaced instance may take to hand over and exit.
@@ -65,6 +73,8 @@ pub struct Switch {
     pub du_before: f64,
     /// The same after the switch (the new design's own ordinary steps).
     pub du_after: f64,
+    /// Served by a warm spare (no process started or stopped).
+    pub warm: bool,
 }
 
 impl Switch {
@@ -77,8 +87,17 @@ impl Switch {
             "du_switch": self.du_switch,
             "du_before": self.du_before,
             "du_after": self.du_after,
+            "warm": self.warm,
         })
     }
+}
+
+/// How a new instance joins the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Joining {
+    Replacement,
+    Restart,
+    Standby,
 }
 
 struct PendingRestart {
@@ -102,6 +121,12 @@ pub struct Conductor {
     recent_measurements: VecDeque<Measurement>,
     replay_out: Outlet<Measurement>,
     replay: Option<ReplayFeed>,
+    spare_orders: Outlet<SpareOrder>,
+    spare_status: Inlet<SpareStatus>,
+    /// Pids that reported themselves idle spares since the last look.
+    idle_reports: Vec<u32>,
+    /// What [`PROCESSES_FILE`] holds now.
+    processes_written: Value,
     node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -150,6 +175,13 @@ impl Conductor {
             Outlet::<Handover>::open(&node, &OBSERVER_STATE).map_err(err)?,
         ];
         let replay_out = Outlet::<Measurement>::open(&node, &MEASUREMENT_REPLAY).map_err(err)?;
+        let spare_orders = Outlet::<SpareOrder>::open(&node, &SPARE_ORDER).map_err(err)?;
+        let spare_status = Inlet::<SpareStatus>::open_polling(
+            &node,
+            &SPARE_STATUS,
+            SPARE_STATUS.qos.loop_buffer_size,
+        )
+        .map_err(err)?;
         let replay_capacity = ((scenario.timing.rate_hz * REPLAY_SPAN.as_secs_f64()) as usize)
             .clamp(1024, MAX_REPLAY_SAMPLES);
         let current = Activation {
@@ -170,6 +202,10 @@ impl Conductor {
             recent_measurements: VecDeque::with_capacity(replay_capacity),
             replay_out,
             replay: None,
+            spare_orders,
+            spare_status,
+            idle_reports: Vec::new(),
+            processes_written: Value::Null,
             node,
             domain,
             current,
@@ -255,6 +291,9 @@ impl Conductor {
                 self.pace.pop_front();
             }
         }
+        while let Ok(Some(status)) = self.spare_status.receive() {
+            self.idle_reports.push(status.pid);
+        }
         while let Ok(Some(c)) = self.commands.receive() {
             self.last_seq = Some(self.last_seq.map_or(c.seq, |s| s.max(c.seq)));
             let owner = c.generation == self.current.controller_for(c.seq);
@@ -270,7 +309,8 @@ impl Conductor {
 
     /// Appends one event to the run's events file (best effort: an event
     /// that cannot be written is printed instead).
-    pub fn event(&self, kind: &str, role: Role, generation: u32, detail: Value) {
+    pub fn event(&self, kind: &str, role: Role, generation: impl Into<Option<u32>>, detail: Value) {
+        let generation = generation.into().filter(|g| *g != UNSERVED);
         let line = json!({
             "t_s": self.started.elapsed().as_secs_f64(),
             "kind": kind,
@@ -292,6 +332,7 @@ impl Conductor {
     /// Called by the supervisor every 20 ms: crashes, restarts, requests.
     pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
         self.poll();
+        self.take_idle_reports(running);
         self.settle_crashes(running);
         let now = Instant::now();
         let (due, later): (Vec<PendingRestart>, Vec<PendingRestart>) =
@@ -318,6 +359,7 @@ impl Conductor {
             }
         }
         self.keep_standby(running);
+        self.keep_spares(running);
         for request in pending_requests(&self.run_dir) {
             let answer = match self.handle_request(running, &request) {
                 Ok(switch) => json!({"ok": true, "switch": switch.json()}),
@@ -326,7 +368,43 @@ impl Conductor {
             let _ = std::fs::remove_file(&request);
             write_answer(&request, &answer);
         }
+        self.write_processes(running);
         None
+    }
+
+    /// Rewrites [`PROCESSES_FILE`] if the processes or their duties changed
+    /// (atomically: a reader sees the old list or the new one).
+    fn write_processes(&mut self, running: &RunningLoop) {
+        let list: Vec<Value> = running
+            .children
+            .iter()
+            .filter(|c| c.exit.is_none())
+            .map(|c| {
+                let duty = if c.spare {
+                    "spare"
+                } else if c.standby {
+                    "standby"
+                } else {
+                    "active"
+                };
+                json!({
+                    "role": c.role.name(),
+                    "pid": c.pid,
+                    "duty": duty,
+                    "generation": (c.generation != UNSERVED).then_some(c.generation),
+                    "scenario": c.scenario.display().to_string(),
+                })
+            })
+            .collect();
+        let now = json!({ "processes": list });
+        if now == self.processes_written {
+            return;
+        }
+        let path = self.run_dir.join(PROCESSES_FILE);
+        let tmp = path.with_extension("json.tmp");
+        if std::fs::write(&tmp, now.to_string()).is_ok() && std::fs::rename(&tmp, &path).is_ok() {
+            self.processes_written = now;
+        }
     }
 
     /// With `safe_action = "standby"`, keeps one standby controller following
@@ -349,11 +427,125 @@ impl Conductor {
             return;
         };
         let generation = self.next_generation(running, Role::Controller);
-        match running.start_standby(&scenario, generation) {
-            Ok(pid) => self.event("standby", Role::Controller, generation, json!({"pid": pid})),
+        match self.engage(
+            running,
+            Role::Controller,
+            &scenario,
+            generation,
+            Joining::Standby,
+        ) {
+            Ok((pid, warm)) => self.event(
+                "standby",
+                Role::Controller,
+                generation,
+                json!({"pid": pid, "warm": warm}),
+            ),
             Err(e) => {
                 self.restarts[slot] += 1;
                 self.event("standby-failed", Role::Controller, generation, json!(e));
+            }
+        }
+    }
+
+    /// Brings up `role` as `generation` running `scenario`: an idle warm
+    /// spare if there is one, else a new process. Returns its pid and
+    /// whether it was a spare. Not before tick 0: until then the plant
+    /// counts on each spare to be there as a spare.
+    fn engage(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+        joining: Joining,
+    ) -> Result<(i32, bool), String> {
+        if self.scenario.supervision.warm_spares && self.last_seq.is_some() {
+            self.take_idle_reports(running);
+            if let Some(spare) = running
+                .children
+                .iter_mut()
+                .find(|c| c.role == role && c.spare && c.idle && c.exit.is_none())
+            {
+                let path = scenario
+                    .to_str()
+                    .ok_or_else(|| format!("{}: the path is not UTF-8", scenario.display()))?;
+                let mut order = SpareOrder {
+                    published_ns: flexloop_runtime::monotonic_ns(),
+                    pid: spare.pid as u32,
+                    generation,
+                    joining: match joining {
+                        Joining::Replacement => JOIN_AS_REPLACEMENT,
+                        Joining::Restart => JOIN_AS_RESTART,
+                        Joining::Standby => JOIN_AS_STANDBY,
+                    },
+                    ..SpareOrder::default()
+                };
+                order
+                    .set_scenario(path)
+                    .map_err(|e| format!("{}: {e}", scenario.display()))?;
+                self.spare_orders
+                    .publish(|o| *o = order)
+                    .and_then(|_| self.spare_orders.notify())
+                    .map_err(|e| e.to_string())?;
+                spare.spare = false;
+                spare.idle = false;
+                spare.settled = false;
+                spare.standby = joining == Joining::Standby;
+                spare.generation = generation;
+                spare.scenario = scenario.to_path_buf();
+                return Ok((spare.pid, true));
+            }
+        }
+        let pid = match joining {
+            Joining::Replacement => running.start_replacement(role, scenario, generation),
+            Joining::Restart => running.start_restart(role, scenario, generation),
+            Joining::Standby => running.start_standby(scenario, generation),
+        }?;
+        Ok((pid, false))
+    }
+
+    /// Marks the processes that reported themselves idle as spares that
+    /// take orders (a new spare, or an instance replaced at a boundary).
+    fn take_idle_reports(&mut self, running: &mut RunningLoop) {
+        for pid in self.idle_reports.drain(..) {
+            if let Some(c) = running
+                .children
+                .iter_mut()
+                .find(|c| c.pid as u32 == pid && c.exit.is_none())
+            {
+                c.spare = true;
+                c.idle = true;
+                c.standby = false;
+                // A spare's crash is its own event, not the end of the run.
+                c.settled = false;
+            }
+        }
+    }
+
+    /// With warm spares, keeps one spare controller and one spare observer
+    /// once the loop ticks (the first ones start with the loop; another
+    /// after a spare crashed or served a restart), within the restart limit.
+    fn keep_spares(&mut self, running: &mut RunningLoop) {
+        if !self.scenario.supervision.warm_spares || self.last_seq.is_none() {
+            return;
+        }
+        for role in [Role::Controller, Role::Observer] {
+            let slot = role as usize;
+            if self.pending.iter().any(|p| p.role == role)
+                || self.restarts[slot] > self.scenario.supervision.max_restarts
+                || running
+                    .children
+                    .iter()
+                    .any(|c| c.role == role && c.spare && c.exit.is_none())
+            {
+                continue;
+            }
+            match running.start_spare(role) {
+                Ok(pid) => self.event("spare", role, None, json!({"pid": pid})),
+                Err(e) => {
+                    self.restarts[slot] += 1;
+                    self.event("spare-failed", role, None, json!(e));
+                }
             }
         }
     }
@@ -382,12 +574,17 @@ impl Conductor {
         {
             c.standby = false;
         }
-        let switch =
-            match self.activate_and_measure(running, Role::Controller, generation, None, start_seq)
-            {
-                Ok(switch) => switch,
-                Err(e) => return Some(Err(e)),
-            };
+        let switch = match self.activate_and_measure(
+            running,
+            Role::Controller,
+            generation,
+            None,
+            start_seq,
+            true,
+        ) {
+            Ok(switch) => switch,
+            Err(e) => return Some(Err(e)),
+        };
         self.event(
             "promote-standby",
             Role::Controller,
@@ -400,16 +597,31 @@ impl Conductor {
 
     fn settle_crashes(&mut self, running: &mut RunningLoop) {
         let policy = self.scenario.supervision.restart;
-        let crashed: Vec<(i32, Role, u32, i32, bool)> = running
+        let crashed: Vec<(i32, Role, u32, i32, bool, bool)> = running
             .children
             .iter()
             .filter(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
             .map(|c| {
                 let code = c.exit.map_or(-1, |e| e.code);
-                (c.pid, c.role, c.generation, code, c.standby)
+                (c.pid, c.role, c.generation, code, c.standby, c.spare)
             })
             .collect();
-        for (pid, role, generation, code, standby) in crashed {
+        for (pid, role, generation, code, standby, spare) in crashed {
+            if spare {
+                // Idle: the loop is untouched; `keep_spares` starts another.
+                if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
+                    c.settled = true;
+                }
+                self.restarts[role as usize] += 1;
+                let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
+                self.event(
+                    "crash",
+                    role,
+                    generation,
+                    json!({"exit": code, "spare": true, "cleaned_nodes": cleaned}),
+                );
+                continue;
+            }
             if standby {
                 // The active loop is untouched; `keep_standby` starts another.
                 if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
@@ -465,7 +677,7 @@ impl Conductor {
         running
             .children
             .iter()
-            .filter(|c| c.role == role)
+            .filter(|c| c.role == role && c.generation != UNSERVED)
             .map(|c| c.generation + 1)
             .max()
             .unwrap_or(1)
@@ -483,7 +695,11 @@ impl Conductor {
             return promoted;
         }
         let generation = self.next_generation(running, role);
-        let pid = running.start_restart(role, &scenario, generation)?;
+        let (pid, warm) = if role == Role::Logger {
+            (running.start_restart(role, &scenario, generation)?, false)
+        } else {
+            self.engage(running, role, &scenario, generation, Joining::Restart)?
+        };
         if self.last_seq.is_none() && role != Role::Logger {
             // Before tick 0 there is nothing to take over: the replacement
             // owns every sample and starts the loop as the first one would.
@@ -505,10 +721,9 @@ impl Conductor {
             return Ok(());
         }
         // A failed attempt leaves nothing behind: the next one starts afresh.
-        let switch = match self
-            .await_shadow(running, role, generation)
-            .and_then(|_| self.activate_and_measure(running, role, generation, None, start_seq))
-        {
+        let switch = match self.await_shadow(running, role, generation).and_then(|_| {
+            self.activate_and_measure(running, role, generation, None, start_seq, warm)
+        }) {
             Ok(switch) => switch,
             Err(e) => {
                 running.terminate(pid);
@@ -557,12 +772,19 @@ impl Conductor {
         let generation = self.next_generation(running, role);
         self.poll();
         let start_seq = self.last_seq.unwrap_or(0);
-        let pid = running.start_replacement(role, scenario_path, generation)?;
+        let (pid, warm) = self.engage(
+            running,
+            role,
+            scenario_path,
+            generation,
+            Joining::Replacement,
+        )?;
         if let Err(e) = self.await_shadow(running, role, generation) {
             running.terminate(pid);
             return Err(e);
         }
-        let switch = self.activate_and_measure(running, role, generation, Some(old), start_seq)?;
+        let switch =
+            self.activate_and_measure(running, role, generation, Some(old), start_seq, warm)?;
         self.event(
             "swap",
             role,
@@ -598,11 +820,21 @@ impl Conductor {
             return;
         }
         let generation = self.next_generation(running, Role::Controller);
-        let started = running.start_standby(&active, generation).and_then(|pid| {
-            self.await_shadow(running, Role::Controller, generation)
-                .inspect_err(|_| running.terminate(pid))
-                .map(|_| pid)
-        });
+        // The old standby is stopped, not retired to a spare: it would have
+        // to look for orders every sample. One port fewer, once per retune.
+        let started = self
+            .engage(
+                running,
+                Role::Controller,
+                &active,
+                generation,
+                Joining::Standby,
+            )
+            .and_then(|(pid, _)| {
+                self.await_shadow(running, Role::Controller, generation)
+                    .inspect_err(|_| running.terminate(pid))
+                    .map(|_| pid)
+            });
         match started {
             Ok(pid) => {
                 for (pid, _) in &old {
@@ -660,6 +892,7 @@ impl Conductor {
         let slot = usize::from(role != Role::Controller);
         loop {
             self.poll();
+            self.take_idle_reports(running);
             if self.shadows_seen.contains(&(role, generation)) {
                 return Ok(());
             }
@@ -694,9 +927,7 @@ impl Conductor {
                     "the new flexloop-{} (generation {generation}) exited with {} before it followed the loop; see {}",
                     role.name(),
                     exit.code,
-                    self.run_dir
-                        .join(crate::supervisor::stderr_name(role, generation))
-                        .display()
+                    self.run_dir.join(&c.stderr_file).display()
                 ));
             }
             if since.elapsed() > SHADOW_TIMEOUT {
@@ -748,6 +979,7 @@ impl Conductor {
         generation: u32,
         old: Option<i32>,
         start_seq: u64,
+        warm: bool,
     ) -> Result<Switch, String> {
         self.poll();
         let now_seq = self.last_seq.unwrap_or(0);
@@ -760,20 +992,22 @@ impl Conductor {
         if let Some(pid) = old
             && let Some(c) = running.children.iter_mut().find(|c| c.pid == pid)
         {
-            // Its exit after the boundary is the plan, not a crash.
+            // Its exit (or, with warm spares, its retirement to a spare)
+            // after the boundary is the plan, not a crash.
             c.settled = true;
         }
         let since = Instant::now();
         loop {
             self.poll();
             running.reap();
+            self.take_idle_reports(running);
             let passed = self.last_seq.is_some_and(|s| s > from_seq + BEFORE_SWITCH);
             let old_gone = old.is_none_or(|pid| {
                 running
                     .children
                     .iter()
                     .find(|c| c.pid == pid)
-                    .is_none_or(|c| c.exit.is_some())
+                    .is_none_or(|c| c.exit.is_some() || c.spare)
             });
             if passed && old_gone {
                 break;
@@ -802,6 +1036,7 @@ impl Conductor {
             du_switch,
             du_before,
             du_after,
+            warm,
         })
     }
 

@@ -305,6 +305,7 @@ pub fn prepare(args: &LoopArgs) -> Result<Prepared, String> {
             run_dir,
             overrides: args.process_overrides(),
             with_logger: scenario.logger.enabled,
+            warm_spares: scenario.supervision.warm_spares,
         },
         scenario,
         overrides: args.overrides.clone(),

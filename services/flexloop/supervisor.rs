@@ -22,7 +22,13 @@ pub struct LaunchPlan {
     /// Overrides passed to every process (`--rate`, `--mode`, ...).
     pub overrides: Vec<String>,
     pub with_logger: bool,
+    /// Start an idle controller and observer beside the loop (scenario
+    /// `supervision.warm_spares`).
+    pub warm_spares: bool,
 }
+
+/// [`ChildProcess::generation`] of a spare that has served no generation yet.
+pub const UNSERVED: u32 = u32::MAX;
 
 /// One started process.
 #[derive(Debug)]
@@ -38,6 +44,12 @@ pub struct ChildProcess {
     pub settled: bool,
     /// A standby controller (not the role's current instance until promoted).
     pub standby: bool,
+    /// A warm spare: not serving (see `flexloop_node::spare`).
+    pub spare: bool,
+    /// A spare that reported itself idle: it takes orders.
+    pub idle: bool,
+    /// Its stderr file, in the run directory.
+    pub stderr_file: String,
 }
 
 /// How a child ended and what CPU it used.
@@ -67,26 +79,49 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
         children: Vec::new(),
         started: Instant::now(),
     };
-    let roles: &[Role] = if plan.with_logger {
-        &[Role::Logger, Role::Observer, Role::Controller, Role::Plant]
-    } else {
-        &[Role::Observer, Role::Controller, Role::Plant]
-    };
-    for &role in roles {
-        match spawn(&plan, role, &plan.scenario, 0, Joining::No) {
-            Ok(pid) => running.children.push(ChildProcess {
-                role,
-                pid,
-                exit: None,
-                generation: 0,
-                scenario: plan.scenario.clone(),
-                settled: false,
-                standby: false,
-            }),
+    let mut roles = Vec::new();
+    if plan.with_logger {
+        roles.push((Role::Logger, Joining::No));
+    }
+    roles.extend([
+        (Role::Observer, Joining::No),
+        (Role::Controller, Joining::No),
+    ]);
+    if plan.warm_spares {
+        roles.extend([
+            (Role::Observer, Joining::AsSpare),
+            (Role::Controller, Joining::AsSpare),
+        ]);
+    }
+    roles.push((Role::Plant, Joining::No));
+    for (role, joining) in roles {
+        let started = if joining == Joining::AsSpare {
+            running.start_spare(role).map(|_| ())
+        } else {
+            let stderr_file = stderr_name(role, 0);
+            spawn(&plan, role, &plan.scenario, 0, joining, &stderr_file)
+                .map(|pid| {
+                    running.children.push(ChildProcess {
+                        role,
+                        pid,
+                        exit: None,
+                        generation: 0,
+                        scenario: plan.scenario.clone(),
+                        settled: false,
+                        standby: false,
+                        spare: false,
+                        idle: false,
+                        stderr_file,
+                    })
+                })
+                .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))
+        };
+        match started {
+            Ok(()) => {}
             Err(e) => {
                 running.stop();
                 running.cleanup();
-                return Err(format!("cannot start flexloop-{}: {e}", role.name()));
+                return Err(e);
             }
         }
     }
@@ -113,6 +148,8 @@ enum Joining {
     AsStandby,
     /// A running loop, in place of an instance that crashed.
     AsRestart,
+    /// As a warm spare: ports open, idle until ordered.
+    AsSpare,
 }
 
 fn spawn(
@@ -121,8 +158,9 @@ fn spawn(
     scenario: &Path,
     generation: u32,
     joining: Joining,
+    stderr_file: &str,
 ) -> std::io::Result<i32> {
-    let stderr = std::fs::File::create(plan.run_dir.join(stderr_name(role, generation)))?;
+    let stderr = std::fs::File::create(plan.run_dir.join(stderr_file))?;
     let mut cmd = Command::new(binary(role)?);
     if generation > 0 {
         cmd.arg("--generation").arg(generation.to_string());
@@ -137,6 +175,9 @@ fn spawn(
         }
         Joining::AsRestart => {
             cmd.arg("--restart");
+        }
+        Joining::AsSpare => {
+            cmd.arg("--spare");
         }
     }
     cmd.arg("--scenario")
@@ -199,20 +240,43 @@ impl RunningLoop {
         self.children.iter().filter(|c| c.exit.is_none()).count()
     }
 
-    /// The current instance of `role` (the newest started).
-    /// The role's current instance (the newest, standbys aside).
+    /// The role's current instance: the one alive, standbys and spares
+    /// aside, or else the newest that ended (a crashed one, to restart).
     pub fn child(&self, role: Role) -> Option<&ChildProcess> {
-        self.children
-            .iter()
-            .rev()
-            .find(|c| c.role == role && !c.standby)
+        let serving = |c: &&ChildProcess| c.role == role && !c.standby && !c.spare;
+        let mut newest = self.children.iter().rev().filter(serving);
+        newest
+            .clone()
+            .find(|c| c.exit.is_none())
+            .or_else(|| newest.next())
     }
 
-    pub fn child_mut(&mut self, role: Role) -> Option<&mut ChildProcess> {
-        self.children
-            .iter_mut()
-            .rev()
-            .find(|c| c.role == role && !c.standby)
+    /// Starts a warm spare of `role` (observer or controller).
+    pub fn start_spare(&mut self, role: Role) -> Result<i32, String> {
+        let count = self.children.iter().filter(|c| c.role == role).count();
+        let stderr_file = format!("{}.spare{count}.stderr", role.name());
+        let pid = spawn(
+            &self.plan,
+            role,
+            &self.plan.scenario,
+            0,
+            Joining::AsSpare,
+            &stderr_file,
+        )
+        .map_err(|e| format!("cannot start a spare flexloop-{}: {e}", role.name()))?;
+        self.children.push(ChildProcess {
+            role,
+            pid,
+            exit: None,
+            generation: UNSERVED,
+            scenario: self.plan.scenario.clone(),
+            settled: false,
+            standby: false,
+            spare: true,
+            idle: false,
+            stderr_file,
+        });
+        Ok(pid)
     }
 
     /// Starts another instance of `role` that joins the running loop (swap
@@ -248,8 +312,16 @@ impl RunningLoop {
         generation: u32,
         joining: Joining,
     ) -> Result<i32, String> {
-        let pid = spawn(&self.plan, role, scenario, generation, joining)
-            .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
+        let stderr_file = stderr_name(role, generation);
+        let pid = spawn(
+            &self.plan,
+            role,
+            scenario,
+            generation,
+            joining,
+            &stderr_file,
+        )
+        .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
         self.children.push(ChildProcess {
             role,
             pid,
@@ -258,6 +330,9 @@ impl RunningLoop {
             scenario: scenario.to_path_buf(),
             settled: false,
             standby: joining == Joining::AsStandby,
+            spare: false,
+            idle: false,
+            stderr_file,
         });
         Ok(pid)
     }
@@ -359,7 +434,7 @@ impl RunningLoop {
     pub fn failure_report(&self) -> String {
         let mut out = String::new();
         for c in &self.children {
-            let path = self.plan.run_dir.join(stderr_name(c.role, c.generation));
+            let path = self.plan.run_dir.join(&c.stderr_file);
             let text = std::fs::read_to_string(&path).unwrap_or_default();
             let code = c.exit.map_or("running".to_string(), |e| e.code.to_string());
             if !text.trim().is_empty() || c.exit.is_some_and(|e| e.code != 0) {

@@ -6,7 +6,7 @@
 use crate::util::*;
 use flexloop_components::LogReader;
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -55,7 +55,7 @@ fn python_check(python: &str, script: &str, file: &Path) -> Value {
 }
 
 /// A finished lockstep run of the lecture loop.
-fn lockstep_run(name: &str, seconds: &str) -> PathBuf {
+fn lockstep_run(name: &str, seconds: &str) -> TestDir {
     let dir = temp_dir(name);
     let mut cmd = flexloop();
     cmd.arg("up")

@@ -138,9 +138,7 @@ fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
     wait_for_ticks(&dir, 100);
     for role in ["controller", "observer", "logger"] {
-        let pid = *pids_of(&dir, role)
-            .last()
-            .unwrap_or_else(|| panic!("no {role} running"));
+        let pid = pid_on_duty(&dir, role, "active");
         // SAFETY: a pid of a process this test started (through flexloop).
         unsafe { libc::kill(pid, libc::SIGKILL) };
         let since = Instant::now();
@@ -188,11 +186,7 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
     .unwrap();
     let (child, prefix) = start_file(&dir, &file, &["--rate", "1000"]);
     wait_for_ticks(&dir, 100);
-    let standby_running = |dir: &Path| {
-        processes_mentioning(&dir.display().to_string())
-            .iter()
-            .any(|p| p.contains("flexloop-controller") && p.contains("--standby"))
-    };
+    let standby_running = |dir: &Path| !pids_on_duty(dir, "controller", "standby").is_empty();
     let since = Instant::now();
     while !standby_running(&dir) {
         assert!(
@@ -203,11 +197,7 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
     }
     // Let the standby follow the loop a while, then kill the active controller.
     std::thread::sleep(Duration::from_millis(500));
-    let active: Vec<i32> = processes_mentioning(&dir.display().to_string())
-        .iter()
-        .filter(|p| p.contains("flexloop-controller") && !p.contains("--standby"))
-        .filter_map(|p| p.split(':').next()?.parse().ok())
-        .collect();
+    let active = pids_on_duty(&dir, "controller", "active");
     assert_eq!(active.len(), 1, "one active controller");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(active[0], libc::SIGKILL) };
@@ -364,8 +354,8 @@ fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
         // either way, a later kill is an ordinary restart).
         let since = Instant::now();
         let pid = loop {
-            if let Some(pid) = pids_of(&dir, role).first() {
-                break *pid;
+            if let [pid] = pids_on_duty(&dir, role, "active")[..] {
+                break pid;
             }
             assert!(since.elapsed() < Duration::from_secs(60), "no {role}");
             std::thread::sleep(Duration::from_millis(2));
@@ -389,7 +379,7 @@ fn a_restarted_observer_replays_its_way_to_the_state_the_crashed_one_would_have_
     let dir = temp_dir("swap-observer-replay");
     let (child, prefix) = start(&dir, "two-inertia", &["--rate", "1000"]);
     wait_for_ticks(&dir, 300);
-    let pid = *pids_of(&dir, "observer").last().expect("an observer");
+    let pid = pid_on_duty(&dir, "observer", "active");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(pid, libc::SIGKILL) };
     let since = Instant::now();
@@ -407,7 +397,18 @@ fn a_restarted_observer_replays_its_way_to_the_state_the_crashed_one_would_have_
     // Some estimates of the restarted observer's own.
     std::thread::sleep(Duration::from_millis(300));
     stop(&prefix, child);
-    let said = std::fs::read_to_string(dir.join("observer.g1.stderr")).unwrap();
+    // The restart's own words, in the stderr file of whichever process
+    // served it (a warm spare's, or a new one's).
+    let said: String = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let name = p.file_name().unwrap().to_string_lossy();
+            name.starts_with("observer") && name.ends_with(".stderr")
+        })
+        .map(|p| std::fs::read_to_string(p).unwrap())
+        .collect();
     assert!(
         said.contains("replayed") && !said.contains("hole"),
         "{said}"
@@ -475,9 +476,10 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
     let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
     wait_for_ticks(&dir, 100);
     let standbys = |dir: &Path| -> Vec<String> {
-        processes_mentioning(&dir.display().to_string())
-            .into_iter()
-            .filter(|p| p.contains("flexloop-controller") && p.contains("--standby"))
+        processes(dir)
+            .iter()
+            .filter(|p| p["role"] == "controller" && p["duty"] == "standby")
+            .map(|p| p["scenario"].as_str().unwrap_or_default().to_string())
             .collect()
     };
     let since = Instant::now();
@@ -548,5 +550,132 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
         identical * 2 > compared,
         "{identical} of {compared} standby commands identical to the active one's"
     );
+    assert_clean(&dir);
+}
+
+/// The live pids of the run, by role and duty.
+fn duties(dir: &Path) -> std::collections::BTreeSet<(String, String, i64)> {
+    processes(dir)
+        .iter()
+        .map(|p| {
+            (
+                p["role"].as_str().unwrap().to_string(),
+                p["duty"].as_str().unwrap().to_string(),
+                p["pid"].as_i64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// Waits until the supervisor lists the replaced instance as the new spare.
+fn await_spare(dir: &Path, role: &str, pid: i32) {
+    let since = Instant::now();
+    while !pids_on_duty(dir, role, "spare").contains(&pid) {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "{role} {pid} did not become the spare: {:?}",
+            processes(dir)
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn with_warm_spares_a_swap_starts_and_stops_no_process() {
+    let dir = temp_dir("swap-warm");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 215);
+    let same = scenario("lecture-double-integrator");
+    // One idle spare of each beside the active instances, from the start.
+    let before = duties(&dir);
+    let spare_controller = pid_on_duty(&dir, "controller", "spare");
+    let active_controller = pid_on_duty(&dir, "controller", "active");
+    let spare_observer = pid_on_duty(&dir, "observer", "spare");
+    let active_observer = pid_on_duty(&dir, "observer", "active");
+
+    swap(&prefix, "controller", &same);
+    await_spare(&dir, "controller", active_controller);
+    assert_eq!(
+        pid_on_duty(&dir, "controller", "active"),
+        spare_controller,
+        "the spare serves"
+    );
+    swap(&prefix, "observer", &same);
+    await_spare(&dir, "observer", active_observer);
+    assert_eq!(pid_on_duty(&dir, "observer", "active"), spare_observer);
+    // And back: the first instances serve again.
+    swap(&prefix, "controller", &same);
+    await_spare(&dir, "controller", spare_controller);
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), active_controller);
+    let pids = |set: &std::collections::BTreeSet<(String, String, i64)>| {
+        set.iter()
+            .map(|(_, _, pid)| *pid)
+            .collect::<std::collections::BTreeSet<_>>()
+    };
+    assert_eq!(
+        pids(&duties(&dir)),
+        pids(&before),
+        "the same processes before and after"
+    );
+    stop(&prefix, child);
+
+    let swaps: Vec<Value> = events(&dir)
+        .into_iter()
+        .filter(|e| e["kind"] == "swap")
+        .collect();
+    assert_eq!(swaps.len(), 3, "{swaps:?}");
+    assert!(
+        swaps.iter().all(|e| e["detail"]["switch"]["warm"] == true),
+        "{swaps:?}"
+    );
+    // No process was started after the loop's start.
+    assert!(
+        !events(&dir)
+            .iter()
+            .any(|e| e["kind"] == "spare" || e["kind"] == "crash"),
+        "{:?}",
+        events(&dir)
+    );
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_eq!(counter(&summary, "rejected_commands"), 0, "{summary}");
+    assert_no_gaps(&summary);
+    assert_clean(&dir);
+}
+
+#[test]
+fn without_warm_spares_a_swap_starts_a_process_and_the_old_one_exits() {
+    let dir = temp_dir("swap-cold");
+    let text = std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap();
+    let file = dir.join("cold.toml");
+    std::fs::write(
+        &file,
+        format!("{text}\n[supervision]\nwarm_spares = false\n"),
+    )
+    .unwrap();
+    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 215);
+    assert!(pids_on_duty(&dir, "controller", "spare").is_empty());
+    let old = pid_on_duty(&dir, "controller", "active");
+    swap(&prefix, "controller", &file);
+    let new = pid_on_duty(&dir, "controller", "active");
+    assert_ne!(new, old);
+    let since = Instant::now();
+    while processes(&dir).iter().any(|p| p["pid"] == old) {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "{old} still runs"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    stop(&prefix, child);
+    let swap = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "swap")
+        .unwrap();
+    assert_eq!(swap["detail"]["switch"]["warm"], false);
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_no_gaps(&summary);
     assert_clean(&dir);
 }

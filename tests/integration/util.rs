@@ -18,11 +18,42 @@ pub fn scenario(name: &str) -> PathBuf {
 }
 
 /// A fresh directory under target/ for one test.
-pub fn temp_dir(test: &str) -> PathBuf {
+pub fn temp_dir(test: &str) -> TestDir {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{test}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    TestDir(dir)
+}
+
+/// A test's own directory under target/tmp: removed when the test passes
+/// (runs leave megabytes of samples each), kept after a failure for its logs.
+pub struct TestDir(PathBuf);
+
+impl std::ops::Deref for TestDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TestDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for TestDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for TestDir {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// Runs `cmd` to completion, killing it after `limit` (then panicking with its output).
@@ -171,6 +202,42 @@ pub fn events(dir: &Path) -> Vec<Value> {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect()
+}
+
+/// The run's live processes as its supervisor lists them (`processes.json`):
+/// objects with `role`, `pid`, `duty` (active, standby, spare), `scenario`.
+pub fn processes(dir: &Path) -> Vec<Value> {
+    std::fs::read_to_string(dir.join("processes.json"))
+        .ok()
+        .and_then(|text| serde_json::from_str::<Value>(&text).ok())
+        .and_then(|v| v["processes"].as_array().cloned())
+        .unwrap_or_default()
+}
+
+/// The pids the supervisor lists for `role` on `duty`.
+pub fn pids_on_duty(dir: &Path, role: &str, duty: &str) -> Vec<i32> {
+    processes(dir)
+        .iter()
+        .filter(|p| p["role"] == role && p["duty"] == duty)
+        .filter_map(|p| p["pid"].as_i64().map(|pid| pid as i32))
+        .collect()
+}
+
+/// Waits (at most 60 s) until the supervisor lists one `role` process on
+/// `duty`; its pid.
+pub fn pid_on_duty(dir: &Path, role: &str, duty: &str) -> i32 {
+    let since = std::time::Instant::now();
+    loop {
+        if let [pid] = pids_on_duty(dir, role, duty)[..] {
+            return pid;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no single {role} on duty {duty}: {:?}",
+            processes(dir)
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 /// Pids of the running instances of `role` in the run at `dir`, oldest first.

@@ -47,9 +47,13 @@ pub struct ServiceArgs {
     /// comes from the supervisor, which replays the measurements since to
     /// an observer.
     pub restart: bool,
+    /// Start as a warm spare: open every port, then wait for the
+    /// supervisor's order (`--scenario` gives only the run's real-time
+    /// set-up until then).
+    pub spare: bool,
 }
 
-pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby] [--restart]";
+pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby] [--restart] [--spare]";
 
 impl ServiceArgs {
     pub fn parse(role: Role, args: impl IntoIterator<Item = OsString>) -> Result<Self, NodeError> {
@@ -64,6 +68,7 @@ impl ServiceArgs {
         let mut join = false;
         let mut standby = false;
         let mut restart = false;
+        let mut spare = false;
         while let Some(arg) = parser.next().map_err(|e| usage(e.to_string()))? {
             let value = |p: &mut lexopt::Parser| -> Result<String, NodeError> {
                 p.value()
@@ -98,6 +103,7 @@ impl ServiceArgs {
                 Long("join") => join = true,
                 Long("standby") if role == Role::Controller => standby = true,
                 Long("restart") => restart = true,
+                Long("spare") if matches!(role, Role::Controller | Role::Observer) => spare = true,
                 Long("generation") => {
                     generation = value(&mut parser)?
                         .parse()
@@ -118,9 +124,10 @@ impl ServiceArgs {
             run_dir: run_dir.ok_or_else(|| usage("--run-dir is required".into()))?,
             overrides,
             generation,
-            join: join || standby || restart,
+            join: join || standby || restart || spare,
             standby,
             restart,
+            spare,
         })
     }
 

@@ -4,6 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
+use crate::spare::SpareDuty;
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
@@ -12,8 +13,8 @@ use flexloop_protocol::handover::{ACTIVE, FOLLOWING};
 use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
 use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
-use flexloop_scenario::Mode;
-use flexloop_transport::{Domain, Inlet, Outlet};
+use flexloop_scenario::{LoopDesign, Mode, Scenario};
+use flexloop_transport::{Domain, Inlet, LoopNode, Outlet};
 
 /// In lockstep, how long a new instance waits for its predecessor's last state.
 const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 100_000_000;
@@ -22,64 +23,200 @@ const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let clock = StartupClock::start();
-    let (scenario, design) = args.load()?;
-    let mut core = ControllerCore::new(&design, args.generation);
-    core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
+    // A spare designs nothing until it is ordered to serve; any other
+    // instance designs now, before a port exists.
+    let loaded = if args.spare { None } else { Some(args.load()?) };
+    let scenario = match &loaded {
+        Some((scenario, _)) => scenario.clone(),
+        None => Scenario::load(&args.scenario, &args.overrides)?,
+    };
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Controller);
     let _memory = realtime::apply(Role::Controller.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("controller")?;
-    let measurements = Inlet::<Measurement>::open(&node, &MEASUREMENT, FOLLOW_DEPTH)?;
-    let estimates = Inlet::<Estimate>::open(&node, &ESTIMATE, FOLLOW_DEPTH)?;
-    let mut activation = ActivationView::open(&node)?;
-    let states_in = Inlet::<Handover>::open_polling(
-        &node,
-        &CONTROLLER_STATE,
-        CONTROLLER_STATE.qos.loop_buffer_size,
-    )?;
-    let states_out = Outlet::<Handover>::open(&node, &CONTROLLER_STATE)?;
     let mut ring = EstimateRing::new();
-    if !await_peers(
-        || {
-            if estimates.publishers() >= 1 && measurements.publishers() >= 1 {
-                ring.take(&estimates, activation.refresh()?)?;
-            }
-            // A replacement joins a running loop: the estimates it needs come
-            // with the next sample.
-            Ok(ring.any() || (args.join && estimates.publishers() >= 1))
-        },
-        || {
-            format!(
-                "{} measurement publishers (plant), {} estimate publishers (observer), no first estimate yet",
-                measurements.publishers(),
-                estimates.publishers()
-            )
-        },
-    )? {
+    let Some(mut ports) = Ports::open(&node, args, &scenario, &mut ring)? else {
         return Ok(());
+    };
+    let mut next = if args.spare {
+        None
+    } else {
+        Some((args.clone(), loaded, clock))
+    };
+    let mut served = args.generation;
+    loop {
+        let (serve_args, loaded, clock) = match next.take() {
+            Some(order) => order,
+            None => {
+                let Some(duty) = ports.spare.as_mut() else {
+                    return Ok(());
+                };
+                match duty.idle(args, served, &ports.measurements)? {
+                    Some(order) => (order, None, StartupClock::start()),
+                    None => return Ok(()),
+                }
+            }
+        };
+        let (scenario, design) = match loaded {
+            Some(loaded) => loaded,
+            None => serve_args.load()?,
+        };
+        served = serve_args.generation;
+        let ended = serve(
+            &serve_args,
+            &scenario,
+            &design,
+            &mut ports,
+            &mut ring,
+            &clock,
+        )?;
+        if ended == Served::Ended || ports.spare.is_none() {
+            return Ok(());
+        }
     }
-    measurements.connect()?;
-    estimates.connect()?;
-    // The command port opens last: its appearance tells the plant that the
-    // chain is ready for tick 0 (a replacement for a controller that died
-    // before tick 0 thereby lets the loop start, and takes over from it).
-    let commands = Outlet::<Command>::open(&node, &COMMAND)?;
-    commands.connect()?;
-    states_in.connect()?;
+}
+
+/// Every port a controller uses, open for the process's life.
+struct Ports {
+    measurements: Inlet<Measurement>,
+    estimates: Inlet<Estimate>,
+    activation: ActivationView,
+    states_in: Inlet<Handover>,
+    states_out: Outlet<Handover>,
+    commands: Outlet<Command>,
+    /// With warm spares: orders and idle reports.
+    spare: Option<SpareDuty>,
+}
+
+impl Ports {
+    /// Opens and connects every port; the first instance also waits for the
+    /// observer's first estimate (into `ring`). `None`: a shutdown came first.
+    fn open(
+        node: &LoopNode,
+        args: &ServiceArgs,
+        scenario: &Scenario,
+        ring: &mut EstimateRing,
+    ) -> Result<Option<Self>, NodeError> {
+        let measurements = Inlet::<Measurement>::open(node, &MEASUREMENT, FOLLOW_DEPTH)?;
+        let estimates = Inlet::<Estimate>::open(node, &ESTIMATE, FOLLOW_DEPTH)?;
+        let mut activation = ActivationView::open(node)?;
+        let states_in = Inlet::<Handover>::open_polling(
+            node,
+            &CONTROLLER_STATE,
+            CONTROLLER_STATE.qos.loop_buffer_size,
+        )?;
+        let states_out = Outlet::<Handover>::open(node, &CONTROLLER_STATE)?;
+        let spare = if scenario.supervision.warm_spares {
+            Some(SpareDuty::open(node)?)
+        } else {
+            None
+        };
+        if !await_peers(
+            || {
+                if estimates.publishers() >= 1 && measurements.publishers() >= 1 {
+                    ring.take(&estimates, activation.refresh()?)?;
+                }
+                // A replacement joins a running loop: the estimates it needs
+                // come with the next sample.
+                Ok(ring.any() || (args.join && estimates.publishers() >= 1))
+            },
+            || {
+                format!(
+                    "{} measurement publishers (plant), {} estimate publishers (observer), no first estimate yet",
+                    measurements.publishers(),
+                    estimates.publishers()
+                )
+            },
+        )? {
+            return Ok(None);
+        }
+        measurements.connect()?;
+        estimates.connect()?;
+        // The command port opens last: its appearance tells the plant that
+        // the chain is ready for tick 0 (a replacement for a controller that
+        // died before tick 0 thereby lets the loop start, and takes over
+        // from it; the plant counts a spare's port apart).
+        let commands = Outlet::<Command>::open(node, &COMMAND)?;
+        commands.connect()?;
+        states_in.connect()?;
+        activation.connect()?;
+        if let Some(duty) = &spare {
+            duty.connect()?;
+        }
+        Ok(Some(Self {
+            measurements,
+            estimates,
+            activation,
+            states_in,
+            states_out,
+            commands,
+            spare,
+        }))
+    }
+}
+
+/// What queued up while this process was idle, or before it joined,
+/// belongs to nobody now.
+fn drop_stale_inputs(
+    measurements: &Inlet<Measurement>,
+    estimates: &Inlet<Estimate>,
+    states_in: &Inlet<Handover>,
+    ring: &mut EstimateRing,
+) -> Result<(), NodeError> {
+    measurements.clear_events()?;
+    while measurements.receive()?.is_some() {}
+    estimates.clear_events()?;
+    while estimates.receive()?.is_some() {}
+    while states_in.receive()?.is_some() {}
+    *ring = EstimateRing::new();
+    Ok(())
+}
+
+/// How an instance's service ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Served {
+    /// Another generation owns the samples from here on.
+    Replaced,
+    /// The run ended, or a shutdown was asked.
+    Ended,
+}
+
+/// Serves the loop as `args.generation` with `design` until replaced or
+/// the run ends.
+fn serve(
+    args: &ServiceArgs,
+    scenario: &Scenario,
+    design: &LoopDesign,
+    ports: &mut Ports,
+    ring: &mut EstimateRing,
+    clock: &StartupClock,
+) -> Result<Served, NodeError> {
+    let Ports {
+        measurements,
+        estimates,
+        activation,
+        states_in,
+        states_out,
+        commands,
+        spare,
+    } = ports;
+    let mut core = ControllerCore::new(design, args.generation);
+    core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
+    let rt = realtime_settings(scenario, Role::Controller);
     let mut handovers = HandoverRing::default();
-    if args.join
-        && !catch_up_with_loop(
+    if args.join {
+        drop_stale_inputs(measurements, estimates, states_in, ring)?;
+        if !catch_up_with_loop(
             &mut core,
-            &measurements,
-            &states_in,
+            measurements,
+            states_in,
             &mut handovers,
             args.generation,
-        )?
-    {
-        return Ok(());
+        )? {
+            return Ok(Served::Ended);
+        }
     }
-    activation.connect()?;
     // Priority and CPU only now, every port open and connected: creating a
     // port initialises its shared memory, milliseconds of kernel work that
     // must not run at real-time priority on the loop's CPU (measured: each
@@ -90,7 +227,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // A shadow or standby follows on a shared CPU: it waits on events until
     // it is named for the loop's CPU (and, under dedicated-cores, spins there).
     let mut waits = if priority_raised {
-        wait_mode(&scenario)
+        wait_mode(scenario)
     } else {
         WaitMode::Events
     };
@@ -110,6 +247,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut stale_estimates = 0u64;
     let mut skipped = 0u64;
     let mut next_seq = 0u64;
+    let mut ended = Served::Ended;
     let mut done = false;
     while !done && !shutdown::requested() {
         wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
@@ -137,14 +275,15 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         if !priority_raised && ((named && backlog.older().is_empty()) || active) {
             raise_priority(&rt);
             priority_raised = true;
-            waits = wait_mode(&scenario);
+            waits = wait_mode(scenario);
         }
         if !active && takeover.was_active {
             // Replaced at a sample boundary: the new instance owns this one.
+            ended = Served::Replaced;
             break;
         }
 
-        ring.take(&estimates, activation.current())?;
+        ring.take(estimates, activation.current())?;
         // A standby's command may be applied: it waits for the estimate too.
         if (active || args.standby) && ring.find(m.seq).is_none() {
             let deadline = if lockstep {
@@ -162,12 +301,12 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                     estimates.has_samples().unwrap_or(true)
                 })
                 .map_err(|e| NodeError::Peer(e.to_string()))?;
-                ring.take(&estimates, activation.current())?;
+                ring.take(estimates, activation.current())?;
                 if ring.find(m.seq).is_some() {
                     break;
                 }
                 if shutdown::requested() {
-                    return Ok(());
+                    return Ok(Served::Ended);
                 }
             }
             if lockstep && ring.find(m.seq).is_none() && !args.join {
@@ -183,7 +322,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             continue;
         };
 
-        handovers.take(&states_in, args.generation)?;
+        handovers.take(states_in, args.generation)?;
         // A design that copies the active state before each sample needs
         // only the newest; another one steps through every sample it missed.
         if !takeover.was_active && !takeover.copied {
@@ -221,7 +360,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             // until it sees this instance follow).
             if handovers.newest().is_some() {
                 publish_state(
-                    &states_out,
+                    states_out,
                     m.seq,
                     args.generation,
                     FOLLOWING,
@@ -244,7 +383,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             };
             while m.seq > 0 && handovers.find(m.seq - 1).is_none() && monotonic_ns() < deadline {
                 std::thread::sleep(std::time::Duration::from_micros(20));
-                handovers.take(&states_in, args.generation)?;
+                handovers.take(states_in, args.generation)?;
             }
             takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
         }
@@ -259,7 +398,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             commands.notify()?;
         }
         publish_state(
-            &states_out,
+            states_out,
             m.seq,
             args.generation,
             ACTIVE,
@@ -268,14 +407,20 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         )?;
         done = m.flags & flags::END_OF_RUN != 0;
     }
-    // Replaced or done: the teardown must not run at real-time priority.
-    realtime::step_down(rt.cpu);
+    // Replaced or done: the rest (teardown, or idling as a spare) must not
+    // run at real-time priority on the loop's CPU.
+    if ended == Served::Replaced && spare.is_some() {
+        realtime::step_aside(rt.cpu);
+    } else {
+        realtime::step_down(rt.cpu);
+    }
     if stale_estimates + skipped > 0 {
         eprintln!(
-            "flexloop-controller: {stale_estimates} stale estimates, {skipped} measurements skipped"
+            "flexloop-controller: generation {}: {stale_estimates} stale estimates, {skipped} measurements skipped",
+            args.generation
         );
     }
-    Ok(())
+    Ok(ended)
 }
 
 /// A replacement joining a running loop brings its feedforward block to the

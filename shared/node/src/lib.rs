@@ -12,6 +12,7 @@ pub mod plant;
 pub mod recording;
 pub mod replay;
 pub mod run_metadata;
+pub mod spare;
 pub mod startup;
 pub mod summary;
 

@@ -5,6 +5,7 @@ use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
 use crate::replay::{CatchUp, Replayed};
+use crate::spare::SpareDuty;
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
@@ -16,59 +17,177 @@ use flexloop_protocol::handover::{ACTIVE, CATCHING_UP, FOLLOWING};
 use flexloop_protocol::{Estimate, Handover, Measurement, flags};
 use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
-use flexloop_transport::{Domain, Inlet, Outlet};
+use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_transport::{Domain, Inlet, LoopNode, Outlet};
 use std::time::{Duration, Instant};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let clock = StartupClock::start();
-    let (scenario, design) = args.load()?;
-    let mut core = ObserverCore::for_design(&design)
-        .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
+    // As the controller: a spare designs only once it is ordered to serve.
+    let loaded = if args.spare { None } else { Some(args.load()?) };
+    let scenario = match &loaded {
+        Some((scenario, _)) => scenario.clone(),
+        None => Scenario::load(&args.scenario, &args.overrides)?,
+    };
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Observer);
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node("observer")?;
-    // A restart's queue holds what arrives while it catches up (see
-    // `catch_up`): 51 ms at 10 kHz.
-    let depth = if args.restart {
-        MEASUREMENT.qos.logger_buffer_size
-    } else {
-        MEASUREMENT.qos.loop_buffer_size
-    };
-    let measurements =
-        Inlet::<Measurement>::open_woken_by(&node, &MEASUREMENT, &OBSERVER_WAKEUP, depth)?;
-    let replay = if args.restart {
-        Some(Inlet::<Measurement>::open_polling(
-            &node,
-            &MEASUREMENT_REPLAY,
-            MEASUREMENT_REPLAY.qos.loop_buffer_size,
-        )?)
-    } else {
-        None
-    };
-    if !await_peers(
-        || Ok(measurements.publishers() >= 1),
-        || "no measurement publisher (plant)".into(),
-    )? {
+    let Some(mut ports) = Ports::open(&node, args, &scenario)? else {
         return Ok(());
+    };
+    let mut next = if args.spare {
+        None
+    } else {
+        Some((args.clone(), loaded, clock))
+    };
+    let mut served = args.generation;
+    loop {
+        let (serve_args, loaded, clock) = match next.take() {
+            Some(order) => order,
+            None => {
+                let Some(duty) = ports.spare.as_mut() else {
+                    return Ok(());
+                };
+                match duty.idle(args, served, &ports.measurements)? {
+                    Some(order) => (order, None, StartupClock::start()),
+                    None => return Ok(()),
+                }
+            }
+        };
+        let (scenario, design) = match loaded {
+            Some(loaded) => loaded,
+            None => serve_args.load()?,
+        };
+        served = serve_args.generation;
+        let ended = serve(&serve_args, &scenario, &design, &mut ports, &clock)?;
+        if ended == Served::Ended || ports.spare.is_none() {
+            return Ok(());
+        }
     }
-    measurements.connect()?;
-    // Opened only now: the controller takes the first estimate as the sign
-    // that the observer is connected and ready.
-    let estimates = Outlet::<Estimate>::open(&node, &ESTIMATE)?;
-    // A publisher hands its history to late subscribers only when it sends
-    // again, and the next send waits for tick 0: so the first estimate goes
-    // out once its readers (controller, logger) are there.
-    let mut activation = ActivationView::open(&node)?;
-    let states_in = Inlet::<Handover>::open_polling(
-        &node,
-        &OBSERVER_STATE,
-        OBSERVER_STATE.qos.loop_buffer_size,
-    )?;
-    let states_out = Outlet::<Handover>::open(&node, &OBSERVER_STATE)?;
-    states_in.connect()?;
-    activation.connect()?;
+}
+
+/// Every port an observer uses, open for the process's life.
+struct Ports {
+    measurements: Inlet<Measurement>,
+    /// Only for a restart (or a spare, which may serve one).
+    replay: Option<Inlet<Measurement>>,
+    estimates: Outlet<Estimate>,
+    activation: ActivationView,
+    states_in: Inlet<Handover>,
+    states_out: Outlet<Handover>,
+    /// With warm spares: orders and idle reports.
+    spare: Option<SpareDuty>,
+}
+
+impl Ports {
+    /// Opens and connects every port. `None`: a shutdown came first.
+    fn open(
+        node: &LoopNode,
+        args: &ServiceArgs,
+        scenario: &Scenario,
+    ) -> Result<Option<Self>, NodeError> {
+        let warm_spares = scenario.supervision.warm_spares;
+        // A restart's queue holds what arrives while it catches up (see
+        // `catch_up`): 51 ms at 10 kHz. Any instance may end up a spare
+        // that serves a restart.
+        let depth = if args.restart || warm_spares {
+            MEASUREMENT.qos.logger_buffer_size
+        } else {
+            MEASUREMENT.qos.loop_buffer_size
+        };
+        let measurements =
+            Inlet::<Measurement>::open_woken_by(node, &MEASUREMENT, &OBSERVER_WAKEUP, depth)?;
+        let replay = if args.restart || warm_spares {
+            Some(Inlet::<Measurement>::open_polling(
+                node,
+                &MEASUREMENT_REPLAY,
+                MEASUREMENT_REPLAY.qos.loop_buffer_size,
+            )?)
+        } else {
+            None
+        };
+        let spare = if warm_spares {
+            Some(SpareDuty::open(node)?)
+        } else {
+            None
+        };
+        if !await_peers(
+            || Ok(measurements.publishers() >= 1),
+            || "no measurement publisher (plant)".into(),
+        )? {
+            return Ok(None);
+        }
+        measurements.connect()?;
+        // Opened only now: the controller takes the first estimate as the
+        // sign that the observer is connected and ready.
+        let estimates = Outlet::<Estimate>::open(node, &ESTIMATE)?;
+        let activation = ActivationView::open(node)?;
+        let states_in = Inlet::<Handover>::open_polling(
+            node,
+            &OBSERVER_STATE,
+            OBSERVER_STATE.qos.loop_buffer_size,
+        )?;
+        let states_out = Outlet::<Handover>::open(node, &OBSERVER_STATE)?;
+        states_in.connect()?;
+        activation.connect()?;
+        if let Some(duty) = &spare {
+            duty.connect()?;
+        }
+        Ok(Some(Self {
+            measurements,
+            replay,
+            estimates,
+            activation,
+            states_in,
+            states_out,
+            spare,
+        }))
+    }
+}
+
+/// How an instance's service ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Served {
+    /// Another generation owns the estimates from here on.
+    Replaced,
+    /// The run ended, or a shutdown was asked.
+    Ended,
+}
+
+/// Serves the loop as `args.generation` with `design` until replaced or
+/// the run ends.
+fn serve(
+    args: &ServiceArgs,
+    scenario: &Scenario,
+    design: &LoopDesign,
+    ports: &mut Ports,
+    clock: &StartupClock,
+) -> Result<Served, NodeError> {
+    let Ports {
+        measurements,
+        replay,
+        estimates,
+        activation,
+        states_in,
+        states_out,
+        spare,
+    } = ports;
+    let mut core = ObserverCore::for_design(design)
+        .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
+    let rt = realtime_settings(scenario, Role::Observer);
+    if args.join {
+        // What queued up while idle, or before joining, belongs to nobody now.
+        measurements.clear_events()?;
+        while measurements.receive()?.is_some() {}
+        while states_in.receive()?.is_some() {}
+        // Not the replay: the supervisor may have begun it already, and an
+        // older one's leftovers are older than the state taken over (the
+        // catch-up skips them).
+    }
+    // Only a restart catches up from the supervisor's replay.
+    let replay = replay.as_ref().filter(|_| args.restart);
     // Priority and CPU only now, every port open and connected: see
     // `RealtimeSettings::scheduling_part` and the controller.
     let _scheduling = realtime::apply(Role::Observer.name(), &shadow_scheduling(&rt, args));
@@ -76,7 +195,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // A shadow follows on a shared CPU: it waits on events until it is
     // named for the loop's CPU (and, under dedicated-cores, spins there).
     let mut waits = if priority_raised {
-        wait_mode(&scenario)
+        wait_mode(scenario)
     } else {
         WaitMode::Events
     };
@@ -91,17 +210,20 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             Ok(flexloop_runtime::wait::Readiness::Ready(_))
         );
     if !loop_running {
-        let expected_readers = 1 + usize::from(scenario.logger.enabled);
+        // The controller, its warm spare and the logger.
+        let expected_readers = 1
+            + usize::from(scenario.supervision.warm_spares)
+            + usize::from(scenario.logger.enabled);
         if !await_peers(
             || Ok(estimates.subscribers() >= expected_readers),
             || {
                 format!(
-                    "{} of {expected_readers} estimate readers (controller, logger)",
+                    "{} of {expected_readers} estimate readers (controller, its spare, logger)",
                     estimates.subscribers()
                 )
             },
         )? {
-            return Ok(());
+            return Ok(Served::Ended);
         }
         // The estimate for tick 0 is the initial state; history keeps it for a
         // controller that connects later.
@@ -122,6 +244,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut was_active = false;
     let mut expected_seq: Option<u64> = None;
     let mut skipped = 0u64;
+    let mut ended = Served::Ended;
     let mut done = false;
     'samples: while !done && !shutdown::requested() {
         wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
@@ -145,15 +268,16 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             {
                 raise_priority(&rt);
                 priority_raised = true;
-                waits = wait_mode(&scenario);
+                waits = wait_mode(scenario);
             }
             if owner != args.generation {
                 if was_active {
                     // Replaced: the new instance publishes from here on.
+                    ended = Served::Replaced;
                     break 'samples;
                 }
                 // Shadow: follow the active instance's state, publish nothing.
-                handovers.take(&states_in, args.generation)?;
+                handovers.take(states_in, args.generation)?;
                 if let Some(h) = m.seq.checked_sub(1).and_then(|s| handovers.find(s)) {
                     copied |= core.load(h);
                 } else if !copied
@@ -163,7 +287,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 {
                     copied = true;
                     if h.seq + 1 < m.seq
-                        && let Some(replay) = &replay
+                        && let Some(replay) = replay
                     {
                         // A restart: the dead predecessor's last state is
                         // samples old; step through every one since.
@@ -173,15 +297,15 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                             h.seq,
                             &live,
                             replay,
-                            &measurements,
-                            &states_out,
+                            measurements,
+                            states_out,
                             args.generation,
                             &mut shadow_estimate,
                         )?;
                         eprintln!("flexloop-observer: {caught}");
                         expected_seq = Some(caught.last_seq + 1);
                         publish_state(
-                            &states_out,
+                            states_out,
                             caught.last_seq,
                             args.generation,
                             FOLLOWING,
@@ -199,7 +323,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 // follow (published before this instance subscribed, it
                 // would reach it only with the next one).
                 if handovers.newest().is_some() {
-                    publish_state(&states_out, m.seq, args.generation, FOLLOWING, &[], |h| {
+                    publish_state(states_out, m.seq, args.generation, FOLLOWING, &[], |h| {
                         core.save(h)
                     })?;
                 }
@@ -214,18 +338,26 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
                 e.published_ns = monotonic_ns();
             })?;
             estimates.notify()?;
-            publish_state(&states_out, m.seq, args.generation, ACTIVE, &[], |h| {
+            publish_state(states_out, m.seq, args.generation, ACTIVE, &[], |h| {
                 core.save(h)
             })?;
             done |= m.flags & flags::END_OF_RUN != 0;
         }
     }
-    // Replaced or done: the teardown must not run at real-time priority.
-    realtime::step_down(rt.cpu);
-    if skipped > 0 {
-        eprintln!("flexloop-observer: {skipped} measurements never arrived");
+    // Replaced or done: the rest (teardown, or idling as a spare) must not
+    // run at real-time priority on the loop's CPU.
+    if ended == Served::Replaced && spare.is_some() {
+        realtime::step_aside(rt.cpu);
+    } else {
+        realtime::step_down(rt.cpu);
     }
-    Ok(())
+    if skipped > 0 {
+        eprintln!(
+            "flexloop-observer: generation {}: {skipped} measurements never arrived",
+            args.generation
+        );
+    }
+    Ok(ended)
 }
 
 /// How long a restarted observer may take to replay its way to the live

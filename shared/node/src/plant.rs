@@ -40,14 +40,22 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
 
     // Start-up handshake: the observer and the logger subscribe once they are
     // connected and locked; the controller opens its command port last, once
-    // it holds the observer's first estimate. So when all are there, the
-    // chain is ready and tick 0 can start.
-    let expected_readers = 2 + usize::from(scenario.logger.enabled);
+    // it holds the observer's first estimate. So when all are there (and the
+    // warm spares, whose ports are there from their start, so that a swap
+    // opens none), the chain is ready and tick 0 can start.
+    // Warm spares open every port at once, so they are counted apart: the
+    // controller's own command port still comes last.
+    let spares = usize::from(scenario.supervision.warm_spares);
+    let expected_readers = 2 + 2 * spares + usize::from(scenario.logger.enabled);
+    let expected_writers = 1 + spares;
     let ready = await_peers(
-        || Ok(measurements.subscribers() >= expected_readers && commands.publishers() >= 1),
+        || {
+            Ok(measurements.subscribers() >= expected_readers
+                && commands.publishers() >= expected_writers)
+        },
         || {
             format!(
-                "{} of {expected_readers} measurement readers, {} command publishers",
+                "{} of {expected_readers} measurement readers, {} of {expected_writers} command publishers (warm spares included)",
                 measurements.subscribers(),
                 commands.publishers()
             )

@@ -27,10 +27,14 @@ pub struct ChannelQos {
     pub logger_buffer_size: usize,
 }
 
+// Readers of a measurement: the observer and the controller, a warm spare of
+// each, the standby controller, the logger and the supervisor, and a dead
+// one not yet cleaned. Writers of a command: the controller, its spare, the
+// standby, a dead or rogue one.
 const LOOP_QOS: ChannelQos = ChannelQos {
-    max_publishers: 4,
-    max_subscribers: 6,
-    max_nodes: 12,
+    max_publishers: 5,
+    max_subscribers: 8,
+    max_nodes: 16,
     history_size: 1,
     // Every publisher preallocates max_subscribers x this many samples, and
     // every reader maps (and under mlockall populates) all of it: 2048 made
@@ -109,10 +113,11 @@ pub const LOGGER_PROGRESS: Channel = Channel {
     },
 };
 
+// Active, spare and standby instances and the supervisor, on both ends.
 const HANDOVER_QOS: ChannelQos = ChannelQos {
-    max_publishers: 4,
-    max_subscribers: 6,
-    max_nodes: 12,
+    max_publishers: 6,
+    max_subscribers: 8,
+    max_nodes: 16,
     history_size: 1,
     subscriber_max_buffer_size: 8,
     loop_buffer_size: 8,
@@ -143,8 +148,30 @@ pub const ACTIVATION: Channel = Channel {
     },
 };
 
+/// The supervisor's orders to idle warm spares (see [`crate::spare`]);
+/// polled by the spares, kept as history for one that opens late.
+pub const SPARE_ORDER: Channel = Channel {
+    name: "flexloop/spare-order",
+    qos: SPARE_QOS,
+};
+/// Spares' reports that they are idle, polled by the supervisor.
+pub const SPARE_STATUS: Channel = Channel {
+    name: "flexloop/spare-status",
+    qos: SPARE_QOS,
+};
+
+const SPARE_QOS: ChannelQos = ChannelQos {
+    max_publishers: 12,
+    max_subscribers: 12,
+    max_nodes: 16,
+    history_size: 1,
+    subscriber_max_buffer_size: 16,
+    loop_buffer_size: 16,
+    logger_buffer_size: 16,
+};
+
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 10] = [
+pub const ALL: [Channel; 12] = [
     MEASUREMENT,
     MEASUREMENT_REPLAY,
     OBSERVER_WAKEUP,
@@ -155,6 +182,8 @@ pub const ALL: [Channel; 10] = [
     CONTROLLER_STATE,
     OBSERVER_STATE,
     ACTIVATION,
+    SPARE_ORDER,
+    SPARE_STATUS,
 ];
 
 /// Event ids on the event service paired with each channel.

@@ -6,6 +6,7 @@
 //! - [`channels`]: every service name and every QoS setting, in one place, so
 //!   that all processes open the services with identical settings.
 //! - [`handover`]: component state and activation for swaps and restarts.
+//! - [`spare`]: orders to idle warm spares and their reports.
 //! - [`layout`]: every recorded message's fields as data (ROS1 definitions,
 //!   export columns).
 //! - [`time`]: the monotonic nanosecond clock all timestamps use.
@@ -14,6 +15,7 @@ pub mod channels;
 pub mod handover;
 pub mod layout;
 pub mod messages;
+pub mod spare;
 pub mod time;
 
 pub use channels::{Channel, ChannelQos};
@@ -22,3 +24,4 @@ pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement, NO_SEQ, Telemetry, flags,
 };
+pub use spare::{SpareOrder, SpareStatus};

@@ -241,6 +241,14 @@ pub fn pin_to_cpu(cpu: usize) -> Result<(), String> {
 /// the loop for milliseconds (measured at every swap before this). Best
 /// effort: each step that fails is skipped.
 pub fn step_down(loop_cpu: Option<usize>) {
+    step_aside(loop_cpu);
+    // SAFETY: plain syscall.
+    unsafe { libc::munlockall() };
+}
+
+/// As [`step_down`], but the memory stays locked: for a replaced instance
+/// that stays on as a warm spare and may serve the loop again.
+pub fn step_aside(loop_cpu: Option<usize>) {
     // SCHED_OTHER at nice 0 (the crate's portable priority 0 would be nice 19).
     // SAFETY: plain syscalls on the calling thread with a valid parameter.
     unsafe {
@@ -249,13 +257,11 @@ pub fn step_down(loop_cpu: Option<usize>) {
         libc::setpriority(libc::PRIO_PROCESS, 0, 0);
     }
     // Off the loop's CPU at once (a mask without the current CPU migrates
-    // the process now), then unlock there.
+    // the process now).
     let _ = match loop_cpu {
         Some(cpu) => avoid_cpu(cpu),
         None => Ok(()),
     };
-    // SAFETY: plain syscall.
-    unsafe { libc::munlockall() };
 }
 
 /// SCHED_FIFO at `priority` for the calling thread.

@@ -1,0 +1,166 @@
+//! A loop process's time as a warm spare: every port open, nothing
+//! computed, waiting for the supervisor's order (see
+//! [`flexloop_protocol::spare`]). A process started as a spare waits here
+//! first; an instance replaced at a boundary comes back here instead of
+//! exiting, so that a swap neither creates nor drops a port.
+
+use crate::{NodeError, ServiceArgs};
+use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
+use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY};
+use flexloop_protocol::{Measurement, SpareOrder, SpareStatus, flags};
+use flexloop_runtime::wait::wait_readable;
+use flexloop_runtime::{monotonic_ns, shutdown};
+use flexloop_transport::{Inlet, LoopNode, Outlet};
+use std::path::PathBuf;
+
+/// How often an idle spare looks for the end of the run.
+const IDLE_CHECK_NS: u64 = 100_000_000;
+
+pub struct SpareDuty {
+    orders: Inlet<SpareOrder>,
+    status: Outlet<SpareStatus>,
+    pid: u32,
+    plant_seen: bool,
+}
+
+impl SpareDuty {
+    pub fn open(node: &LoopNode) -> Result<Self, NodeError> {
+        Ok(Self {
+            orders: Inlet::open(node, &SPARE_ORDER, SPARE_ORDER.qos.loop_buffer_size)?,
+            status: Outlet::open(node, &SPARE_STATUS)?,
+            pid: std::process::id(),
+            plant_seen: false,
+        })
+    }
+
+    pub fn connect(&self) -> Result<(), NodeError> {
+        self.orders.connect()?;
+        self.status.connect()?;
+        Ok(())
+    }
+
+    /// Reports this process idle (it served `generation` last), then waits
+    /// for an order addressed to it and returns the arguments to serve it
+    /// with; `None` once the run ended or a shutdown was asked.
+    ///
+    /// While idle it leaves its loop inputs alone: their queues overwrite
+    /// their oldest samples, and their events, not cleared, cost the
+    /// publishers no further wake-up. Only every [`IDLE_CHECK_NS`] it looks
+    /// at the measurements for the end of the run (without clearing their
+    /// event).
+    pub fn idle(
+        &mut self,
+        base: &ServiceArgs,
+        generation: u32,
+        measurements: &Inlet<Measurement>,
+    ) -> Result<Option<ServiceArgs>, NodeError> {
+        let since_ns = monotonic_ns();
+        self.status.publish(|s| {
+            *s = SpareStatus {
+                published_ns: since_ns,
+                pid: self.pid,
+                generation,
+                state: IDLE,
+                _reserved: 0,
+            }
+        })?;
+        loop {
+            if shutdown::requested() || self.run_ended(measurements)? {
+                return Ok(None);
+            }
+            wait_readable(&[self.orders.fd()], IDLE_CHECK_NS)
+                .map_err(|e| NodeError::Peer(e.to_string()))?;
+            self.orders.clear_events()?;
+            while let Some(order) = self.orders.receive()? {
+                // Another spare's, or one from before this idle spell.
+                if order.pid != self.pid || order.published_ns < since_ns {
+                    continue;
+                }
+                return args_for(base, &order).map(Some);
+            }
+        }
+    }
+
+    fn run_ended(&mut self, measurements: &Inlet<Measurement>) -> Result<bool, NodeError> {
+        let mut ended = false;
+        while let Some(m) = measurements.receive()? {
+            ended |= m.flags & flags::END_OF_RUN != 0;
+        }
+        let plant_there = measurements.publishers() > 0;
+        let gone = self.plant_seen && !plant_there;
+        self.plant_seen |= plant_there;
+        Ok(ended || gone)
+    }
+}
+
+/// The arguments of the instance an order asks for.
+fn args_for(base: &ServiceArgs, order: &SpareOrder) -> Result<ServiceArgs, NodeError> {
+    let scenario = order.scenario().ok_or_else(|| {
+        NodeError::Usage(format!(
+            "spare order for generation {}: the scenario path is not UTF-8",
+            order.generation
+        ))
+    })?;
+    Ok(ServiceArgs {
+        scenario: PathBuf::from(scenario),
+        generation: order.generation,
+        join: true,
+        spare: false,
+        standby: order.joining == JOIN_AS_STANDBY,
+        restart: order.joining == JOIN_AS_RESTART,
+        ..base.clone()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Role;
+    use flexloop_protocol::spare::JOIN_AS_REPLACEMENT;
+
+    fn base() -> ServiceArgs {
+        ServiceArgs::parse(
+            Role::Observer,
+            [
+                "--scenario",
+                "run.toml",
+                "--prefix",
+                "p_",
+                "--run-dir",
+                "r",
+                "--spare",
+            ]
+            .map(std::ffi::OsString::from),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn an_order_becomes_a_joining_instance_of_its_scenario() {
+        let mut order = SpareOrder {
+            generation: 7,
+            joining: JOIN_AS_RESTART,
+            ..SpareOrder::default()
+        };
+        order.set_scenario("/x/retuned.toml").unwrap();
+        let a = args_for(&base(), &order).unwrap();
+        assert_eq!(a.scenario, PathBuf::from("/x/retuned.toml"));
+        assert_eq!(a.generation, 7);
+        assert!(a.join && a.restart && !a.standby && !a.spare);
+        assert_eq!(a.prefix, "p_");
+        order.joining = JOIN_AS_REPLACEMENT;
+        let a = args_for(&base(), &order).unwrap();
+        assert!(a.join && !a.restart && !a.standby);
+    }
+
+    #[test]
+    fn an_order_with_a_broken_path_is_refused() {
+        let mut order = SpareOrder {
+            scenario_len: 2,
+            ..SpareOrder::default()
+        };
+        order.scenario[..2].copy_from_slice(&[0xff, 0xfe]);
+        let e = args_for(&base(), &order).unwrap_err();
+        assert!(e.to_string().contains("not UTF-8"), "{e}");
+    }
+}
