@@ -5,8 +5,8 @@ use crate::conductor::Switch;
 use crate::{LoopArgs, prepare, probes, registry, run_supervised_with};
 use flexloop_components::LogReader;
 use flexloop_node::Role;
-use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
+use flexloop_protocol::{Telemetry, flags};
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
 use flexloop_transport::{Domain, Inlet};
 use serde_json::{Value, json};
@@ -263,19 +263,12 @@ fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, 
             .iter()
             .any(|s| seq >= s.start_seq && seq <= s.from_seq + 100)
     };
-    let (mut inside, mut outside, mut ticks_inside, mut ticks_outside) = (0u64, 0u64, 0u64, 0u64);
-    let mut previous_misses = 0;
-    for m in log.measurements() {
-        let missed = m.misses.saturating_sub(previous_misses);
-        previous_misses = m.misses;
-        if in_window(m.seq) {
-            inside += missed;
-            ticks_inside += 1;
-        } else {
-            outside += missed;
-            ticks_outside += 1;
-        }
-    }
+    let (inside, outside) = tally_misses(
+        log.measurements()
+            .map(|m| (m.seq, m.misses, m.flags & flags::STALLED_TICK != 0)),
+        in_window,
+    );
+    let warm = switches.iter().filter(|s| s.warm).count();
     let mut steps: Vec<f64> = switches
         .iter()
         .map(|s| s.du_switch)
@@ -289,8 +282,18 @@ fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, 
         .map(|s| s.du_before.max(s.du_after))
         .fold(0.0, f64::max);
     println!(
-        "swaps {}: misses inside swap windows {inside} (of {ticks_inside} ticks), outside {outside} (of {ticks_outside} ticks)",
-        switches.len()
+        "swaps {} ({warm} by a warm spare): misses inside swap windows {} (of {} ticks; {} not in a machine stall's wake), outside {} (of {} ticks; {} not in a stall's wake)",
+        switches.len(),
+        inside.misses,
+        inside.ticks,
+        inside.misses - inside.after_stalls,
+        outside.misses,
+        outside.ticks,
+        outside.misses - outside.after_stalls,
+    );
+    println!(
+        "machine stalls (runs of ticks the plant woke half a period late for): {} inside the windows, {} outside",
+        inside.stalls, outside.stalls
     );
     println!(
         "|Δu| at the switches: median {median:.3e}, largest {largest:.3e}; largest ordinary |Δu| around them {ordinary:.3e}"
@@ -311,12 +314,63 @@ fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, 
     }
     Ok(json!({
         "count": switches.len(),
-        "misses_inside": inside,
-        "ticks_inside": ticks_inside,
-        "misses_outside": outside,
-        "ticks_outside": ticks_outside,
+        "warm": warm,
+        "misses_inside": inside.misses,
+        "misses_inside_after_stalls": inside.after_stalls,
+        "stalls_inside": inside.stalls,
+        "ticks_inside": inside.ticks,
+        "misses_outside": outside.misses,
+        "misses_outside_after_stalls": outside.after_stalls,
+        "stalls_outside": outside.stalls,
+        "ticks_outside": outside.ticks,
         "switches": switches.iter().map(Switch::json).collect::<Vec<_>>(),
     }))
+}
+
+/// A miss this many ticks after a stalled tick is the stall's: the plant
+/// catches up on the ticks it slept through in a burst, and the controller,
+/// which acts on the newest sample only, answers the last of them.
+const STALL_WAKE: u64 = 3;
+
+/// Misses and stalls over a set of ticks (inside or outside swap windows).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+struct MissTally {
+    ticks: u64,
+    misses: u64,
+    /// Misses within [`STALL_WAKE`] ticks after a stalled tick.
+    after_stalls: u64,
+    /// Runs of stalled ticks that began here.
+    stalls: u64,
+}
+
+/// Tallies (seq, cumulative misses, stalled) samples in order, inside and
+/// outside the ticks `in_window` names.
+fn tally_misses(
+    samples: impl Iterator<Item = (u64, u64, bool)>,
+    in_window: impl Fn(u64) -> bool,
+) -> (MissTally, MissTally) {
+    let (mut inside, mut outside) = (MissTally::default(), MissTally::default());
+    let mut previous_misses = 0;
+    let mut last_stall: Option<u64> = None;
+    for (seq, misses, stalled) in samples {
+        let tally = if in_window(seq) {
+            &mut inside
+        } else {
+            &mut outside
+        };
+        let missed = misses.saturating_sub(previous_misses);
+        previous_misses = misses;
+        tally.ticks += 1;
+        tally.misses += missed;
+        if stalled {
+            tally.stalls += u64::from(last_stall.is_none_or(|s| s + 1 != seq));
+            last_stall = Some(seq);
+        }
+        if last_stall.is_some_and(|s| seq - s <= STALL_WAKE) {
+            tally.after_stalls += missed;
+        }
+    }
+    (inside, outside)
 }
 
 /// Swaps, crashes and restarts so far, from the supervisor's events file.
@@ -399,4 +453,41 @@ pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
     println!("  tick lateness µs: {}", fmt(t.tick_lateness));
     print_events(&entry.run_dir);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn misses_in_a_stalls_wake_are_told_apart() {
+        // Ticks 0..40; a window over 10..20; a stall run 12..14 with misses
+        // at 13 (in it), 17 (3 after its end) and 18 (4 after: the loop's);
+        // one miss outside at 30 with no stall near.
+        let stalled = |seq: u64| (12..=14).contains(&seq);
+        let miss_at = [13u64, 17, 18, 30];
+        let samples = (0..40u64).map(|seq| {
+            let cumulative = miss_at.iter().filter(|&&m| m <= seq).count() as u64;
+            (seq, cumulative, stalled(seq))
+        });
+        let (inside, outside) = tally_misses(samples, |seq| (10..20).contains(&seq));
+        assert_eq!(
+            inside,
+            MissTally {
+                ticks: 10,
+                misses: 3,
+                after_stalls: 2,
+                stalls: 1
+            }
+        );
+        assert_eq!(
+            outside,
+            MissTally {
+                ticks: 30,
+                misses: 1,
+                after_stalls: 0,
+                stalls: 0
+            }
+        );
+    }
 }

@@ -127,6 +127,8 @@ pub struct Conductor {
     idle_reports: Vec<u32>,
     /// What [`PROCESSES_FILE`] holds now.
     processes_written: Value,
+    /// The plant published its last sample: no new spare or standby.
+    run_ending: bool,
     node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -206,6 +208,7 @@ impl Conductor {
             spare_status,
             idle_reports: Vec::new(),
             processes_written: Value::Null,
+            run_ending: false,
             node,
             domain,
             current,
@@ -251,6 +254,7 @@ impl Conductor {
                     self.recent_measurements.pop_front();
                 }
                 self.recent_measurements.push_back(*m);
+                self.run_ending |= m.flags & flags::END_OF_RUN != 0;
             }
         }
         if let Some(estimates) = &self.estimates {
@@ -414,6 +418,7 @@ impl Conductor {
         let slot = Role::Controller as usize;
         if self.scenario.supervision.safe_action != SafeAction::Standby
             || self.last_seq.is_none()
+            || self.run_ending
             || self.pending.iter().any(|p| p.role == Role::Controller)
             || self.restarts[slot] > self.scenario.supervision.max_restarts
             || running
@@ -526,7 +531,7 @@ impl Conductor {
     /// once the loop ticks (the first ones start with the loop; another
     /// after a spare crashed or served a restart), within the restart limit.
     fn keep_spares(&mut self, running: &mut RunningLoop) {
-        if !self.scenario.supervision.warm_spares || self.last_seq.is_none() {
+        if !self.scenario.supervision.warm_spares || self.last_seq.is_none() || self.run_ending {
             return;
         }
         for role in [Role::Controller, Role::Observer] {
@@ -770,7 +775,18 @@ impl Conductor {
             .map(|c| c.pid)
             .ok_or_else(|| format!("no running flexloop-{}", role.name()))?;
         let generation = self.next_generation(running, role);
+        // A replacement follows a ticking loop (and a spare serves only then).
+        let since = Instant::now();
         self.poll();
+        while self.last_seq.is_none() {
+            if since.elapsed() > SHADOW_TIMEOUT || flexloop_runtime::shutdown::requested() {
+                return Err(format!(
+                    "the loop did not start within {SHADOW_TIMEOUT:?}: nothing to swap into"
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+            self.poll();
+        }
         let start_seq = self.last_seq.unwrap_or(0);
         let (pid, warm) = self.engage(
             running,

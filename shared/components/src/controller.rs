@@ -12,7 +12,7 @@ use crate::handover::{Fingerprint, bumpless_shift};
 use flexloop_control::lti::LtiRunner;
 use flexloop_protocol::{
     Command, Estimate, Handover, MAX_HANDOVER_STATES, MAX_INPUTS, MAX_OBSERVER_INPUTS,
-    MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS, Measurement, flags,
+    MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags,
 };
 use flexloop_scenario::LoopDesign;
 use flexloop_scenario::reference::{Derivatives, Reference};
@@ -48,7 +48,15 @@ pub struct ControllerCore {
     feedforward_next_seq: u64,
     /// Fingerprint of the feedforward alone (see [`Handover::feedforward_hash`]).
     feedforward_hash: u64,
+    /// T_s / T_t of the anti-windup (0: none).
+    anti_windup_gain: f64,
+    /// The commands sent last, by sequence number modulo [`SENT`]: what the
+    /// plant should have applied, to compare with what it did.
+    sent: [(u64, [f64; MAX_INPUTS]); SENT],
 }
+
+/// Commands remembered for the anti-windup: more than the loop delay.
+const SENT: usize = 4;
 
 /// Skipped samples the step catches the feedforward block up on; a longer
 /// gap (a joining instance) is closed by [`ControllerCore::fast_forward`].
@@ -106,6 +114,12 @@ impl ControllerCore {
             bumpless_shift,
             estimate_watchdog: u32::MAX,
             feedforward_next_seq: 0,
+            anti_windup_gain: if design.anti_windup_s > 0.0 {
+                (design.ts / design.anti_windup_s).min(1.0)
+            } else {
+                0.0
+            },
+            sent: [(NO_SEQ, [0.0; MAX_INPUTS]); SENT],
             feedback: design.feedback.clone().map(LtiRunner::new),
             modified_feedforward: design.modified_feedforward.clone().map(LtiRunner::new),
             feedforward_input: [0.0; MAX_INPUTS + MAX_OUTPUTS],
@@ -344,17 +358,42 @@ impl ControllerCore {
             Some(block) => block.step(&self.feedforward_input[..nu + ny]),
             None => &self.feedforward_input[..nu],
         };
+        // Tracking anti-windup (back-calculation): the feedback's integrator
+        // follows what the actuator did rather than what was asked, with
+        // time constant T_t, so that a clamped command, or one the plant
+        // did not apply (late: it held the input; silent: its safe action),
+        // does not wind the integrator up. First the last sample's: the
+        // command due at this tick against the one the plant applies.
+        let mut untracked = [0.0; MAX_INPUTS];
+        let due = m
+            .seq
+            .checked_sub(u64::from(self.loop_delay_samples))
+            .unwrap_or(NO_SEQ);
+        let (sent_seq, sent_u) = self.sent[(due % SENT as u64) as usize];
+        if due != NO_SEQ && sent_seq == due && m.command_seq != due {
+            for i in 0..nu {
+                untracked[i] = m.u_applied[i] - sent_u[i];
+            }
+        }
         for i in 0..nu {
             let u_d = self.observer_output[ny + i];
             let total = u_fb[i] + u_ff[i] + u_d;
             let limited = total.clamp(-self.input_limit, self.input_limit);
             if limited != total {
                 command_flags |= flags::CLAMPED;
+                untracked[i] += limited - total;
             }
             out.u_fb[i] = u_fb[i];
             out.u_ff[i] = u_ff[i];
             out.u_d[i] = u_d;
             out.u[i] = limited;
+        }
+        self.sent[(m.seq % SENT as u64) as usize] = (m.seq, out.u);
+        if self.anti_windup_gain > 0.0 && untracked[..nu].iter().any(|d| *d != 0.0) {
+            for d in &mut untracked[..nu] {
+                *d *= self.anti_windup_gain;
+            }
+            self.shift_output(&untracked[..nu]);
         }
         out.seq = m.seq;
         out.tick_ns = m.tick_ns;

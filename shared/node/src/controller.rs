@@ -246,7 +246,7 @@ fn serve(
     let mut shadow_command = Command::default();
     let mut stale_estimates = 0u64;
     let mut skipped = 0u64;
-    let mut next_seq = 0u64;
+    let mut next_seq: Option<u64> = None;
     let mut ended = Served::Ended;
     let mut done = false;
     while !done && !shutdown::requested() {
@@ -264,8 +264,10 @@ fn serve(
         }
         let Some(m) = backlog.newest() else { continue };
         let received_ns = monotonic_ns();
-        skipped += m.seq.saturating_sub(next_seq);
-        next_seq = m.seq + 1;
+        if let Some(next) = next_seq {
+            skipped += m.seq.saturating_sub(next);
+        }
+        next_seq = Some(m.seq + 1);
         let owner = activation.refresh()?.controller_for(m.seq);
         let active = owner == args.generation;
         // Named for a coming boundary and caught up (nothing left over from

@@ -56,6 +56,10 @@ pub struct LoopDesign {
     pub output_prediction: OutputPrediction,
     /// e_meas → u_fb (absent when the observer block closes the loop by state feedback).
     pub feedback: Option<DiscreteStateSpace>,
+    /// Tracking time constant T_t [s] of the feedback's anti-windup (back-
+    /// calculation): √(T_i T_d) of the PID, as Åström and Hägglund advise
+    /// (T_i = 1/ω_i = 9/ω_bw, T_d = 1/ω_d = 3/ω_bw); 0 without feedback.
+    pub anti_windup_s: f64,
     /// u0,i = gains_i · derivatives of the reference profile, evaluated at
     /// the tick the command applies (one entry per input).
     pub feedforward: Vec<Derivatives>,
@@ -299,6 +303,11 @@ impl LoopDesign {
             plant,
             observer: parts.observer,
             output_prediction: parts.output_prediction,
+            anti_windup_s: if feedback.is_some() {
+                27f64.sqrt() / (2.0 * PI * s.controller.bandwidth_hz)
+            } else {
+                0.0
+            },
             feedback,
             feedforward,
             modified_feedforward,
