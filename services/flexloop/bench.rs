@@ -400,6 +400,37 @@ fn print_events(run_dir: &std::path::Path) {
 }
 
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it).
+/// The loop's processes and their duties, from the supervisor's list.
+fn print_processes(run_dir: &std::path::Path) {
+    let path = run_dir.join(crate::conductor::PROCESSES_FILE);
+    let Some(list) = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|text| serde_json::from_str::<Value>(&text).ok())
+    else {
+        return;
+    };
+    let shown: Vec<String> = list["processes"]
+        .as_array()
+        .map(Vec::as_slice)
+        .unwrap_or_default()
+        .iter()
+        .map(|p| {
+            let generation = p["generation"]
+                .as_u64()
+                .map(|g| format!(" g{g}"))
+                .unwrap_or_default();
+            format!(
+                "{} {}{} (pid {})",
+                p["role"].as_str().unwrap_or("?"),
+                p["duty"].as_str().unwrap_or("?"),
+                generation,
+                p["pid"]
+            )
+        })
+        .collect();
+    println!("  processes: {}", shown.join(", "));
+}
+
 pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
     let domain = Domain::new(&entry.prefix).map_err(|e| e.to_string())?;
     let node = domain.node("status").map_err(|e| e.to_string())?;
@@ -428,6 +459,7 @@ pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
         entry.prefix,
         entry.run_dir.display()
     );
+    print_processes(&entry.run_dir);
     let Some(t) = last else {
         println!("  no telemetry yet (the logger publishes once a second)");
         return Ok(());

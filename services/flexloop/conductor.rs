@@ -327,7 +327,9 @@ impl Conductor {
             .create(true)
             .append(true)
             .open(self.run_dir.join(EVENTS_FILE))
-            .and_then(|mut f| writeln!(f, "{line}"));
+            // One write of the whole line: with O_APPEND a reader never sees
+            // half of it (`writeln!` writes the pieces of its format apart).
+            .and_then(|mut f| f.write_all(format!("{line}\n").as_bytes()));
         if written.is_err() {
             eprintln!("flexloop: event {line}");
         }

@@ -95,6 +95,14 @@ fn run(args: Vec<OsString>) -> Result<i32, String> {
         println!("{USAGE}");
         return Ok(0);
     }
+    let supervises = matches!(command.to_str(), Some("up" | "bench" | "run" | "positions"));
+    if !supervises {
+        // A command that only reads and prints ends quietly when its reader
+        // does (`flexloop status | head`), as Unix tools do; one that
+        // supervises processes must not die before it has stopped them.
+        // SAFETY: restores the default action of a signal; no handler runs.
+        unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
+    }
     match command.to_str() {
         Some("up") => up(LoopArgs::parse(rest, false)?),
         Some("bench") if rest.iter().any(|a| a == "--sweep") => sweep::sweep(rest),
@@ -392,6 +400,8 @@ pub fn run_supervised_with(
     drop(conductor);
     running.stop();
     running.cleanup();
+    // It lists live processes: there are none now.
+    let _ = std::fs::remove_file(run_dir.join(conductor::PROCESSES_FILE));
     close_sample_files(&run_dir);
     match outcome {
         supervisor::Outcome::ChildFailed(role, code) => Err(format!(

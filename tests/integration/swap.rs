@@ -265,8 +265,10 @@ fn a_standby_controller_covers_a_crash_and_is_promoted_without_a_step() {
             .unwrap()
             .max(switch["du_after"].as_f64().unwrap()),
     );
+    // (1 % over the largest: on a ramp the step at one sample may exceed
+    // the hundred before it by a hair; a hand-over's bump is orders larger.)
     assert!(
-        du <= ordinary + 1e-9,
+        du <= 1.01 * ordinary + 1e-9,
         "step {du} at the promotion, ordinary {ordinary}"
     );
     assert_clean(&dir);

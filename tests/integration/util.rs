@@ -196,9 +196,11 @@ pub fn stop(prefix: &str, child: Child) -> Output {
     out
 }
 
+/// The supervisor's events so far (complete lines only: it may be writing).
 pub fn events(dir: &Path) -> Vec<Value> {
-    std::fs::read_to_string(dir.join("events.jsonl"))
-        .unwrap_or_default()
+    let text = std::fs::read_to_string(dir.join("events.jsonl")).unwrap_or_default();
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    complete
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect()

@@ -16,8 +16,11 @@ use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::{LoopDesign, Mode, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet};
 
-/// In lockstep, how long a new instance waits for its predecessor's last state.
-const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 100_000_000;
+/// In lockstep, how long a new instance waits for its predecessor's last
+/// state: the loop waits too, and on a loaded machine 100 ms was sometimes
+/// too short (a retuned design then starts without continuing the old
+/// command: a step).
+const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 2_000_000_000;
 /// In lockstep, how long to wait for the observer before giving up.
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
@@ -387,6 +390,16 @@ fn serve(
                 std::thread::sleep(std::time::Duration::from_micros(20));
                 handovers.take(states_in, args.generation)?;
             }
+            if m.seq > 0 && handovers.find(m.seq - 1).is_none() {
+                // Once, at the switch: a retuned design cannot continue the
+                // old command without it (the supervisor measures the step).
+                eprintln!(
+                    "flexloop-controller: generation {} active from sample {} without its predecessor's state after sample {}",
+                    args.generation,
+                    m.seq,
+                    m.seq - 1
+                );
+            }
             takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
         }
         let mut sent_u = [0.0; MAX_INPUTS];
@@ -470,8 +483,10 @@ fn catch_up_with_loop(
 }
 
 /// How many samples a shadow may fall behind and still step through every
-/// one of them (in lockstep the loop runs flat out beside it).
-const FOLLOW_DEPTH: usize = 128;
+/// one of them (in lockstep the loop runs flat out beside it, and a shadow
+/// of another design that lost samples starts with its filters off: 128
+/// was lost now and then on a loaded machine, and the switch stepped).
+const FOLLOW_DEPTH: usize = MEASUREMENT.qos.subscriber_max_buffer_size;
 const BACKLOG: usize = FOLLOW_DEPTH;
 
 /// The measurements one wake-up drained, in arrival order (preallocated).

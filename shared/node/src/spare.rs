@@ -7,7 +7,7 @@
 use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
 use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY};
-use flexloop_protocol::{Measurement, SpareOrder, SpareStatus, flags};
+use flexloop_protocol::{Measurement, SpareOrder, SpareStatus};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
@@ -45,9 +45,12 @@ impl SpareDuty {
     ///
     /// While idle it leaves its loop inputs alone: their queues overwrite
     /// their oldest samples, and their events, not cleared, cost the
-    /// publishers no further wake-up. Only every [`IDLE_CHECK_NS`] it looks
-    /// at the measurements for the end of the run (without clearing their
-    /// event).
+    /// publishers no further wake-up. Receiving from them would cost the
+    /// plant too: every sample taken and dropped goes back to its publisher,
+    /// which takes in all of them at its next loan (draining the 512-sample
+    /// queue every 100 ms put a spike into the plant's sample as often).
+    /// So the end of the run is the plant's measurement port gone, looked
+    /// for every [`IDLE_CHECK_NS`].
     pub fn idle(
         &mut self,
         base: &ServiceArgs,
@@ -82,14 +85,10 @@ impl SpareDuty {
     }
 
     fn run_ended(&mut self, measurements: &Inlet<Measurement>) -> Result<bool, NodeError> {
-        let mut ended = false;
-        while let Some(m) = measurements.receive()? {
-            ended |= m.flags & flags::END_OF_RUN != 0;
-        }
         let plant_there = measurements.publishers() > 0;
         let gone = self.plant_seen && !plant_there;
         self.plant_seen |= plant_there;
-        Ok(ended || gone)
+        Ok(gone)
     }
 }
 

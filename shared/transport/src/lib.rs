@@ -16,4 +16,6 @@ pub use domain::{
 pub use error::TransportError;
 /// A process's iceoryx2 node, as [`Domain::node`] returns it.
 pub type LoopNode = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;
+/// The bound every message type of an [`Inlet`] or [`Outlet`] carries.
+pub use iceoryx2::prelude::ZeroCopySend;
 pub use ports::{Inlet, Outlet, Wakeup};
