@@ -100,6 +100,20 @@ enum Joining {
     Standby,
 }
 
+/// A new instance on its way in.
+struct Incoming {
+    role: Role,
+    generation: u32,
+    /// The loop's sample when it was started or ordered.
+    start_seq: u64,
+    /// A warm spare (or a running standby), not a new process.
+    warm: bool,
+    /// The instance it replaces, alive (a swap).
+    old: Option<i32>,
+    /// The boundary, if already announced (a restart owns samples at once).
+    announced: Option<u64>,
+}
+
 struct PendingRestart {
     role: Role,
     due: Instant,
@@ -581,14 +595,15 @@ impl Conductor {
         {
             c.standby = false;
         }
-        let switch = match self.activate_and_measure(
-            running,
-            Role::Controller,
+        let incoming = Incoming {
+            role: Role::Controller,
             generation,
-            None,
             start_seq,
-            true,
-        ) {
+            warm: true,
+            old: None,
+            announced: None,
+        };
+        let switch = match self.activate_and_measure(running, incoming) {
             Ok(switch) => switch,
             Err(e) => return Some(Err(e)),
         };
@@ -702,6 +717,20 @@ impl Conductor {
             return promoted;
         }
         let generation = self.next_generation(running, role);
+        // The predecessor is dead: its replacement owns at once the samples
+        // it left unserved, from the first after its last state (its last
+        // command; the estimate after its last measurement). A boundary
+        // ahead, as a swap has, would never come in lockstep: the loop
+        // waits for the dead one's output.
+        let slot = usize::from(role != Role::Controller);
+        let owns_from = match (role, self.last_active[slot], self.last_seq) {
+            (Role::Controller, Some(last), Some(_)) => Some(last.seq + 1),
+            (Role::Observer, Some(last), Some(_)) => Some(last.seq + 2),
+            _ => None,
+        };
+        if let Some(from_seq) = owns_from {
+            self.announce(role, generation, from_seq)?;
+        }
         let (pid, warm) = if role == Role::Logger {
             (running.start_restart(role, &scenario, generation)?, false)
         } else {
@@ -729,7 +758,15 @@ impl Conductor {
         }
         // A failed attempt leaves nothing behind: the next one starts afresh.
         let switch = match self.await_shadow(running, role, generation).and_then(|_| {
-            self.activate_and_measure(running, role, generation, None, start_seq, warm)
+            let incoming = Incoming {
+                role,
+                generation,
+                start_seq,
+                warm,
+                old: None,
+                announced: owns_from,
+            };
+            self.activate_and_measure(running, incoming)
         }) {
             Ok(switch) => switch,
             Err(e) => {
@@ -801,8 +838,17 @@ impl Conductor {
             running.terminate(pid);
             return Err(e);
         }
-        let switch =
-            self.activate_and_measure(running, role, generation, Some(old), start_seq, warm)?;
+        let switch = self.activate_and_measure(
+            running,
+            Incoming {
+                role,
+                generation,
+                start_seq,
+                warm,
+                old: Some(old),
+                announced: None,
+            },
+        )?;
         self.event(
             "swap",
             role,
@@ -911,7 +957,11 @@ impl Conductor {
         loop {
             self.poll();
             self.take_idle_reports(running);
-            if self.shadows_seen.contains(&(role, generation)) {
+            // Following in shadow, or (a restart, which owns samples at
+            // once) already serving them.
+            if self.shadows_seen.contains(&(role, generation))
+                || self.last_active[slot].is_some_and(|l| l.generation == generation)
+            {
                 return Ok(());
             }
             // A replacement for a dead instance takes over its last state,
@@ -993,20 +1043,31 @@ impl Conductor {
     fn activate_and_measure(
         &mut self,
         running: &mut RunningLoop,
-        role: Role,
-        generation: u32,
-        old: Option<i32>,
-        start_seq: u64,
-        warm: bool,
+        incoming: Incoming,
     ) -> Result<Switch, String> {
+        let Incoming {
+            role,
+            generation,
+            start_seq,
+            warm,
+            old,
+            announced,
+        } = incoming;
         self.poll();
-        let now_seq = self.last_seq.unwrap_or(0);
-        // Far enough ahead that every process sees the announcement first:
-        // 50 ms at the loop's real pace (lockstep runs faster than its rate).
-        let observed = observed_pace(&self.pace).unwrap_or(0.0);
-        let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
-        let from_seq = now_seq + margin;
-        self.announce(role, generation, from_seq)?;
+        let from_seq = match announced {
+            Some(from_seq) => from_seq,
+            None => {
+                // Far enough ahead that every process sees the announcement
+                // first: 50 ms at the loop's real pace (lockstep runs faster
+                // than its rate).
+                let now_seq = self.last_seq.unwrap_or(0);
+                let observed = observed_pace(&self.pace).unwrap_or(0.0);
+                let margin = ((self.scenario.timing.rate_hz.max(observed) * 0.05) as u64).max(50);
+                let from_seq = now_seq + margin;
+                self.announce(role, generation, from_seq)?;
+                from_seq
+            }
+        };
         if let Some(pid) = old
             && let Some(c) = running.children.iter_mut().find(|c| c.pid == pid)
         {

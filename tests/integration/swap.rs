@@ -681,3 +681,93 @@ fn without_warm_spares_a_swap_starts_a_process_and_the_old_one_exits() {
     assert_no_gaps(&summary);
     assert_clean(&dir);
 }
+
+/// Kills the active `role` of a lockstep run once it logged `after` ticks
+/// and waits until its restart is recorded; returns the killed pid.
+fn kill_and_await_restart(dir: &Path, role: &str, after: usize) -> i32 {
+    wait_for_ticks(dir, after);
+    let pid = pid_on_duty(dir, role, "active");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let since = Instant::now();
+    while !events(dir)
+        .iter()
+        .any(|e| e["kind"] == "restart" && e["role"] == role)
+    {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "{role} did not come back: {:?}",
+            events(dir)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    pid
+}
+
+#[test]
+fn in_lockstep_a_killed_observer_comes_back_and_no_command_changes() {
+    let dir = temp_dir("swap-lockstep-observer-crash");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    kill_and_await_restart(&dir, "observer", 300);
+    // The loop goes on past the crash.
+    wait_for_ticks(&dir, 3_000);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_eq!(counter(&summary, "stale_estimates"), 0, "{summary}");
+    assert_no_gaps(&summary);
+    // The replacement took over the dead one's state and stepped through
+    // every measurement since: every command is the one a loop without the
+    // crash computes.
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let mut commands: Vec<&Command> = log.commands().collect();
+    commands.sort_by_key(|c| c.seq);
+    let estimate_generations: std::collections::BTreeSet<u32> =
+        log.estimates().map(|e| e.generation).collect();
+    assert_eq!(estimate_generations.len(), 2, "{estimate_generations:?}");
+    let scenario = Scenario::load(
+        &scenario("lecture-double-integrator"),
+        &Overrides {
+            mode: Some(flexloop_scenario::Mode::Lockstep),
+            no_realtime: true,
+            duration_s: Some(0.0),
+            ..Overrides::default()
+        },
+    )
+    .unwrap();
+    let design = LoopDesign::from_scenario(&scenario).unwrap();
+    let mut reference = InProcessLoop::new(&design).unwrap();
+    assert!(commands.len() > 3_000);
+    for (k, c) in commands.iter().enumerate() {
+        reference.tick();
+        assert_eq!(c.seq, k as u64, "commands are contiguous");
+        assert_eq!(
+            c.u[0].to_bits(),
+            reference.command.u[0].to_bits(),
+            "u({k}) differs from the loop without the crash"
+        );
+    }
+    assert_clean(&dir);
+}
+
+#[test]
+fn in_lockstep_a_killed_controller_comes_back_after_one_held_tick() {
+    let dir = temp_dir("swap-lockstep-controller-crash");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    kill_and_await_restart(&dir, "controller", 300);
+    wait_for_ticks(&dir, 3_000);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    // The plant waited its second for the dead one's command, held the
+    // input (a miss; the watchdog's safe action if it lasts), and went on
+    // with the replacement.
+    let misses = counter(&summary, "misses");
+    assert!((1..=5).contains(&misses), "{summary}");
+    assert_eq!(summary["gaps"]["measurement"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.len(), 2, "{generations:?}");
+    assert!(log.measurements().last().unwrap().flags & flags::END_OF_RUN != 0);
+    assert_clean(&dir);
+}

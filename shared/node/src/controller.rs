@@ -306,7 +306,9 @@ fn serve(
                     estimates.has_samples().unwrap_or(true)
                 })
                 .map_err(|e| NodeError::Peer(e.to_string()))?;
-                ring.take(estimates, activation.current())?;
+                // Refreshed: a restarted observer's estimates count from
+                // a boundary announced while this sample waits for them.
+                ring.take(estimates, activation.refresh()?)?;
                 if ring.find(m.seq).is_some() {
                     break;
                 }
@@ -386,11 +388,16 @@ fn serve(
             } else {
                 m.tick_ns + period_ns / 4
             };
-            while m.seq > 0 && handovers.find(m.seq - 1).is_none() && monotonic_ns() < deadline {
+            // (A restart's predecessor is dead: nothing more will come.)
+            while !args.restart
+                && m.seq > 0
+                && handovers.find(m.seq - 1).is_none()
+                && monotonic_ns() < deadline
+            {
                 std::thread::sleep(std::time::Duration::from_micros(20));
                 handovers.take(states_in, args.generation)?;
             }
-            if m.seq > 0 && handovers.find(m.seq - 1).is_none() {
+            if !args.restart && m.seq > 0 && handovers.find(m.seq - 1).is_none() {
                 // Once, at the switch: a retuned design cannot continue the
                 // old command without it (the supervisor measures the step).
                 eprintln!(
@@ -401,6 +408,11 @@ fn serve(
                 );
             }
             takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
+            // A restart owns samples at once, before it ever followed: it
+            // starts from the newest state its predecessor left.
+            if !takeover.copied {
+                takeover.follow(&mut core, &handovers, m.seq, true);
+            }
         }
         let mut sent_u = [0.0; MAX_INPUTS];
         commands.publish(|c| {

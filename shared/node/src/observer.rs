@@ -204,11 +204,39 @@ fn serve(
     // means the loop has not started (a first estimate that turns out not
     // to be needed is refused by the controller: its generation does not
     // own sample 0).
-    let loop_running = args.join
-        && matches!(
-            wait_readable(&[measurements.fd()], 200_000_000),
-            Ok(flexloop_runtime::wait::Readiness::Ready(_))
-        );
+    // A restart also knows it by the state the supervisor hands on (a
+    // lockstep loop waits for this very observer and publishes nothing).
+    let mut handovers = HandoverRing::default();
+    // A restart waits for that state (the supervisor hands it on every
+    // 5 ms) before anything else: it owns samples from the announcement on.
+    let loop_running = args.join && {
+        let since = Instant::now();
+        let mut measured = false;
+        loop {
+            if args.restart {
+                handovers.take(states_in, args.generation)?;
+                if handovers.newest().is_some() {
+                    break true;
+                }
+            }
+            if measured {
+                std::thread::sleep(Duration::from_millis(1));
+            } else {
+                let wait_ns = if args.restart { 5_000_000 } else { 200_000_000 };
+                measured = matches!(
+                    wait_readable(&[measurements.fd()], wait_ns),
+                    Ok(flexloop_runtime::wait::Readiness::Ready(_))
+                );
+            }
+            let waited = since.elapsed();
+            if measured && (!args.restart || waited >= RESTART_STATE_WAIT) {
+                break true;
+            }
+            if (!measured && waited >= Duration::from_millis(200)) || shutdown::requested() {
+                break false;
+            }
+        }
+    };
     if !loop_running {
         // The controller, its warm spare and the logger.
         let expected_readers = 1
@@ -238,7 +266,7 @@ fn serve(
     if args.join {
         clock.report_joined(args.role);
     }
-    let mut handovers = HandoverRing::default();
+    let lockstep = scenario.timing.mode == flexloop_scenario::Mode::Lockstep;
     let mut shadow_estimate = Box::<Estimate>::default();
     let mut copied = false;
     let mut was_active = false;
@@ -246,6 +274,53 @@ fn serve(
     let mut skipped = 0u64;
     let mut ended = Served::Ended;
     let mut done = false;
+    // A restart owns the estimates its dead predecessor left unserved at
+    // once: it takes over the predecessor's last state and steps through
+    // the measurements since, without waiting for a live one (in lockstep
+    // none comes: the loop waits for the estimate this observer owes). In
+    // lockstep it publishes the estimates it owns as it goes.
+    if let Some(replay) = replay
+        && let Some(h) = handovers.newest().copied()
+        && core.load(&h)
+    {
+        copied = true;
+        let generation = args.generation;
+        let caught = catch_up(
+            &mut core,
+            h.seq,
+            None,
+            replay,
+            measurements,
+            states_out,
+            generation,
+            &mut shadow_estimate,
+            |m, e| {
+                if lockstep && activation.refresh()?.observer_for(m.seq + 1) == generation {
+                    let now = monotonic_ns();
+                    estimates.publish(|out| {
+                        *out = *e;
+                        out.generation = generation;
+                        out.received_ns = now;
+                        out.published_ns = now;
+                    })?;
+                    estimates.notify()?;
+                    was_active = true;
+                }
+                Ok(())
+            },
+        )?;
+        eprintln!("flexloop-observer: {caught}");
+        expected_seq = Some(caught.last_seq + 1);
+        publish_state(
+            states_out,
+            caught.last_seq,
+            args.generation,
+            if was_active { ACTIVE } else { FOLLOWING },
+            &[],
+            |h| core.save(h),
+        )?;
+        done |= caught.end_of_run;
+    }
     'samples: while !done && !shutdown::requested() {
         wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
             measurements.has_samples().unwrap_or(true)
@@ -295,12 +370,13 @@ fn serve(
                         let caught = catch_up(
                             &mut core,
                             h.seq,
-                            &live,
+                            Some(&live),
                             replay,
                             measurements,
                             states_out,
                             args.generation,
                             &mut shadow_estimate,
+                            |_, _| Ok(()),
                         )?;
                         eprintln!("flexloop-observer: {caught}");
                         expected_seq = Some(caught.last_seq + 1);
@@ -360,6 +436,11 @@ fn serve(
     Ok(ended)
 }
 
+/// How long a restart waits for its dead predecessor's state while the
+/// loop runs (the supervisor hands it on every 5 ms; without it the
+/// replacement goes on from its own initial state).
+const RESTART_STATE_WAIT: Duration = Duration::from_secs(1);
+
 /// How long a restarted observer may take to replay its way to the live
 /// samples before it goes on from where it got (the supervisor's ring holds
 /// two seconds).
@@ -403,15 +484,18 @@ impl std::fmt::Display for CaughtUp {
 fn catch_up(
     core: &mut ObserverCore,
     state_seq: u64,
-    first_live: &Measurement,
+    first_live: Option<&Measurement>,
     replay: &Inlet<Measurement>,
     live: &Inlet<Measurement>,
     states_out: &Outlet<Handover>,
     generation: u32,
     scratch: &mut Estimate,
+    mut stepped: impl FnMut(&Measurement, &Estimate) -> Result<(), NodeError>,
 ) -> Result<CaughtUp, NodeError> {
     let mut merge = CatchUp::after(state_seq);
-    merge.hold_live(first_live);
+    if let Some(m) = first_live {
+        merge.hold_live(m);
+    }
     let since = Instant::now();
     let (mut replayed, mut reported) = (0u64, state_seq);
     let mut incomplete = None;
@@ -420,6 +504,7 @@ fn catch_up(
             match merge.replayed(&r) {
                 Replayed::Step => {
                     core.step(&r, scratch);
+                    stepped(&r, scratch)?;
                     replayed += 1;
                 }
                 Replayed::Skip => {}
@@ -462,6 +547,7 @@ fn catch_up(
     let (mut last_seq, mut end_of_run) = (merge.next_seq() - 1, false);
     while let Some(m) = merge.take_held() {
         core.step(&m, scratch);
+        stepped(&m, scratch)?;
         last_seq = m.seq;
         end_of_run |= m.flags & flags::END_OF_RUN != 0;
     }
