@@ -771,3 +771,32 @@ fn in_lockstep_a_killed_controller_comes_back_after_one_held_tick() {
     assert!(log.measurements().last().unwrap().flags & flags::END_OF_RUN != 0);
     assert_clean(&dir);
 }
+
+#[test]
+fn in_lockstep_a_killed_logger_comes_back_and_the_loop_goes_on() {
+    let dir = temp_dir("swap-lockstep-logger-crash");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    kill_and_await_restart(&dir, "logger", 300);
+    // The plant paces itself on the logger's progress: it waits for the
+    // dead one (at most its patience) until the restarted one reports; that
+    // one records from where it joined, and the loop runs on with it.
+    wait_for_ticks_in(&dir, "samples.g1.mcap", 2_000);
+    stop(&prefix, child);
+    let plant = std::fs::read_to_string(dir.join("plant.stderr")).unwrap();
+    let second = LogReader::open(&dir.join("samples.g1.mcap")).unwrap();
+    let seqs: Vec<u64> = second.measurements().map(|m| m.seq).collect();
+    assert!(
+        seqs.len() >= 2_000,
+        "{} recorded after the restart",
+        seqs.len()
+    );
+    assert!(
+        seqs.windows(2).all(|w| w[1] == w[0] + 1),
+        "the restarted logger's record has gaps"
+    );
+    let last = second.measurements().last().unwrap();
+    assert!(last.flags & flags::END_OF_RUN != 0);
+    // No tick waited for a command: the logger is not on the loop's path.
+    assert_eq!(last.misses, 0, "{plant}");
+    assert_clean(&dir);
+}
