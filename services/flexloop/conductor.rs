@@ -164,6 +164,9 @@ pub struct Conductor {
     states_out: [Outlet<Handover>; 2],
     n_inputs: usize,
     restarts: [u32; 4],
+    /// Spares that crashed or failed to start, per role (their own budget:
+    /// an idle spare's trouble must not use up the active role's restarts).
+    spare_failures: [u32; 4],
     pending: Vec<PendingRestart>,
     pub switches: Vec<Switch>,
 }
@@ -238,6 +241,7 @@ impl Conductor {
             states_out,
             n_inputs,
             restarts: [0; 4],
+            spare_failures: [0; 4],
             pending: Vec::new(),
             switches: Vec::new(),
         })
@@ -388,6 +392,9 @@ impl Conductor {
             let _ = std::fs::remove_file(&request);
             write_answer(&request, &answer);
         }
+        // Crashes reaped inside a swap or restart above, settled now,
+        // before the supervisor judges exits.
+        self.settle_crashes(running);
         self.write_processes(running);
         None
     }
@@ -506,8 +513,10 @@ impl Conductor {
                     .map_err(|e| format!("{}: {e}", scenario.display()))?;
                 self.spare_orders
                     .publish(|o| *o = order)
-                    .and_then(|_| self.spare_orders.notify())
                     .map_err(|e| e.to_string())?;
+                // Published, it is served: without the wake-up the spare
+                // finds it at its next look (100 ms).
+                let _ = self.spare_orders.notify();
                 spare.spare = false;
                 spare.idle = false;
                 spare.settled = false;
@@ -547,13 +556,17 @@ impl Conductor {
     /// once the loop ticks (the first ones start with the loop; another
     /// after a spare crashed or served a restart), within the restart limit.
     fn keep_spares(&mut self, running: &mut RunningLoop) {
-        if !self.scenario.supervision.warm_spares || self.last_seq.is_none() || self.run_ending {
+        // Before tick 0 too: the plant waits for a spare of each.
+        if !self.scenario.supervision.warm_spares
+            || self.run_ending
+            || running.child(Role::Plant).is_none_or(|p| p.exit.is_some())
+        {
             return;
         }
         for role in [Role::Controller, Role::Observer] {
             let slot = role as usize;
             if self.pending.iter().any(|p| p.role == role)
-                || self.restarts[slot] > self.scenario.supervision.max_restarts
+                || self.spare_failures[slot] > self.scenario.supervision.max_restarts
                 || running
                     .children
                     .iter()
@@ -564,7 +577,7 @@ impl Conductor {
             match running.start_spare(role) {
                 Ok(pid) => self.event("spare", role, None, json!({"pid": pid})),
                 Err(e) => {
-                    self.restarts[slot] += 1;
+                    self.spare_failures[slot] += 1;
                     self.event("spare-failed", role, None, json!(e));
                 }
             }
@@ -634,7 +647,7 @@ impl Conductor {
                 if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
                     c.settled = true;
                 }
-                self.restarts[role as usize] += 1;
+                self.spare_failures[role as usize] += 1;
                 let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
                 self.event(
                     "crash",
@@ -706,8 +719,22 @@ impl Conductor {
     }
 
     fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<(), String> {
-        let scenario = running
-            .child(role)
+        // The file of the generation that owned the loop (with spares the
+        // order of the children is not the order they served in).
+        let owner = match role {
+            Role::Controller => Some(self.current.controller_generation),
+            Role::Observer => Some(self.current.observer_generation),
+            _ => None,
+        };
+        let scenario = owner
+            .and_then(|g| {
+                running
+                    .children
+                    .iter()
+                    .rev()
+                    .find(|c| c.role == role && c.generation == g && !c.standby)
+            })
+            .or_else(|| running.child(role))
             .map(|c| c.scenario.clone())
             .ok_or("no instance to restart")?;
         let start_seq = self.last_seq.unwrap_or(0);
@@ -802,6 +829,19 @@ impl Conductor {
 
     /// Replaces the active `role` by an instance running `scenario`.
     pub fn swap(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario_path: &Path,
+    ) -> Result<Switch, String> {
+        let result = self.swap_to(running, role, scenario_path);
+        // Crashes reaped while it waited, settled before the supervisor
+        // judges exits (a swap may run outside `tick`).
+        self.settle_crashes(running);
+        result
+    }
+
+    fn swap_to(
         &mut self,
         running: &mut RunningLoop,
         role: Role,
@@ -971,7 +1011,7 @@ impl Conductor {
                     .children
                     .iter()
                     .filter(|c| c.role == role && c.generation == last.generation)
-                    .all(|c| c.exit.is_some())
+                    .all(|c| c.exit.is_some() || c.spare)
             {
                 let _ = self.states_out[slot].publish(|h| *h = last);
                 if role == Role::Observer {

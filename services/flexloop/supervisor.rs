@@ -368,10 +368,12 @@ impl RunningLoop {
                 outcome = ended;
                 break;
             }
+            // An idle spare's crash is never the run's failure (the
+            // conductor records it and starts another).
             if let Some(failed) = self
                 .children
                 .iter()
-                .find(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
+                .find(|c| !c.settled && !c.spare && c.exit.is_some_and(|e| e.code != 0))
             {
                 outcome = Outcome::ChildFailed(failed.role, failed.exit.map_or(-1, |e| e.code));
                 break;

@@ -800,3 +800,41 @@ fn in_lockstep_a_killed_logger_comes_back_and_the_loop_goes_on() {
     assert_eq!(last.misses, 0, "{plant}");
     assert_clean(&dir);
 }
+
+#[test]
+fn a_killed_spare_is_replaced_and_the_loop_never_notices() {
+    let dir = temp_dir("swap-spare-crash");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 215);
+    let spare = pid_on_duty(&dir, "controller", "spare");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(spare, libc::SIGKILL) };
+    let since = Instant::now();
+    while !events(&dir).iter().any(|e| e["kind"] == "spare") {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no new spare: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let replacement = pid_on_duty(&dir, "controller", "spare");
+    assert_ne!(replacement, spare);
+    // And it serves: a swap hands the loop to it.
+    swap(
+        &prefix,
+        "controller",
+        &scenario("lecture-double-integrator"),
+    );
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), replacement);
+    stop(&prefix, child);
+    let crash = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "crash")
+        .unwrap();
+    assert_eq!(crash["detail"]["spare"], true, "{crash}");
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_no_gaps(&summary);
+    assert_clean(&dir);
+}

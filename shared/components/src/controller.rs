@@ -369,8 +369,10 @@ impl ControllerCore {
             .seq
             .checked_sub(u64::from(self.loop_delay_samples))
             .unwrap_or(NO_SEQ);
+        // (Zero when the plant applied this command; the hold, a zero, or
+        // the standby's command otherwise.)
         let (sent_seq, sent_u) = self.sent[(due % SENT as u64) as usize];
-        if due != NO_SEQ && sent_seq == due && m.command_seq != due {
+        if due != NO_SEQ && sent_seq == due {
             for i in 0..nu {
                 untracked[i] = m.u_applied[i] - sent_u[i];
             }
