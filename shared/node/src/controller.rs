@@ -2,7 +2,7 @@
 
 use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
-    ActivationView, HandoverRing, SHADOW_POLL, publish_state, raise_priority, shadow_scheduling,
+    ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
 use crate::spare::SpareDuty;
 use crate::startup::StartupClock;
@@ -252,18 +252,12 @@ fn serve(
     let mut next_seq: Option<u64> = None;
     let mut ended = Served::Ended;
     let mut done = false;
-    // A shadow polls until named (see `SHADOW_POLL`), its events untouched.
-    let mut polling = args.join && !args.standby && !args.restart;
     while !done && !shutdown::requested() {
-        if polling {
-            std::thread::sleep(SHADOW_POLL);
-        } else {
-            wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
-                measurements.has_samples().unwrap_or(true)
-            })
-            .map_err(|e| NodeError::Peer(e.to_string()))?;
-            measurements.clear_events()?;
-        }
+        wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
+            measurements.has_samples().unwrap_or(true)
+        })
+        .map_err(|e| NodeError::Peer(e.to_string()))?;
+        measurements.clear_events()?;
         // The active instance acts on the newest measurement only (an older
         // one is already late); a shadow steps through all of them in order,
         // so that a different design's filters see every sample.
@@ -283,7 +277,6 @@ fn serve(
         // following at low priority), or at the latest at its first sample:
         // the loop's priority from now on.
         let named = activation.current().controller_generation == args.generation;
-        polling &= !(named || active);
         if !priority_raised && ((named && backlog.older().is_empty()) || active) {
             raise_priority(&rt);
             priority_raised = true;

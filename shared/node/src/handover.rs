@@ -128,14 +128,6 @@ pub fn shadow_scheduling(rt: &RealtimeSettings, args: &ServiceArgs) -> RealtimeS
     scheduling
 }
 
-/// How often a shadow that is not yet named for a boundary takes in the
-/// samples queued meanwhile. Waking on every sample instead costs the plant
-/// one more event datagram per sample and the other CPU ten thousand
-/// wake-ups a second, which on this VM makes the host stall the loop's
-/// CPU more often; the queue holds 512 samples. A standby, whose commands
-/// may be applied, always wakes per sample.
-pub const SHADOW_POLL: std::time::Duration = std::time::Duration::from_millis(1);
-
 pub fn raise_priority(rt: &RealtimeSettings) {
     if let Some(cpu) = rt.cpu
         && let Err(e) = realtime::pin_to_cpu(cpu)

@@ -2,7 +2,7 @@
 
 use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
-    ActivationView, HandoverRing, SHADOW_POLL, publish_state, raise_priority, shadow_scheduling,
+    ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
 use crate::replay::{CatchUp, Replayed};
 use crate::spare::SpareDuty;
@@ -321,18 +321,12 @@ fn serve(
         )?;
         done |= caught.end_of_run;
     }
-    // A shadow polls until named (see `SHADOW_POLL`), its events untouched.
-    let mut polling = args.join && !copied;
     'samples: while !done && !shutdown::requested() {
-        if polling {
-            std::thread::sleep(SHADOW_POLL);
-        } else {
-            wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
-                measurements.has_samples().unwrap_or(true)
-            })
-            .map_err(|e| NodeError::Peer(e.to_string()))?;
-            measurements.clear_events()?;
-        }
+        wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
+            measurements.has_samples().unwrap_or(true)
+        })
+        .map_err(|e| NodeError::Peer(e.to_string()))?;
+        measurements.clear_events()?;
         // Every measurement, in order: a Kalman predictor must not skip one.
         while let Some(m) = measurements.receive()? {
             let received_ns = monotonic_ns();
@@ -343,9 +337,10 @@ fn serve(
             // This measurement yields the estimate for the next tick.
             let owner = activation.refresh()?.observer_for(m.seq + 1);
             // As the controller: once named, at the latest at its first estimate.
-            let named = activation.current().observer_generation == args.generation;
-            polling &= !(named || owner == args.generation);
-            if !priority_raised && (named || owner == args.generation) {
+            if !priority_raised
+                && (activation.current().observer_generation == args.generation
+                    || owner == args.generation)
+            {
                 raise_priority(&rt);
                 priority_raised = true;
                 waits = wait_mode(scenario);
