@@ -341,15 +341,8 @@ pub fn logger_files(generation: u32) -> [String; 2] {
     ]
 }
 
-/// Starts and supervises until the end; returns the run directory.
-pub fn run_supervised(
-    prepared: Prepared,
-) -> Result<(supervisor::RunningLoop, supervisor::Outcome), String> {
-    run_supervised_with(prepared, |_, _| None).map(|(running, outcome, _)| (running, outcome))
-}
-
-/// As [`run_supervised`], with `hook` called every 20 ms beside the
-/// conductor (bench swaps); returns the switches made.
+/// Starts and supervises until the end, with `hook` called every 20 ms
+/// beside the conductor (bench swaps); returns the switches made.
 pub fn run_supervised_with(
     prepared: Prepared,
     mut hook: impl FnMut(

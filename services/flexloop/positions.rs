@@ -8,7 +8,7 @@
 //! runs every position through the real processes in lockstep instead. The
 //! feed-forward error is discussed in flexloop_analysis::positions.
 
-use crate::{LoopArgs, prepare, registry, run_supervised};
+use crate::{LoopArgs, prepare, run_registered_with};
 use flexloop_analysis::feedforward_fit::FittedFeedforward;
 use flexloop_analysis::positions::{
     FeedforwardChoice, PositionError, PositionRms, PositionScan, position_scan, scenario_at,
@@ -319,16 +319,7 @@ fn run_position(
             swap_every_s: None,
         };
         let prepared = prepare(&args)?;
-        let entry = registry::Entry {
-            prefix: prepared.plan.prefix.clone(),
-            supervisor_pid: std::process::id() as i32,
-            run_dir: run_dir.to_path_buf(),
-            scenario: name.to_string(),
-        };
-        registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
-        let result = run_supervised(prepared);
-        registry::unregister(&entry.prefix);
-        result.map_err(|e| format!("{name}: {e}"))?;
+        run_registered_with(prepared, |_, _| None).map_err(|e| format!("{name}: {e}"))?;
         let report = crate::run::RunReport::load(run_dir)?;
         let gaps: u64 = ["measurement", "estimate", "command"]
             .iter()

@@ -3,7 +3,7 @@
 //! summary. `flexloop tune-ff RUN`: fits the feedforward gains from a recorded
 //! run and writes them into a scenario file.
 
-use crate::{LoopArgs, prepare, registry, run_supervised};
+use crate::{LoopArgs, prepare, run_registered_with};
 use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
@@ -22,19 +22,12 @@ pub const METRICS_FILE: &str = "metrics.json";
 pub fn run(args: LoopArgs) -> Result<i32, String> {
     let prepared = prepare(&args)?;
     let run_dir = prepared.plan.run_dir.clone();
-    let entry = registry::Entry {
-        prefix: prepared.plan.prefix.clone(),
-        supervisor_pid: std::process::id() as i32,
-        run_dir: run_dir.clone(),
-        scenario: prepared.scenario.name.clone(),
-    };
     if prepared.scenario.ticks().is_none() {
         return Err(format!(
             "{}: loop.duration_s is 0 (run until stopped); `flexloop run` needs a duration",
             args.scenario.display()
         ));
     }
-    registry::register(&entry).map_err(|e| format!("cannot register the loop: {e}"))?;
     eprintln!(
         "flexloop run: {} for {} s at {} Hz ({}), run directory {}",
         prepared.scenario.name,
@@ -43,9 +36,7 @@ pub fn run(args: LoopArgs) -> Result<i32, String> {
         prepared.scenario.timing.mode.as_str(),
         run_dir.display()
     );
-    let result = run_supervised(prepared);
-    registry::unregister(&entry.prefix);
-    result?;
+    run_registered_with(prepared, |_, _| None)?;
     let report = RunReport::load(&run_dir)?;
     report.print();
     flexloop_node::summary::write_json_atomically(&run_dir.join(METRICS_FILE), &report.to_json())
