@@ -10,7 +10,7 @@ use flexloop_protocol::channels::{
     OBSERVER_STATE, SPARE_ORDER, SPARE_STATUS,
 };
 use flexloop_protocol::handover::{ACTIVE, CATCHING_UP};
-use flexloop_protocol::spare::{JOIN_AS_REPLACEMENT, JOIN_AS_RESTART, JOIN_AS_STANDBY};
+use flexloop_protocol::spare::{JOIN_AS_REPLACEMENT, JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
 use flexloop_protocol::{
     Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, SpareOrder, SpareStatus,
     flags,
@@ -33,6 +33,8 @@ pub use flexloop_node::logger::EVENTS_FILE;
 pub const PROCESSES_FILE: &str = "processes.json";
 /// How long a replacement may take to start and follow the loop in shadow.
 const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long a standby told to retire may take to become a spare.
+const RETIRE_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long the replaced instance may take to hand over and exit.
 const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
 /// Commands kept for measuring the step at a switch.
@@ -143,6 +145,10 @@ pub struct Conductor {
     processes_written: Value,
     /// The plant published its last sample: no new spare or standby.
     run_ending: bool,
+    /// Standbys told to retire, and since when: stopped if they have not
+    /// become spares within [`RETIRE_TIMEOUT`] (one without spare duty,
+    /// started from a file with `warm_spares = false`, never does).
+    retiring: Vec<(i32, Instant)>,
     node: LoopNode,
     domain: Domain,
     current: Activation,
@@ -226,6 +232,7 @@ impl Conductor {
             idle_reports: Vec::new(),
             processes_written: Value::Null,
             run_ending: false,
+            retiring: Vec::new(),
             node,
             domain,
             current,
@@ -382,6 +389,7 @@ impl Conductor {
                 });
             }
         }
+        self.check_retiring(running);
         self.keep_standby(running);
         self.keep_spares(running);
         for request in pending_requests(&self.run_dir) {
@@ -532,6 +540,46 @@ impl Conductor {
             Joining::Standby => running.start_standby(scenario, generation),
         }?;
         Ok((pid, false))
+    }
+
+    /// Stops a standby told to retire that did not become a spare in time.
+    fn check_retiring(&mut self, running: &mut RunningLoop) {
+        let mut late = Vec::new();
+        self.retiring.retain(|&(pid, since)| {
+            let Some(c) = running.children.iter().find(|c| c.pid == pid) else {
+                return false;
+            };
+            if c.spare || c.exit.is_some() {
+                return false;
+            }
+            if since.elapsed() > RETIRE_TIMEOUT {
+                late.push(pid);
+                return false;
+            }
+            true
+        });
+        for pid in late {
+            running.terminate(pid);
+        }
+    }
+
+    /// Tells a serving standby to become a spare (it reports itself idle
+    /// then); without warm spares, or if the order cannot go out, stops it.
+    fn retire(&mut self, running: &mut RunningLoop, pid: i32) {
+        if self.scenario.supervision.warm_spares {
+            let order = SpareOrder {
+                published_ns: flexloop_runtime::monotonic_ns(),
+                pid: pid as u32,
+                joining: RETIRE,
+                ..SpareOrder::default()
+            };
+            if self.spare_orders.publish(|o| *o = order).is_ok() {
+                let _ = self.spare_orders.notify();
+                self.retiring.push((pid, Instant::now()));
+                return;
+            }
+        }
+        running.terminate(pid);
     }
 
     /// Marks the processes that reported themselves idle as spares that
@@ -924,8 +972,6 @@ impl Conductor {
             return;
         }
         let generation = self.next_generation(running, Role::Controller);
-        // The old standby is stopped, not retired to a spare: it would have
-        // to look for orders every sample. One port fewer, once per retune.
         let started = self
             .engage(
                 running,
@@ -942,7 +988,7 @@ impl Conductor {
         match started {
             Ok(pid) => {
                 for (pid, _) in &old {
-                    running.terminate(*pid);
+                    self.retire(running, *pid);
                 }
                 let replaced: Vec<u32> = old.iter().map(|(_, g)| *g).collect();
                 self.event(

@@ -492,9 +492,15 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+    let old_standby = pid_on_duty(&dir, "controller", "standby");
+    let pids_before: std::collections::BTreeSet<i64> = processes(&dir)
+        .iter()
+        .filter_map(|p| p["pid"].as_i64())
+        .collect();
     swap(&prefix, "controller", &retuned);
     // The swap returns once the new standby follows and the old one is
-    // told to stop: one standby is left, of the new design.
+    // told to retire: one standby is left, of the new design, and the old
+    // one idles as the spare (no process started or stopped).
     let since = Instant::now();
     loop {
         let running = standbys(&dir);
@@ -507,6 +513,12 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+    await_spare(&dir, "controller", old_standby);
+    let pids_after: std::collections::BTreeSet<i64> = processes(&dir)
+        .iter()
+        .filter_map(|p| p["pid"].as_i64())
+        .collect();
+    assert_eq!(pids_before, pids_after, "{:?}", processes(&dir));
     let renewed = events(&dir)
         .into_iter()
         .find(|e| e["kind"] == "standby" && e["detail"]["replaces"].is_array())

@@ -204,6 +204,7 @@ fn serve(
         commands,
         spare,
     } = ports;
+    let serve_start_ns = monotonic_ns();
     let mut core = ControllerCore::new(design, args.generation);
     core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
     let rt = realtime_settings(scenario, Role::Controller);
@@ -284,6 +285,15 @@ fn serve(
         }
         if !active && takeover.was_active {
             // Replaced at a sample boundary: the new instance owns this one.
+            ended = Served::Replaced;
+            break;
+        }
+        // A standby of a design no longer active is retired to a spare.
+        if args.standby
+            && !active
+            && let Some(duty) = spare.as_ref()
+            && duty.retire_requested(serve_start_ns)?
+        {
             ended = Served::Replaced;
             break;
         }

@@ -6,7 +6,7 @@
 
 use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
-use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY};
+use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
 use flexloop_protocol::{Measurement, SpareOrder, SpareStatus};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
@@ -82,6 +82,17 @@ impl SpareDuty {
                 return args_for(base, &order).map(Some);
             }
         }
+    }
+
+    /// Whether an order published since `since_ns` tells this (serving)
+    /// process to retire. A polling receive: no system call.
+    pub fn retire_requested(&self, since_ns: u64) -> Result<bool, NodeError> {
+        let mut retire = false;
+        while let Some(order) = self.orders.receive()? {
+            retire |=
+                order.pid == self.pid && order.joining == RETIRE && order.published_ns >= since_ns;
+        }
+        Ok(retire)
     }
 
     fn run_ended(&mut self, measurements: &Inlet<Measurement>) -> Result<bool, NodeError> {

@@ -21,6 +21,10 @@ pub const JOIN_AS_REPLACEMENT: u32 = 0;
 pub const JOIN_AS_RESTART: u32 = 1;
 /// [`SpareOrder::joining`]: follow as the standby controller.
 pub const JOIN_AS_STANDBY: u32 = 2;
+/// [`SpareOrder::joining`]: to a serving standby whose design is no longer
+/// the active one's: stop, and idle as a spare (instead of exiting, which
+/// would drop its ports while the loop runs).
+pub const RETIRE: u32 = 3;
 
 /// The supervisor's order to one idle spare.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
