@@ -33,6 +33,8 @@ pub use flexloop_node::logger::EVENTS_FILE;
 pub const PROCESSES_FILE: &str = "processes.json";
 /// How long a replacement may take to start and follow the loop in shadow.
 const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long a swap or restart waits for a spare that is still starting.
+const SPARE_START_WAIT: Duration = Duration::from_secs(5);
 /// How long a standby told to retire may take to become a spare.
 const RETIRE_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long the replaced instance may take to hand over and exit.
@@ -496,7 +498,26 @@ impl Conductor {
         joining: Joining,
     ) -> Result<(i32, bool), String> {
         if self.scenario.supervision.warm_spares && self.last_seq.is_some() {
-            self.take_idle_reports(running);
+            // A spare still starting up is worth waiting for: a new process
+            // would open ports while the loop runs.
+            let since = Instant::now();
+            loop {
+                self.poll();
+                self.take_idle_reports(running);
+                running.reap();
+                let starting = running
+                    .children
+                    .iter()
+                    .any(|c| c.role == role && c.spare && !c.idle && c.exit.is_none());
+                let idle = running
+                    .children
+                    .iter()
+                    .any(|c| c.role == role && c.spare && c.idle && c.exit.is_none());
+                if idle || !starting || since.elapsed() > SPARE_START_WAIT {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
             if let Some(spare) = running
                 .children
                 .iter_mut()

@@ -268,12 +268,18 @@ fn serve(
         }
         let Some(m) = backlog.newest() else { continue };
         let received_ns = monotonic_ns();
-        if let Some(next) = next_seq {
-            skipped += m.seq.saturating_sub(next);
-        }
-        next_seq = Some(m.seq + 1);
         let owner = activation.refresh()?.controller_for(m.seq);
         let active = owner == args.generation;
+        // Measurements never seen (a shadow steps through the older ones of
+        // a wake-up; the active instance answers the newest only).
+        if let Some(next) = next_seq {
+            let first = match backlog.older().first() {
+                Some(oldest) if !active => oldest.seq,
+                _ => m.seq,
+            };
+            skipped += first.saturating_sub(next);
+        }
+        next_seq = Some(m.seq + 1);
         // Named for a coming boundary and caught up (nothing left over from
         // following at low priority), or at the latest at its first sample:
         // the loop's priority from now on.
@@ -300,7 +306,11 @@ fn serve(
 
         ring.take(estimates, activation.current())?;
         // A standby's command may be applied: it waits for the estimate too.
-        if (active || args.standby) && ring.find(m.seq).is_none() {
+        // So does a shadow of another design: its filters run on their own,
+        // and a sample stepped with the estimate before its own (the
+        // observer not yet done) leaves them off, and the switch with them
+        // (a step 3 times the ordinary ones, now and then, in lockstep).
+        if (active || args.standby || !takeover.copied) && ring.find(m.seq).is_none() {
             let deadline = if lockstep {
                 received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
             } else {
