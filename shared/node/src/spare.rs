@@ -75,8 +75,10 @@ impl SpareDuty {
                 .map_err(|e| NodeError::Peer(e.to_string()))?;
             self.orders.clear_events()?;
             while let Some(order) = self.orders.receive()? {
-                // Another spare's, or one from before this idle spell.
-                if order.pid != self.pid || order.published_ns < since_ns {
+                // Another spare's, one from before this idle spell, or a
+                // retirement this process is already past.
+                if order.pid != self.pid || order.published_ns < since_ns || order.joining == RETIRE
+                {
                     continue;
                 }
                 return args_for(base, &order).map(Some);
