@@ -62,12 +62,20 @@ fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
     // Every command, across three hand-overs, is the one an unswapped loop
     // computes: the state copy makes the switch exact.
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.len(), 3, "controllers 0, 1, 2: {generations:?}");
+    assert_commands_match_the_uninterrupted_lecture_loop(&log);
+    assert_clean(&dir);
+}
+
+/// Every command of a lockstep lecture run is contiguous and bit-identical
+/// to what the loop computes in one process, with no swap and no crash.
+/// Returns how many were compared.
+fn assert_commands_match_the_uninterrupted_lecture_loop(log: &LogReader) -> usize {
     // Two publishers during a hand-over: the log may hold k+1 before k.
     let mut commands: Vec<&Command> = log.commands().collect();
     commands.sort_by_key(|c| c.seq);
-    let generations: std::collections::BTreeSet<u32> =
-        commands.iter().map(|c| c.generation).collect();
-    assert_eq!(generations.len(), 3, "controllers 0, 1, 2: {generations:?}");
     let scenario = Scenario::load(
         &scenario("lecture-double-integrator"),
         &Overrides {
@@ -86,11 +94,11 @@ fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
         assert_eq!(
             c.u[0].to_bits(),
             reference.command.u[0].to_bits(),
-            "u({k}) from generation {} differs from the unswapped loop",
+            "u({k}) from generation {} differs from the uninterrupted loop",
             c.generation
         );
     }
-    assert_clean(&dir);
+    commands.len()
 }
 
 #[test]
@@ -732,33 +740,10 @@ fn in_lockstep_a_killed_observer_comes_back_and_no_command_changes() {
     // every measurement since: every command is the one a loop without the
     // crash computes.
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
-    let mut commands: Vec<&Command> = log.commands().collect();
-    commands.sort_by_key(|c| c.seq);
     let estimate_generations: std::collections::BTreeSet<u32> =
         log.estimates().map(|e| e.generation).collect();
     assert_eq!(estimate_generations.len(), 2, "{estimate_generations:?}");
-    let scenario = Scenario::load(
-        &scenario("lecture-double-integrator"),
-        &Overrides {
-            mode: Some(flexloop_scenario::Mode::Lockstep),
-            no_realtime: true,
-            duration_s: Some(0.0),
-            ..Overrides::default()
-        },
-    )
-    .unwrap();
-    let design = LoopDesign::from_scenario(&scenario).unwrap();
-    let mut reference = InProcessLoop::new(&design).unwrap();
-    assert!(commands.len() > 3_000);
-    for (k, c) in commands.iter().enumerate() {
-        reference.tick();
-        assert_eq!(c.seq, k as u64, "commands are contiguous");
-        assert_eq!(
-            c.u[0].to_bits(),
-            reference.command.u[0].to_bits(),
-            "u({k}) differs from the loop without the crash"
-        );
-    }
+    assert!(assert_commands_match_the_uninterrupted_lecture_loop(&log) > 3_000);
     assert_clean(&dir);
 }
 

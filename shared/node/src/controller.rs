@@ -4,7 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
-use crate::spare::SpareDuty;
+use crate::spare::{Served, SpareDuty, serve_orders};
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
@@ -42,42 +42,23 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let Some(mut ports) = Ports::open(&node, args, &scenario, &mut ring)? else {
         return Ok(());
     };
-    let mut next = if args.spare {
-        None
-    } else {
-        Some((args.clone(), loaded, clock))
-    };
-    let mut served = args.generation;
-    loop {
-        let (serve_args, loaded, clock) = match next.take() {
-            Some(order) => order,
-            None => {
-                let Some(duty) = ports.spare.as_mut() else {
-                    return Ok(());
-                };
-                match duty.idle(args, served, &ports.measurements)? {
-                    Some(order) => (order, None, StartupClock::start()),
-                    None => return Ok(()),
-                }
-            }
-        };
-        let (scenario, design) = match loaded {
-            Some(loaded) => loaded,
-            None => serve_args.load()?,
-        };
-        served = serve_args.generation;
-        let ended = serve(
-            &serve_args,
-            &scenario,
-            &design,
-            &mut ports,
-            &mut ring,
-            &clock,
-        )?;
-        if ended == Served::Ended || ports.spare.is_none() {
-            return Ok(());
-        }
-    }
+    serve_orders(
+        args,
+        loaded,
+        clock,
+        &mut ports,
+        |p| {
+            let Ports {
+                spare,
+                measurements,
+                ..
+            } = p;
+            spare.as_mut().map(|d| (d, &*measurements))
+        },
+        |args, scenario, design, ports, clock| {
+            serve(args, scenario, design, ports, &mut ring, clock)
+        },
+    )
 }
 
 /// Every port a controller uses, open for the process's life.
@@ -174,15 +155,6 @@ fn drop_stale_inputs(
     while states_in.receive()?.is_some() {}
     *ring = EstimateRing::new();
     Ok(())
-}
-
-/// How an instance's service ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Served {
-    /// Another generation owns the samples from here on.
-    Replaced,
-    /// The run ended, or a shutdown was asked.
-    Ended,
 }
 
 /// Serves the loop as `args.generation` with `design` until replaced or

@@ -5,7 +5,7 @@ use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
 use crate::replay::{CatchUp, Replayed};
-use crate::spare::SpareDuty;
+use crate::spare::{Served, SpareDuty, serve_orders};
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
@@ -37,35 +37,21 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let Some(mut ports) = Ports::open(&node, args, &scenario)? else {
         return Ok(());
     };
-    let mut next = if args.spare {
-        None
-    } else {
-        Some((args.clone(), loaded, clock))
-    };
-    let mut served = args.generation;
-    loop {
-        let (serve_args, loaded, clock) = match next.take() {
-            Some(order) => order,
-            None => {
-                let Some(duty) = ports.spare.as_mut() else {
-                    return Ok(());
-                };
-                match duty.idle(args, served, &ports.measurements)? {
-                    Some(order) => (order, None, StartupClock::start()),
-                    None => return Ok(()),
-                }
-            }
-        };
-        let (scenario, design) = match loaded {
-            Some(loaded) => loaded,
-            None => serve_args.load()?,
-        };
-        served = serve_args.generation;
-        let ended = serve(&serve_args, &scenario, &design, &mut ports, &clock)?;
-        if ended == Served::Ended || ports.spare.is_none() {
-            return Ok(());
-        }
-    }
+    serve_orders(
+        args,
+        loaded,
+        clock,
+        &mut ports,
+        |p| {
+            let Ports {
+                spare,
+                measurements,
+                ..
+            } = p;
+            spare.as_mut().map(|d| (d, &*measurements))
+        },
+        serve,
+    )
 }
 
 /// Every port an observer uses, open for the process's life.
@@ -145,15 +131,6 @@ impl Ports {
             spare,
         }))
     }
-}
-
-/// How an instance's service ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Served {
-    /// Another generation owns the estimates from here on.
-    Replaced,
-    /// The run ended, or a shutdown was asked.
-    Ended,
 }
 
 /// Serves the loop as `args.generation` with `design` until replaced or

@@ -4,12 +4,14 @@
 //! first; an instance replaced at a boundary comes back here instead of
 //! exiting, so that a swap neither creates nor drops a port.
 
+use crate::startup::StartupClock;
 use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
 use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
 use flexloop_protocol::{Measurement, SpareOrder, SpareStatus};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
+use flexloop_scenario::{LoopDesign, Scenario};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 use std::path::PathBuf;
 
@@ -102,6 +104,61 @@ impl SpareDuty {
         let gone = self.plant_seen && !plant_there;
         self.plant_seen |= plant_there;
         Ok(gone)
+    }
+}
+
+/// How one service of the loop (one generation) ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Served {
+    /// Another generation owns the samples from here on.
+    Replaced,
+    /// The run ended, or a shutdown was asked.
+    Ended,
+}
+
+/// A process's life over its open ports: it serves the loop as started
+/// (a spare waits for an order first) and, with warm spares, idles after
+/// each replacement until the next order. `loaded` is the started
+/// instance's design (a spare has none); `duty` gives the spare duty and
+/// the measurements it watches, if the process has them.
+pub fn serve_orders<P>(
+    args: &ServiceArgs,
+    loaded: Option<(Scenario, LoopDesign)>,
+    clock: StartupClock,
+    ports: &mut P,
+    duty: impl Fn(&mut P) -> Option<(&mut SpareDuty, &Inlet<Measurement>)>,
+    mut serve: impl FnMut(
+        &ServiceArgs,
+        &Scenario,
+        &LoopDesign,
+        &mut P,
+        &StartupClock,
+    ) -> Result<Served, NodeError>,
+) -> Result<(), NodeError> {
+    let mut next = (!args.spare).then(|| (args.clone(), loaded, clock));
+    let mut served = args.generation;
+    loop {
+        let (serve_args, loaded, clock) = match next.take() {
+            Some(order) => order,
+            None => {
+                let Some((duty, measurements)) = duty(ports) else {
+                    return Ok(());
+                };
+                match duty.idle(args, served, measurements)? {
+                    Some(order) => (order, None, StartupClock::start()),
+                    None => return Ok(()),
+                }
+            }
+        };
+        let (scenario, design) = match loaded {
+            Some(loaded) => loaded,
+            None => serve_args.load()?,
+        };
+        served = serve_args.generation;
+        let ended = serve(&serve_args, &scenario, &design, ports, &clock)?;
+        if ended == Served::Ended || duty(ports).is_none() {
+            return Ok(());
+        }
     }
 }
 
