@@ -2,7 +2,7 @@
 //! machine's own floors measured in the same run.
 
 use crate::conductor::Switch;
-use crate::{LoopArgs, prepare, probes, registry, run_supervised_with};
+use crate::{LoopArgs, prepare, probes, registry, run_registered_with};
 use flexloop_components::LogReader;
 use flexloop_node::Role;
 use flexloop_protocol::channels::TELEMETRY;
@@ -32,7 +32,7 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         .map(|s| Instant::now() + Duration::from_secs_f64(s));
     let mut swap_roles = [Role::Controller, Role::Observer].into_iter().cycle();
     let mut swap_error: Option<String> = None;
-    let (running, _, switches) = run_supervised_with(prepared, |running, conductor| {
+    let (running, _, switches) = run_registered_with(prepared, |running, conductor| {
         let due = next_swap?;
         if Instant::now() < due {
             return None;
