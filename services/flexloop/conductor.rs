@@ -438,8 +438,7 @@ impl Conductor {
             return;
         }
         let path = self.run_dir.join(PROCESSES_FILE);
-        let tmp = path.with_extension("json.tmp");
-        if std::fs::write(&tmp, now.to_string()).is_ok() && std::fs::rename(&tmp, &path).is_ok() {
+        if flexloop_node::summary::write_json_atomically(&path, &now).is_ok() {
             self.processes_written = now;
         }
     }
@@ -527,7 +526,6 @@ impl Conductor {
                     .to_str()
                     .ok_or_else(|| format!("{}: the path is not UTF-8", scenario.display()))?;
                 let mut order = SpareOrder {
-                    published_ns: flexloop_runtime::monotonic_ns(),
                     pid: spare.pid as u32,
                     generation,
                     joining: match joining {
@@ -540,12 +538,7 @@ impl Conductor {
                 order
                     .set_scenario(path)
                     .map_err(|e| format!("{}: {e}", scenario.display()))?;
-                self.spare_orders
-                    .publish(|o| *o = order)
-                    .map_err(|e| e.to_string())?;
-                // Published, it is served: without the wake-up the spare
-                // finds it at its next look (100 ms).
-                let _ = self.spare_orders.notify();
+                send_order(&self.spare_orders, order)?;
                 spare.spare = false;
                 spare.idle = false;
                 spare.settled = false;
@@ -589,13 +582,11 @@ impl Conductor {
     fn retire(&mut self, running: &mut RunningLoop, pid: i32) {
         if self.scenario.supervision.warm_spares {
             let order = SpareOrder {
-                published_ns: flexloop_runtime::monotonic_ns(),
                 pid: pid as u32,
                 joining: RETIRE,
                 ..SpareOrder::default()
             };
-            if self.spare_orders.publish(|o| *o = order).is_ok() {
-                let _ = self.spare_orders.notify();
+            if send_order(&self.spare_orders, order).is_ok() {
                 self.retiring.push((pid, Instant::now()));
                 return;
             }
@@ -711,33 +702,25 @@ impl Conductor {
             })
             .collect();
         for (pid, role, generation, code, standby, spare) in crashed {
-            if spare {
-                // Idle: the loop is untouched; `keep_spares` starts another.
+            if spare || standby {
+                // The active loop is untouched; `keep_spares` or
+                // `keep_standby` starts another (a spare has its own budget).
                 if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
                     c.settled = true;
                 }
-                self.spare_failures[role as usize] += 1;
+                let budget = if spare {
+                    &mut self.spare_failures
+                } else {
+                    &mut self.restarts
+                };
+                budget[role as usize] += 1;
                 let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
+                let duty = if spare { "spare" } else { "standby" };
                 self.event(
                     "crash",
                     role,
                     generation,
-                    json!({"exit": code, "spare": true, "cleaned_nodes": cleaned}),
-                );
-                continue;
-            }
-            if standby {
-                // The active loop is untouched; `keep_standby` starts another.
-                if let Some(c) = running.children.iter_mut().find(|c| c.pid == pid) {
-                    c.settled = true;
-                }
-                self.restarts[role as usize] += 1;
-                let cleaned = cleanup_dead_nodes(&self.domain).unwrap_or(0);
-                self.event(
-                    "crash",
-                    role,
-                    generation,
-                    json!({"exit": code, "standby": true, "cleaned_nodes": cleaned}),
+                    json!({"exit": code, duty: true, "cleaned_nodes": cleaned}),
                 );
                 continue;
             }
@@ -1296,6 +1279,18 @@ fn observed_pace(pace: &VecDeque<(Instant, u64)>) -> Option<f64> {
     let ((t0, s0), (t1, s1)) = (pace.front()?, pace.back()?);
     let span = t1.checked_duration_since(*t0)?;
     (span >= PACE_MIN_SPAN).then(|| s1.saturating_sub(*s0) as f64 / span.as_secs_f64())
+}
+
+/// Publishes `order`, stamped now. Published, it counts: without the
+/// wake-up the spare finds it at its next look (100 ms).
+fn send_order(out: &Outlet<SpareOrder>, order: SpareOrder) -> Result<(), String> {
+    out.publish(|o| {
+        *o = order;
+        o.published_ns = flexloop_runtime::monotonic_ns();
+    })
+    .map_err(|e| e.to_string())?;
+    let _ = out.notify();
+    Ok(())
 }
 
 /// Request files waiting for the supervisor, oldest first.

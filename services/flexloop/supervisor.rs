@@ -96,28 +96,12 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
     roles.push((Role::Plant, Joining::No));
     for (role, joining) in roles {
         let started = if joining == Joining::AsSpare {
-            running.start_spare(role).map(|_| ())
+            running.start_spare(role)
         } else {
-            let stderr_file = stderr_name(role, 0);
-            spawn(&plan, role, &plan.scenario, 0, joining, &stderr_file)
-                .map(|pid| {
-                    running.children.push(ChildProcess {
-                        role,
-                        pid,
-                        exit: None,
-                        generation: 0,
-                        scenario: plan.scenario.clone(),
-                        settled: false,
-                        standby: false,
-                        spare: false,
-                        idle: false,
-                        stderr_file,
-                    })
-                })
-                .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))
+            running.launch(role, &plan.scenario, 0, joining, stderr_name(role, 0))
         };
         match started {
-            Ok(()) => {}
+            Ok(_) => {}
             Err(e) => {
                 running.stop();
                 running.cleanup();
@@ -254,25 +238,40 @@ impl RunningLoop {
     /// Starts a warm spare of `role` (observer or controller).
     pub fn start_spare(&mut self, role: Role) -> Result<i32, String> {
         let count = self.children.iter().filter(|c| c.role == role).count();
+        let scenario = self.plan.scenario.clone();
         let stderr_file = format!("{}.spare{count}.stderr", role.name());
+        self.launch(role, &scenario, 0, Joining::AsSpare, stderr_file)
+    }
+
+    /// Spawns a process and records it (a spare as one that has served no
+    /// generation yet).
+    fn launch(
+        &mut self,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+        joining: Joining,
+        stderr_file: String,
+    ) -> Result<i32, String> {
         let pid = spawn(
             &self.plan,
             role,
-            &self.plan.scenario,
-            0,
-            Joining::AsSpare,
+            scenario,
+            generation,
+            joining,
             &stderr_file,
         )
-        .map_err(|e| format!("cannot start a spare flexloop-{}: {e}", role.name()))?;
+        .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
+        let spare = joining == Joining::AsSpare;
         self.children.push(ChildProcess {
             role,
             pid,
             exit: None,
-            generation: UNSERVED,
-            scenario: self.plan.scenario.clone(),
+            generation: if spare { UNSERVED } else { generation },
+            scenario: scenario.to_path_buf(),
             settled: false,
-            standby: false,
-            spare: true,
+            standby: joining == Joining::AsStandby,
+            spare,
             idle: false,
             stderr_file,
         });
@@ -312,29 +311,13 @@ impl RunningLoop {
         generation: u32,
         joining: Joining,
     ) -> Result<i32, String> {
-        let stderr_file = stderr_name(role, generation);
-        let pid = spawn(
-            &self.plan,
+        self.launch(
             role,
             scenario,
             generation,
             joining,
-            &stderr_file,
+            stderr_name(role, generation),
         )
-        .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
-        self.children.push(ChildProcess {
-            role,
-            pid,
-            exit: None,
-            generation,
-            scenario: scenario.to_path_buf(),
-            settled: false,
-            standby: joining == Joining::AsStandby,
-            spare: false,
-            idle: false,
-            stderr_file,
-        });
-        Ok(pid)
     }
 
     /// Stops one child by pid (one we started and have not reaped).

@@ -37,6 +37,27 @@ fn assert_no_gaps(summary: &Value) {
     }
 }
 
+/// Kills the active `role` of a run once it logged `after` ticks and waits
+/// until its restart is recorded.
+fn kill_and_await_restart(dir: &Path, role: &str, after: usize) {
+    wait_for_ticks(dir, after);
+    let pid = pid_on_duty(dir, role, "active");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let since = Instant::now();
+    while !events(dir)
+        .iter()
+        .any(|e| e["kind"] == "restart" && e["role"] == role)
+    {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "{role} did not come back: {:?}",
+            events(dir)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 #[test]
 fn identical_swaps_in_lockstep_leave_the_commands_bit_identical() {
     let dir = temp_dir("swap-lockstep");
@@ -144,23 +165,8 @@ fn a_retuned_controller_takes_over_without_a_step() {
 fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let dir = temp_dir("swap-crash");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_ticks(&dir, 100);
     for role in ["controller", "observer", "logger"] {
-        let pid = pid_on_duty(&dir, role, "active");
-        // SAFETY: a pid of a process this test started (through flexloop).
-        unsafe { libc::kill(pid, libc::SIGKILL) };
-        let since = Instant::now();
-        while !events(&dir)
-            .iter()
-            .any(|e| e["kind"] == "restart" && e["role"] == role)
-        {
-            assert!(
-                since.elapsed() < Duration::from_secs(90),
-                "{role} did not come back: {:?}",
-                events(&dir)
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        kill_and_await_restart(&dir, role, 100);
     }
     // The restarted logger records before the run ends.
     wait_for_ticks_in(&dir, "samples.g1.mcap", 10);
@@ -388,22 +394,7 @@ fn a_component_killed_at_start_up_is_replaced_and_the_loop_starts() {
 fn a_restarted_observer_replays_its_way_to_the_state_the_crashed_one_would_have_had() {
     let dir = temp_dir("swap-observer-replay");
     let (child, prefix) = start(&dir, "two-inertia", &["--rate", "1000"]);
-    wait_for_ticks(&dir, 300);
-    let pid = pid_on_duty(&dir, "observer", "active");
-    // SAFETY: a pid of a process this test started (through flexloop).
-    unsafe { libc::kill(pid, libc::SIGKILL) };
-    let since = Instant::now();
-    while !events(&dir)
-        .iter()
-        .any(|e| e["kind"] == "restart" && e["role"] == "observer")
-    {
-        assert!(
-            since.elapsed() < Duration::from_secs(90),
-            "observer did not come back: {:?}",
-            events(&dir)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    kill_and_await_restart(&dir, "observer", 300);
     // Some estimates of the restarted observer's own.
     std::thread::sleep(Duration::from_millis(300));
     stop(&prefix, child);
@@ -700,28 +691,6 @@ fn without_warm_spares_a_swap_starts_a_process_and_the_old_one_exits() {
     assert_eq!(counter(&summary, "misses"), 0, "{summary}");
     assert_no_gaps(&summary);
     assert_clean(&dir);
-}
-
-/// Kills the active `role` of a lockstep run once it logged `after` ticks
-/// and waits until its restart is recorded; returns the killed pid.
-fn kill_and_await_restart(dir: &Path, role: &str, after: usize) -> i32 {
-    wait_for_ticks(dir, after);
-    let pid = pid_on_duty(dir, role, "active");
-    // SAFETY: a pid of a process this test started (through flexloop).
-    unsafe { libc::kill(pid, libc::SIGKILL) };
-    let since = Instant::now();
-    while !events(dir)
-        .iter()
-        .any(|e| e["kind"] == "restart" && e["role"] == role)
-    {
-        assert!(
-            since.elapsed() < Duration::from_secs(60),
-            "{role} did not come back: {:?}",
-            events(dir)
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    pid
 }
 
 #[test]

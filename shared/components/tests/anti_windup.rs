@@ -33,12 +33,6 @@ shape = "hold"
     LoopDesign::from_scenario(&s).unwrap()
 }
 
-/// The same design with the anti-windup off.
-fn without_anti_windup(mut design: LoopDesign) -> LoopDesign {
-    design.anti_windup_s = 0.0;
-    design
-}
-
 /// Steps `controller` through `errors` (θ1 = −error, reference 0); the plant
 /// applies each command one sample later when `applied`, else holds
 /// `held`. Returns each command.
@@ -71,6 +65,22 @@ fn run(controller: &mut ControllerCore, errors: &[f64], applied: bool, held: f64
     out
 }
 
+/// [`run`] with `design` as it is, and with its anti-windup off.
+fn with_and_without(
+    design: LoopDesign,
+    errors: &[f64],
+    applied: bool,
+    held: f64,
+) -> (Vec<Command>, Vec<Command>) {
+    let with = run(&mut ControllerCore::new(&design, 0), errors, applied, held);
+    let off = LoopDesign {
+        anti_windup_s: 0.0,
+        ..design
+    };
+    let without = run(&mut ControllerCore::new(&off, 0), errors, applied, held);
+    (with, without)
+}
+
 const SECOND: usize = 10_000;
 
 #[test]
@@ -82,13 +92,7 @@ fn a_clamped_command_does_not_wind_the_integrator_up() {
     let errors: Vec<f64> = (0..4 * SECOND)
         .map(|k| if k < 2 * SECOND { 0.5 } else { -0.5 })
         .collect();
-    let guarded = run(&mut ControllerCore::new(&d, 0), &errors, true, 0.0);
-    let wound = run(
-        &mut ControllerCore::new(&without_anti_windup(d), 0),
-        &errors,
-        true,
-        0.0,
-    );
+    let (guarded, wound) = with_and_without(d, &errors, true, 0.0);
     let u_fb = |c: &[Command], k: usize| c[k].u_fb[0];
     // Without it the integrator ramps on for as long as the error lasts;
     // with it the feedback settles where the back-calculation balances it.
@@ -119,13 +123,7 @@ fn a_held_input_does_not_wind_the_integrator_up() {
     // follows what was applied instead of ramping on.
     let d = design(1e9);
     let errors = vec![0.01; 2 * SECOND];
-    let guarded = run(&mut ControllerCore::new(&d, 0), &errors, false, 0.0);
-    let wound = run(
-        &mut ControllerCore::new(&without_anti_windup(d), 0),
-        &errors,
-        false,
-        0.0,
-    );
+    let (guarded, wound) = with_and_without(d, &errors, false, 0.0);
     let late = |c: &[Command]| c[2 * SECOND - 1].u_fb[0] - c[SECOND].u_fb[0];
     assert!(late(&wound) > 0.0);
     assert!(
@@ -142,13 +140,7 @@ fn in_the_linear_range_the_anti_windup_changes_nothing() {
     let errors: Vec<f64> = (0..SECOND)
         .map(|k| 1e-3 * (k as f64 * 1e-3).sin())
         .collect();
-    let guarded = run(&mut ControllerCore::new(&d, 0), &errors, true, 0.0);
-    let plain = run(
-        &mut ControllerCore::new(&without_anti_windup(d), 0),
-        &errors,
-        true,
-        0.0,
-    );
+    let (guarded, plain) = with_and_without(d, &errors, true, 0.0);
     for (a, b) in guarded.iter().zip(&plain) {
         assert_eq!(a.u[0].to_bits(), b.u[0].to_bits(), "sample {}", a.seq);
     }

@@ -4,7 +4,7 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
-use crate::spare::{Served, SpareDuty, serve_orders};
+use crate::spare::{Served, SpareDuty, leave_the_loop, serve_orders};
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
@@ -26,13 +26,7 @@ const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let clock = StartupClock::start();
-    // A spare designs nothing until it is ordered to serve; any other
-    // instance designs now, before a port exists.
-    let loaded = if args.spare { None } else { Some(args.load()?) };
-    let scenario = match &loaded {
-        Some((scenario, _)) => scenario.clone(),
-        None => Scenario::load(&args.scenario, &args.overrides)?,
-    };
+    let (scenario, design) = args.load_at_start()?;
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Controller);
     let _memory = realtime::apply(Role::Controller.name(), &rt.memory_part());
@@ -44,7 +38,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     };
     serve_orders(
         args,
-        loaded,
+        design.map(|d| (scenario.clone(), d)),
         clock,
         &mut ports,
         |p| {
@@ -426,13 +420,7 @@ fn serve(
         )?;
         done = m.flags & flags::END_OF_RUN != 0;
     }
-    // Replaced or done: the rest (teardown, or idling as a spare) must not
-    // run at real-time priority on the loop's CPU.
-    if ended == Served::Replaced && spare.is_some() {
-        realtime::step_aside(rt.cpu);
-    } else {
-        realtime::step_down(rt.cpu);
-    }
+    leave_the_loop(rt.cpu, ended, spare.is_some());
     if stale_estimates + skipped > 0 {
         eprintln!(
             "flexloop-controller: generation {}: {stale_estimates} stale estimates, {skipped} measurements skipped",

@@ -5,7 +5,7 @@ use crate::handover::{
     ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
 };
 use crate::replay::{CatchUp, Replayed};
-use crate::spare::{Served, SpareDuty, serve_orders};
+use crate::spare::{Served, SpareDuty, leave_the_loop, serve_orders};
 use crate::startup::StartupClock;
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
@@ -23,12 +23,7 @@ use std::time::{Duration, Instant};
 
 pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let clock = StartupClock::start();
-    // As the controller: a spare designs only once it is ordered to serve.
-    let loaded = if args.spare { None } else { Some(args.load()?) };
-    let scenario = match &loaded {
-        Some((scenario, _)) => scenario.clone(),
-        None => Scenario::load(&args.scenario, &args.overrides)?,
-    };
+    let (scenario, design) = args.load_at_start()?;
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, Role::Observer);
     let _memory = realtime::apply(Role::Observer.name(), &rt.memory_part());
@@ -39,7 +34,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     };
     serve_orders(
         args,
-        loaded,
+        design.map(|d| (scenario.clone(), d)),
         clock,
         &mut ports,
         |p| {
@@ -75,17 +70,18 @@ impl Ports {
         scenario: &Scenario,
     ) -> Result<Option<Self>, NodeError> {
         let warm_spares = scenario.supervision.warm_spares;
+        // Any instance may end up a spare that serves a restart.
+        let may_restart = args.restart || warm_spares;
         // A restart's queue holds what arrives while it catches up (see
-        // `catch_up`): 51 ms at 10 kHz. Any instance may end up a spare
-        // that serves a restart.
-        let depth = if args.restart || warm_spares {
+        // `catch_up`): 51 ms at 10 kHz.
+        let depth = if may_restart {
             MEASUREMENT.qos.logger_buffer_size
         } else {
             MEASUREMENT.qos.loop_buffer_size
         };
         let measurements =
             Inlet::<Measurement>::open_woken_by(node, &MEASUREMENT, &OBSERVER_WAKEUP, depth)?;
-        let replay = if args.restart || warm_spares {
+        let replay = if may_restart {
             Some(Inlet::<Measurement>::open_polling(
                 node,
                 &MEASUREMENT_REPLAY,
@@ -397,13 +393,7 @@ fn serve(
             done |= m.flags & flags::END_OF_RUN != 0;
         }
     }
-    // Replaced or done: the rest (teardown, or idling as a spare) must not
-    // run at real-time priority on the loop's CPU.
-    if ended == Served::Replaced && spare.is_some() {
-        realtime::step_aside(rt.cpu);
-    } else {
-        realtime::step_down(rt.cpu);
-    }
+    leave_the_loop(rt.cpu, ended, spare.is_some());
     if skipped > 0 {
         eprintln!(
             "flexloop-observer: generation {}: {skipped} measurements never arrived",

@@ -7,7 +7,7 @@
 use crate::startup::StartupClock;
 use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
-use flexloop_protocol::spare::{IDLE, JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
+use flexloop_protocol::spare::{JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
 use flexloop_protocol::{Measurement, SpareOrder, SpareStatus};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
@@ -65,8 +65,6 @@ impl SpareDuty {
                 published_ns: since_ns,
                 pid: self.pid,
                 generation,
-                state: IDLE,
-                _reserved: 0,
             }
         })?;
         loop {
@@ -114,6 +112,17 @@ pub enum Served {
     Replaced,
     /// The run ended, or a shutdown was asked.
     Ended,
+}
+
+/// After a service: off the loop's CPU and real-time priority, so that the
+/// rest (teardown, or idling as a spare) never delays the loop. A process
+/// that stays on as a spare (`stays`) keeps its memory locked.
+pub fn leave_the_loop(loop_cpu: Option<usize>, ended: Served, stays: bool) {
+    if ended == Served::Replaced && stays {
+        flexloop_runtime::realtime::step_aside(loop_cpu);
+    } else {
+        flexloop_runtime::realtime::step_down(loop_cpu);
+    }
 }
 
 /// A process's life over its open ports: it serves the loop as started

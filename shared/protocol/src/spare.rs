@@ -82,20 +82,16 @@ impl SpareOrder {
     }
 }
 
-/// [`SpareStatus::state`]: idle, ports open, waiting for an order.
-pub const IDLE: u32 = 0;
-
-/// A process's report that it is an idle spare.
+/// A process's report that it is an idle spare (ports open, waiting for
+/// an order): sent once each time it becomes one.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.SpareStatus.v1")]
+#[type_name("flexloop.SpareStatus.v2")]
 pub struct SpareStatus {
     pub published_ns: u64,
     pub pid: u32,
-    /// The generation it served last (its start-up one if none).
+    /// The generation it served last (none yet: its start-up one).
     pub generation: u32,
-    pub state: u32,
-    pub _reserved: u32,
 }
 
 #[cfg(test)]
