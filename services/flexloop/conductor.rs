@@ -400,6 +400,8 @@ impl Conductor {
                 Err(e) => json!({"ok": false, "error": e}),
             };
             let _ = std::fs::remove_file(&request);
+            // The process list first: who asked may look there next.
+            self.write_processes(running);
             write_answer(&request, &answer);
         }
         // Crashes reaped inside a swap or restart above, settled now,
