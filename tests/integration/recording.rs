@@ -10,29 +10,24 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// The Python with `mcap`, `mcap-ros1-support` and `hdrhistogram`:
-/// `FLEXLOOP_PYTHON`, else the venv `.ci/run` makes, else `python3`; `None`
-/// (the test skips) only where there is no Python at all and this is not CI.
-fn python() -> Option<String> {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/ci-python/bin/python");
-    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| {
-        if venv.is_file() {
-            venv.display().to_string()
-        } else {
-            "python3".into()
-        }
-    });
-    match Command::new(&python).arg("--version").output() {
-        Ok(out) if out.status.success() => Some(python),
-        _ if std::env::var_os("CI").is_some() => {
-            panic!("{python} not found: CI needs it (.ci/run installs the Python readers)")
-        }
-        _ => {
-            eprintln!(
-                "SKIPPED: {python} not found; the independent-reader checks need Python 3 with `pip install mcap mcap-ros1-support hdrhistogram`"
-            );
-            None
-        }
+/// The Python with the pinned readers of `tools/python-requirements.txt`:
+/// `FLEXLOOP_PYTHON` (`tools/test` sets it to the venv it makes), else that
+/// venv. A test that needs an independent reader fails without one, with how
+/// to get it: it never passes without having checked anything.
+fn python() -> String {
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-python/bin/python");
+    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| venv.display().to_string());
+    let mut probe = Command::new(&python);
+    probe.args(["-c", "import mcap, mcap_ros1, hdrh"]);
+    match probe.output() {
+        Ok(out) if out.status.success() => python,
+        Ok(out) => panic!(
+            "{python} cannot import the independent readers ({}); run the tests with tools/test, which installs them",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ),
+        Err(e) => panic!(
+            "{python}: {e}; run the tests with tools/test (it makes that venv), or set FLEXLOOP_PYTHON to a Python with tools/python-requirements.txt"
+        ),
     }
 }
 
@@ -108,7 +103,7 @@ fn assert_python_agrees(python: &str, file: &Path, log: &LogReader) -> Value {
 
 #[test]
 fn the_sample_file_reads_back_with_the_official_mcap_reader() {
-    let Some(python) = python() else { return };
+    let python = python();
     let dir = lockstep_run("mcap-python", "0.3");
     let file = dir.join("samples.mcap");
     let log = LogReader::open(&file).unwrap();
@@ -157,7 +152,7 @@ fn the_sample_file_reads_back_with_the_official_mcap_reader() {
 
 #[test]
 fn the_latency_log_decodes_to_the_summary_percentiles() {
-    let Some(python) = python() else { return };
+    let python = python();
     let dir = lockstep_run("hlog-python", "0.3");
     let decoded = python_check(&python, "check_hlog.py", &dir.join("latency.hlog"));
     let summary = summary(&dir);
@@ -298,9 +293,7 @@ fn a_killed_logger_leaves_its_complete_chunks_and_the_run_closes_its_file() {
     assert!(!repaired.torn_tail, "{:?}", repaired.tail_error);
     assert!(ends_in_mcap_magic(&dir.join("samples.mcap")));
     assert_eq!(seqs(&repaired)[..kept.len()], kept[..]);
-    if let Some(python) = python() {
-        assert_python_agrees(&python, &dir.join("samples.mcap"), &repaired);
-    }
+    assert_python_agrees(&python(), &dir.join("samples.mcap"), &repaired);
     // A restarted logger (if it came back before the stop) wrote its own,
     // finished file.
     if let Ok(second) = LogReader::open(&dir.join("samples.g1.mcap")) {
@@ -376,8 +369,8 @@ fn a_full_disk_stops_the_recording_not_the_loop() {
     let bytes = std::fs::read(&file).unwrap();
     let indexed = recording["closed"]["indexed"].as_bool().unwrap();
     assert_eq!(mcap::Summary::read(&bytes).unwrap().is_some(), indexed);
-    if indexed && let Some(python) = python() {
-        assert_python_agrees(&python, &file, &log);
+    if indexed {
+        assert_python_agrees(&python(), &file, &log);
     }
     assert_clean(&dir);
 }

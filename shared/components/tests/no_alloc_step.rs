@@ -2,8 +2,9 @@
 //! noise model, MC + AD, PID, modified feedforward) runs its per-sample path
 //! (plant tick, observer step, controller step, as lockstep runs them) without
 //! one allocation. The global allocator aborts the test process on any
-//! allocation inside `assert_no_alloc` (debug builds, as `cargo test` builds);
-//! the last test checks that the guard really is armed.
+//! allocation inside `assert_no_alloc`, in debug and release builds alike (the
+//! workspace turns off the crate's `disable_release`); the last test checks
+//! that the guard really is armed in the profile it was built in.
 
 use assert_no_alloc::{AllocDisabler, assert_no_alloc};
 use flexloop_components::InProcessLoop;
@@ -157,7 +158,7 @@ fn canary_allocates_inside_the_guard() {
 #[test]
 fn the_guard_aborts_on_an_allocation() {
     // Without this, a build where the guard is compiled out (release with
-    // `disable_release`) would pass the tests above without checking anything.
+    // assert_no_alloc's default `disable_release`) would pass the tests above without checking anything.
     let out = Command::new(std::env::current_exe().unwrap())
         .args([
             "--exact",

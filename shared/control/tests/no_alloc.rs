@@ -1,7 +1,8 @@
 //! The per-sample paths added for scheduling and the input–output observer
 //! allocate nothing, including when they refuse a bad sample. The global
 //! allocator aborts the test process on any allocation inside
-//! `assert_no_alloc` (debug builds).
+//! `assert_no_alloc`, in debug and release builds (no_alloc_step.rs in
+//! flexloop-components checks that the guard is armed).
 
 use assert_no_alloc::{AllocDisabler, assert_no_alloc};
 use flexloop_control::design_error::DesignError;
