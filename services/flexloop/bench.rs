@@ -1,38 +1,104 @@
 //! `flexloop bench`: the loop's latency table, its verdict, and the
-//! machine's own floors measured in the same run.
+//! machine's own floors measured in the same run; `--sweep` and
+//! `--logging-cost` hand over to [`crate::sweep`] and [`crate::logging_cost`].
 
 use crate::conductor::Switch;
-use crate::{LoopArgs, prepare, probes, registry, run_registered_with};
+use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
+use crate::{logging_cost, probes, sweep};
+use anyhow::Context;
 use flexloop_components::LogReader;
 use flexloop_node::Role;
-use flexloop_protocol::channels::TELEMETRY;
-use flexloop_protocol::{Telemetry, flags};
+use flexloop_node::overrides::OverrideFlags;
+use flexloop_protocol::flags;
+use flexloop_runfiles::bench::{BenchFile, SwapReport};
+use flexloop_runfiles::json::write_json_atomically;
+use flexloop_runfiles::supervision::SwitchRecord;
+use flexloop_runfiles::{Histogram, RunDir};
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
-use flexloop_transport::{Domain, Inlet};
-use serde_json::{Value, json};
+use flexloop_scenario::{Mode, Overrides};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-pub fn bench(args: LoopArgs) -> Result<i32, String> {
-    let prepared = prepare(&args)?;
+/// `bench [SCENARIO] [--duration S] [--rate HZ] [--no-probes] [--swap-every S]`,
+/// `bench --sweep [...]`, `bench --logging-cost [...]`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchArgs {
+    /// Scenario file, or its name under scenarios/ [default: scenarios/default.toml]
+    #[arg(conflicts_with = "sweep")]
+    pub scenario: Option<PathBuf>,
+    /// One run per point: rates, observer sizes and axes (see --series)
+    #[arg(long, conflicts_with_all = ["logging_cost", "rate_hz", "mode", "swap_every"])]
+    pub sweep: bool,
+    /// The loop twice, with the logger and without: what recording costs
+    #[arg(long, conflicts_with_all = ["mode", "no_probes", "swap_every"])]
+    pub logging_cost: bool,
+    /// --duration [default: 10 s; 4 s per point with --sweep], --rate [default: 10000 Hz;
+    /// the scenario's with --logging-cost], --mode [default: realtime], --no-realtime
+    #[command(flatten)]
+    pub overrides: OverrideFlags,
+    /// Skip measuring the machine's floors after the run
+    #[arg(long)]
+    pub no_probes: bool,
+    /// Swap controller and observer in turn every S seconds
+    #[arg(long, value_name = "S", value_parser = positive_seconds)]
+    pub swap_every: Option<f64>,
+    /// Where the results go [default: runs/<stamp>-<kind>-<pid>]
+    #[arg(long, value_name = "DIR")]
+    pub run_dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub grid: sweep::GridArgs,
+}
+
+fn positive_seconds(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if s.is_finite() && s > 0.0 => Ok(s),
+        _ => Err(format!("needs a positive number of seconds, got {text}")),
+    }
+}
+
+/// `bench`, `bench --sweep` or `bench --logging-cost`.
+pub fn dispatch(args: BenchArgs) -> anyhow::Result<i32> {
+    if args.sweep {
+        sweep::sweep(sweep::Options::from_args(&args)?)
+    } else if args.logging_cost {
+        logging_cost::logging_cost(logging_cost::Options::from_args(&args)?)
+    } else {
+        bench(args)
+    }
+}
+
+fn bench(args: BenchArgs) -> anyhow::Result<i32> {
+    let loop_args = LoopArgs {
+        scenario: resolve_scenario(args.scenario.clone())?,
+        overrides: Overrides {
+            duration_s: Some(args.overrides.duration_s.unwrap_or(10.0)),
+            rate_hz: Some(args.overrides.rate_hz.unwrap_or(10_000.0)),
+            mode: Some(args.overrides.mode.unwrap_or(Mode::Realtime)),
+            no_realtime: args.overrides.no_realtime,
+        },
+        run_dir: args.run_dir.clone(),
+    };
+    let prepared = prepare(&loop_args)?;
     let scenario = prepared.scenario.clone();
-    let run_dir = prepared.plan.run_dir.clone();
+    let run_dir = prepared.run_dir();
     let prefix = prepared.plan.prefix.clone();
     eprintln!(
         "flexloop bench: {} for {} s at {} Hz, run directory {}",
         scenario.name,
         scenario.timing.duration_s,
         scenario.timing.rate_hz,
-        run_dir.display()
+        run_dir.path().display()
     );
     println!("{}", profile_line(&scenario));
     let started = Instant::now();
     let scenario_file = prepared.plan.scenario.clone();
     let mut next_swap = args
-        .swap_every_s
+        .swap_every
         .map(|s| Instant::now() + Duration::from_secs_f64(s));
     let mut swap_roles = [Role::Controller, Role::Observer].into_iter().cycle();
     let mut swap_error: Option<String> = None;
-    let (running, _, switches) = run_registered_with(prepared, |running, conductor| {
+    let finished = supervise(prepared, |running, conductor| {
         let due = next_swap?;
         if Instant::now() < due {
             return None;
@@ -44,7 +110,7 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
             return None;
         }
         next_swap = args
-            .swap_every_s
+            .swap_every
             .map(|s| due.max(Instant::now()) + Duration::from_secs_f64(s));
         None
     })?;
@@ -54,28 +120,22 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
     // CPU shares are over the loop's run, not the probes after it.
     let wall_ns = started.elapsed().as_nanos().max(1) as f64;
     eprintln!("flexloop bench: loop ran {:.1} s", wall_ns / 1e9);
-    let summary = flexloop_node::summary::read_summary(&run_dir)?;
+    let summary = run_dir.read_summary()?;
 
     let samples = (scenario.timing.rate_hz * 2.0) as u64;
-    let floors = if args.probes {
-        Some(probes::Floors::measure(&scenario, &prefix, samples)?)
-    } else {
+    let floors = if args.no_probes {
         None
+    } else {
+        Some(probes::Floors::measure(&scenario, &prefix, samples)?.file())
     };
 
-    let ticks = summary["ticks"].as_u64().unwrap_or(0);
-    let misses = summary["counters"]["misses"].as_u64().unwrap_or(0);
-    let stalls = summary["counters"]["stalled_ticks"].as_u64().unwrap_or(0);
-    let stall_misses = summary["counters"]["stall_misses"].as_u64().unwrap_or(0);
-    let late = summary["counters"]["late_commands"].as_u64().unwrap_or(0);
-    let stale = summary["counters"]["stale_estimates"].as_u64().unwrap_or(0);
-    let over = summary["latency"]["tick_to_command"]["over_one_period"]
-        .as_u64()
+    let ticks = summary.ticks;
+    let c = summary.counters;
+    let over = summary
+        .latency(Metric::TickToCommand.name())
+        .over_one_period
         .unwrap_or(0);
-    let gaps: u64 = ["measurement", "estimate", "command"]
-        .iter()
-        .map(|k| summary["gaps"][k].as_u64().unwrap_or(0))
-        .sum();
+    let gaps = summary.gaps.total();
 
     println!();
     println!(
@@ -89,63 +149,58 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         QUANTILE_LABELS[4],
         QUANTILE_LABELS[5]
     );
-    let row = |name: &str, v: &Value| {
-        let us = |k: &str| v[format!("{k}_ns")].as_u64().unwrap_or(0) as f64 / 1e3;
+    let row = |name: &str, h: &Histogram| {
+        let [p50, p90, p99, p999, p9999, max] = h.percentiles.values().map(|ns| ns as f64 / 1e3);
         println!(
             "{:<24}{:>10}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}",
-            name,
-            v["count"].as_u64().unwrap_or(0),
-            us("p50"),
-            us("p90"),
-            us("p99"),
-            us("p99.9"),
-            us("p99.99"),
-            us("max")
+            name, h.count, p50, p90, p99, p999, p9999, max
         );
     };
     for metric in Metric::ALL {
-        row(metric.name(), &summary["latency"][metric.name()]);
+        row(metric.name(), &summary.latency(metric.name()));
     }
-    let floors_json = floors.as_ref().map(probes::Floors::json);
-    if let Some(f) = &floors_json {
-        for (key, label) in probes::Floors::ROWS {
-            row(label, &f[key]);
+    if let Some(f) = &floors {
+        for (label, h) in f.rows() {
+            row(label, h);
         }
     }
-    let probe = |key: &str| floors_json.as_ref().map(|f| f[key].clone());
-    let (timer_json, pp_json, sockets_json) = (
-        probe("timer_wakeup"),
-        probe("iceoryx2_event_ping_pong"),
-        probe("unix_socket_ring"),
-    );
 
     println!();
     println!(
-        "ticks {ticks}, loop misses {misses}, late commands {late}, stalled ticks {stalls} (misses after stalls {stall_misses}), log gaps {gaps}"
+        "ticks {ticks}, loop misses {}, late commands {}, stalled ticks {} (misses after stalls {}), log gaps {gaps}",
+        c.misses, c.late_commands, c.stalled_ticks, c.stall_misses
     );
     println!(
-        "stale estimates {stale} (observer later than half a period: the controller used the estimate of the tick before)"
+        "stale estimates {} (observer later than half a period: the controller used the estimate of the tick before)",
+        c.stale_estimates
     );
-    if summary["recording"]["state"] == "stopped" {
+    let recording = &summary.recording.sample_file;
+    if recording.stopped() {
+        let kept = match &recording.closed {
+            Some(flexloop_runfiles::summary::ClosedFile::Closed { messages, .. }) => {
+                messages.to_string()
+            }
+            _ => "null".to_string(),
+        };
         println!(
-            "recording stopped: {} (the sample file keeps {} messages; the counts above cover the whole run)",
-            summary["recording"]["error"].as_str().unwrap_or("?"),
-            summary["recording"]["closed"]["messages"]
+            "recording stopped: {} (the sample file keeps {kept} messages; the counts above cover the whole run)",
+            recording.error.as_deref().unwrap_or("?"),
         );
     }
-    let mut cpu = serde_json::Map::new();
+    let mut cpu_ns = BTreeMap::new();
     // Per role, over all its instances (swaps and restarts start more).
     let cpu_line: Vec<String> = Role::ALL
         .iter()
-        .filter(|role| running.children.iter().any(|c| c.role == **role))
+        .filter(|role| finished.running.children.iter().any(|c| c.role == **role))
         .map(|role| {
-            let ns: u64 = running
+            let ns: u64 = finished
+                .running
                 .children
                 .iter()
                 .filter(|c| c.role == *role)
                 .map(|c| c.exit.map_or(0, |e| e.cpu_ns))
                 .sum();
-            cpu.insert(role.name().into(), json!(ns));
+            cpu_ns.insert(role.name().to_string(), ns);
             format!("{} {:.1} %", role.name(), 100.0 * ns as f64 / wall_ns)
         })
         .collect();
@@ -153,27 +208,24 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         "CPU (share of one core over the run): {}",
         cpu_line.join(", ")
     );
-    let p50 = |v: &Value| v["p50_ns"].as_u64().unwrap_or(0) as f64;
-    let rt = &summary["latency"]["round_trip"];
-    let hop = &summary["latency"]["plant_to_controller"];
-    if let (Some(t), Some(p), Some(polling)) =
-        (&timer_json, &pp_json, probe("iceoryx2_polling_ping_pong"))
-    {
+    let p50 = |h: &Histogram| h.percentiles.p50 as f64;
+    let rt = summary.latency(Metric::RoundTrip.name());
+    let hop = summary.latency(Metric::PlantToController.name());
+    if let Some(f) = &floors {
         println!(
             "ratios at p50: round trip / timer wake-up {:.2}, plant->controller hop / one-way ping-pong {:.2}, round trip / polling ping-pong {:.1}",
-            p50(rt) / p50(t).max(1.0),
-            p50(hop) / (p50(p) / 2.0).max(1.0),
-            p50(rt) / p50(&polling).max(1.0)
+            p50(&rt) / p50(&f.timer_wakeup).max(1.0),
+            p50(&hop) / (p50(&f.iceoryx2_event_ping_pong) / 2.0).max(1.0),
+            p50(&rt) / p50(&f.iceoryx2_polling_ping_pong).max(1.0)
         );
-    }
-    if let Some(s) = &sockets_json {
-        let p9999 = |v: &Value| v["p99.99_ns"].as_u64().unwrap_or(0) as f64;
+        let p9999 = |h: &Histogram| h.percentiles.p99_99 as f64;
         println!(
             "round trip against the same chain over Unix sockets: p50 {:.2}x, p99.99 {:.2}x",
-            p50(rt) / p50(s).max(1.0),
-            p9999(rt) / p9999(s).max(1.0)
+            p50(&rt) / p50(&f.unix_socket_ring).max(1.0),
+            p9999(&rt) / p9999(&f.unix_socket_ring).max(1.0)
         );
     }
+    let misses = c.misses;
     let fits = misses == 0 && over == 0;
     let rate = if ticks > 0 {
         (misses as f64) / ticks as f64
@@ -189,31 +241,29 @@ pub fn bench(args: LoopArgs) -> Result<i32, String> {
         } else {
             "does NOT fit one sample period"
         },
-        ticks.saturating_sub(misses + stall_misses),
+        ticks.saturating_sub(misses + c.stall_misses),
         ticks,
         misses,
         100.0 * rate,
         over
     );
-    let swaps = if switches.is_empty() {
-        Value::Null
+    let swaps = if finished.switches.is_empty() {
+        None
     } else {
-        swap_report(&run_dir, &switches)?
+        Some(swap_report(&run_dir, &finished.switches)?)
     };
-    let bench_json = json!({
-        "swaps": swaps,
-        "summary": summary,
-        "probes": floors_json,
-        "cpu_ns": Value::Object(cpu),
-        "wall_ns": wall_ns,
-    });
-    let path = run_dir.join("bench.json");
-    flexloop_node::summary::write_json_atomically(&path, &bench_json)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let bench_file = BenchFile {
+        swaps,
+        summary,
+        probes: floors,
+        cpu_ns,
+        wall_ns,
+    };
+    write_json_atomically(&run_dir.bench(), &bench_file)?;
     println!(
         "histograms: {}, summary: {}",
-        run_dir.join(flexloop_node::logger::HISTOGRAM_LOG).display(),
-        path.display()
+        run_dir.histogram_log(0).display(),
+        run_dir.bench().display()
     );
     Ok(0)
 }
@@ -255,9 +305,9 @@ pub fn profile_line(scenario: &flexloop_scenario::Scenario) -> String {
 /// Misses inside the swap windows (from the replacement's start to 100
 /// samples after its boundary) apart from the rest, and the command's step at
 /// each switch.
-fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, String> {
-    let path = run_dir.join(flexloop_node::logger::SAMPLES_FILE);
-    let log = LogReader::open(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+fn swap_report(run_dir: &RunDir, switches: &[Switch]) -> anyhow::Result<SwapReport> {
+    let path = run_dir.samples(0);
+    let log = LogReader::open(&path).with_context(|| path.display().to_string())?;
     let in_window = |seq: u64| {
         switches
             .iter()
@@ -312,19 +362,19 @@ fn swap_report(run_dir: &std::path::Path, switches: &[Switch]) -> Result<Value, 
             s.du_after
         );
     }
-    Ok(json!({
-        "count": switches.len(),
-        "warm": warm,
-        "misses_inside": inside.misses,
-        "misses_inside_after_stalls": inside.after_stalls,
-        "stalls_inside": inside.stalls,
-        "ticks_inside": inside.ticks,
-        "misses_outside": outside.misses,
-        "misses_outside_after_stalls": outside.after_stalls,
-        "stalls_outside": outside.stalls,
-        "ticks_outside": outside.ticks,
-        "switches": switches.iter().map(Switch::json).collect::<Vec<_>>(),
-    }))
+    Ok(SwapReport {
+        count: switches.len(),
+        warm,
+        misses_inside: inside.misses,
+        misses_inside_after_stalls: inside.after_stalls,
+        stalls_inside: inside.stalls,
+        ticks_inside: inside.ticks,
+        misses_outside: outside.misses,
+        misses_outside_after_stalls: outside.after_stalls,
+        stalls_outside: outside.stalls,
+        ticks_outside: outside.ticks,
+        switches: switches.iter().map(switch_record).collect(),
+    })
 }
 
 /// A miss this many ticks after a stalled tick is the stall's: the plant
@@ -373,118 +423,18 @@ fn tally_misses(
     (inside, outside)
 }
 
-/// Swaps, crashes and restarts so far, from the supervisor's events file.
-fn print_events(run_dir: &std::path::Path) {
-    let text =
-        std::fs::read_to_string(run_dir.join(crate::conductor::EVENTS_FILE)).unwrap_or_default();
-    let events: Vec<Value> = text
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
-    let count = |kind: &str| events.iter().filter(|e| e["kind"] == kind).count();
-    println!(
-        "  events: {} swaps, {} crashes, {} restarts",
-        count("swap"),
-        count("crash"),
-        count("restart")
-    );
-    if let Some(last) = events.last() {
-        println!(
-            "  last: {} of {} (generation {}) at {:.1} s",
-            last["kind"].as_str().unwrap_or("?"),
-            last["role"].as_str().unwrap_or("?"),
-            last["generation"],
-            last["t_s"].as_f64().unwrap_or(0.0)
-        );
+/// A switch as the run files record it.
+pub fn switch_record(s: &Switch) -> SwitchRecord {
+    SwitchRecord {
+        role: s.role.name().to_string(),
+        generation: s.generation,
+        start_seq: s.start_seq,
+        from_seq: s.from_seq,
+        du_switch: s.du_switch,
+        du_before: s.du_before,
+        du_after: s.du_after,
+        warm: s.warm,
     }
-}
-
-/// Prints the newest telemetry of a running loop (waits up to 3 s for it).
-/// The loop's processes and their duties, from the supervisor's list.
-fn print_processes(run_dir: &std::path::Path) {
-    let path = run_dir.join(crate::conductor::PROCESSES_FILE);
-    let Some(list) = std::fs::read_to_string(&path)
-        .ok()
-        .and_then(|text| serde_json::from_str::<Value>(&text).ok())
-    else {
-        return;
-    };
-    let shown: Vec<String> = list["processes"]
-        .as_array()
-        .map(Vec::as_slice)
-        .unwrap_or_default()
-        .iter()
-        .map(|p| {
-            let generation = p["generation"]
-                .as_u64()
-                .map(|g| format!(" g{g}"))
-                .unwrap_or_default();
-            format!(
-                "{} {}{} (pid {})",
-                p["role"].as_str().unwrap_or("?"),
-                p["duty"].as_str().unwrap_or("?"),
-                generation,
-                p["pid"]
-            )
-        })
-        .collect();
-    println!("  processes: {}", shown.join(", "));
-}
-
-pub fn print_status(entry: &registry::Entry) -> Result<(), String> {
-    let domain = Domain::new(&entry.prefix).map_err(|e| e.to_string())?;
-    let node = domain.node("status").map_err(|e| e.to_string())?;
-    let inlet = Inlet::<Telemetry>::open_polling(&node, &TELEMETRY, TELEMETRY.qos.loop_buffer_size)
-        .map_err(|e| e.to_string())?;
-    let since = Instant::now();
-    let mut first: Option<Telemetry> = None;
-    let mut last: Option<Telemetry> = None;
-    while since.elapsed() < Duration::from_secs(3) {
-        while let Some(t) = inlet.receive().map_err(|e| e.to_string())? {
-            if first.is_none() {
-                first = Some(*t);
-            }
-            last = Some(*t);
-        }
-        if let (Some(a), Some(b)) = (first, last)
-            && b.published_ns > a.published_ns
-        {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    println!(
-        "loop {} ({}), run directory {}",
-        entry.scenario,
-        entry.prefix,
-        entry.run_dir.display()
-    );
-    print_processes(&entry.run_dir);
-    let Some(t) = last else {
-        println!("  no telemetry yet (the logger publishes once a second)");
-        return Ok(());
-    };
-    if let Some(a) = first.filter(|a| t.published_ns > a.published_ns) {
-        let rate =
-            (t.samples - a.samples) as f64 / ((t.published_ns - a.published_ns) as f64 / 1e9);
-        println!("  rate {rate:.0} samples/s");
-    }
-    println!(
-        "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, stale estimates {}, log gaps {}",
-        t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.stale_estimates, t.gaps
-    );
-    let fmt = |v: [u64; 6]| {
-        QUANTILE_LABELS
-            .iter()
-            .zip(v)
-            .map(|(l, ns)| format!("{l} {:.1}", ns as f64 / 1e3))
-            .collect::<Vec<_>>()
-            .join("  ")
-    };
-    println!("  round trip µs:    {}", fmt(t.round_trip));
-    println!("  tick lateness µs: {}", fmt(t.tick_lateness));
-    print_events(&entry.run_dir);
-    Ok(())
 }
 
 #[cfg(test)]

@@ -25,12 +25,12 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Where `flexloop swap` leaves requests for the supervisor and finds answers.
-pub const REQUESTS_DIR: &str = "requests";
-pub use flexloop_node::logger::EVENTS_FILE;
+pub const REQUESTS_DIR: &str = flexloop_runfiles::RunDir::REQUESTS;
+pub const EVENTS_FILE: &str = flexloop_runfiles::RunDir::EVENTS;
 /// The live processes and what each does (active, standby, spare), rewritten
 /// whenever that changes: for `flexloop status` and for tests that must
 /// stop one particular instance.
-pub const PROCESSES_FILE: &str = "processes.json";
+pub const PROCESSES_FILE: &str = flexloop_runfiles::RunDir::PROCESSES;
 /// How long a replacement may take to start and follow the loop in shadow.
 const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long a swap or restart waits for a spare that is still starting.
@@ -440,7 +440,7 @@ impl Conductor {
             return;
         }
         let path = self.run_dir.join(PROCESSES_FILE);
-        if flexloop_node::summary::write_json_atomically(&path, &now).is_ok() {
+        if flexloop_runfiles::json::write_json_atomically(&path, &now).is_ok() {
             self.processes_written = now;
         }
     }
@@ -833,7 +833,7 @@ impl Conductor {
                 "restart",
                 role,
                 generation,
-                json!({"files": crate::logger_files(generation)}),
+                json!({"files": flexloop_runfiles::run_dir::logger_files(generation)}),
             );
             return Ok(());
         }

@@ -11,27 +11,33 @@
 //! - A scanned sensor, and every other model: the scenario's own loop
 //!   (modes, observer poles, per-output sensitivity peaks).
 
+use anyhow::{Context, bail};
 use flexloop_analysis::loop_report::loop_report;
 use flexloop_control::report::{ThesisDesignSpec, thesis_design_report};
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
-use std::ffi::OsString;
 use std::path::PathBuf;
 
-pub fn design(args: Vec<OsString>) -> Result<i32, String> {
-    use lexopt::prelude::*;
-    let mut parser = lexopt::Parser::from_args(args);
-    let mut scenario = None;
-    let (mut json, mut continuous) = (false, false);
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Value(v) if scenario.is_none() => scenario = Some(PathBuf::from(v)),
-            Long("json") => json = true,
-            Long("continuous") => continuous = true,
-            other => return Err(other.unexpected().to_string()),
-        }
-    }
-    let path = crate::resolve_scenario(scenario)?;
-    let s = Scenario::load(&path, &Overrides::default()).map_err(|e| e.to_string())?;
+/// `design [SCENARIO] [--continuous] [--json]`.
+#[derive(Debug, clap::Args)]
+pub struct DesignArgs {
+    /// Scenario file, or its name under scenarios/ [default: scenarios/default.toml]
+    scenario: Option<PathBuf>,
+    /// The thesis chain's report in continuous time
+    #[arg(long)]
+    continuous: bool,
+    /// Print JSON instead of text
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
+    let DesignArgs {
+        scenario,
+        continuous,
+        json,
+    } = args;
+    let path = crate::launch::resolve_scenario(scenario)?;
+    let s = Scenario::load(&path, &Overrides::default())?;
     // The mass the thesis report is about, and whether the sensor sits on
     // it (a scanned sensor has no one mass: only its own loop is reported).
     let thesis_output =
@@ -41,17 +47,21 @@ pub fn design(args: Vec<OsString>) -> Result<i32, String> {
             (nearest as usize, nearest == node)
         });
     if continuous && thesis_output.is_none() {
-        return Err(format!(
+        bail!(
             "{}: field plant.model: --continuous is the thesis chain's report, not `{}`'s",
             path.display(),
             s.plant.model
-        ));
+        );
     }
     let loop_part = match thesis_output {
         Some((_, true)) => None,
         _ => {
-            let d = LoopDesign::from_scenario(&s).map_err(|e| e.to_string())?;
-            Some(loop_report(&s, &d).map_err(|e| format!("{}: {e}", path.display()))?)
+            let d = LoopDesign::from_scenario(&s)?;
+            Some(
+                loop_report(&s, &d)
+                    .map_err(anyhow::Error::msg)
+                    .with_context(|| path.display().to_string())?,
+            )
         }
     };
     let thesis_part = match thesis_output {
@@ -65,7 +75,7 @@ pub fn design(args: Vec<OsString>) -> Result<i32, String> {
                 )
             };
             spec.output = output;
-            Some(thesis_design_report(&spec).map_err(|e| format!("{}: {e}", path.display()))?)
+            Some(thesis_design_report(&spec).with_context(|| path.display().to_string())?)
         }
         None => None,
     };
@@ -73,12 +83,8 @@ pub fn design(args: Vec<OsString>) -> Result<i32, String> {
         let value = match (&loop_part, &thesis_part) {
             (None, Some(thesis)) => serde_json::to_value(thesis),
             (l, t) => Ok(serde_json::json!({ "loop": l, "thesis_at_nearest_mass": t })),
-        }
-        .map_err(|e| e.to_string())?;
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?
-        );
+        }?;
+        println!("{}", serde_json::to_string_pretty(&value)?);
         return Ok(0);
     }
     if let Some(l) = &loop_part {

@@ -7,34 +7,33 @@
 //! `n_outputs`, x̂ up to `n_states`, the observer's feedthrough table as its
 //! used rows and columns `direct[i][j]`); everything else is as recorded.
 
+use anyhow::{Context, bail};
 use flexloop_components::LogReader;
-use flexloop_node::logger::SAMPLES_FILE;
 use flexloop_protocol::layout::{self, Field, MessageLayout, Scalar};
-use std::ffi::OsString;
+use flexloop_runfiles::RunDir;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-pub const CSV_DIR: &str = "csv";
+/// `export RUN --csv [--out DIR]`.
+#[derive(Debug, clap::Args)]
+pub struct ExportArgs {
+    /// A run directory or a samples*.mcap file
+    run: PathBuf,
+    /// One CSV per channel (the only format)
+    #[arg(long)]
+    csv: bool,
+    /// Where the CSV files go [default: RUN/csv]
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
 
-pub fn export(args: Vec<OsString>) -> Result<i32, String> {
-    use lexopt::prelude::*;
-    let mut parser = lexopt::Parser::from_args(args);
-    let (mut run, mut out, mut csv) = (None, None, false);
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Long("csv") => csv = true,
-            Long("out") => out = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?)),
-            Value(v) if run.is_none() => run = Some(PathBuf::from(v)),
-            other => return Err(other.unexpected().to_string()),
-        }
-    }
-    let run =
-        run.ok_or("export needs a run directory or sample file: flexloop export RUN --csv")?;
+pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
+    let ExportArgs { run, csv, out } = args;
     if !csv {
-        return Err("export needs a format: --csv (the only one)".into());
+        bail!("export needs a format: --csv (the only one)");
     }
     let (file, default_out) = sample_file_of(&run)?;
-    let log = LogReader::open(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let log = LogReader::open(&file).with_context(|| file.display().to_string())?;
     if log.torn_tail {
         eprintln!(
             "flexloop export: {} is unfinished ({}); exporting the complete chunks it holds",
@@ -46,9 +45,9 @@ pub fn export(args: Vec<OsString>) -> Result<i32, String> {
         .meta("period_ns")
         .and_then(|p| p.parse::<f64>().ok())
         .map(|ns| ns * 1e-9)
-        .ok_or_else(|| format!("{}: metadata `period_ns` missing", file.display()))?;
+        .with_context(|| format!("{}: metadata `period_ns` missing", file.display()))?;
     let out = out.unwrap_or(default_out);
-    std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let tables: [(&str, MessageLayout, Vec<&[u8]>); 3] = [
         (
             "measurement",
@@ -69,26 +68,28 @@ pub fn export(args: Vec<OsString>) -> Result<i32, String> {
     for (name, layout, rows) in &tables {
         let path = out.join(format!("{name}.csv"));
         write_messages(&path, layout, rows, period_s)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+            .with_context(|| path.display().to_string())?;
         println!("{} ({} rows)", path.display(), rows.len());
     }
     let path = out.join("events.csv");
-    write_events(&path, &log).map_err(|e| format!("{}: {e}", path.display()))?;
+    write_events(&path, &log).with_context(|| path.display().to_string())?;
     println!("{} ({} rows)", path.display(), log.events.len());
     Ok(0)
 }
 
 /// The sample file a RUN argument names and where its CSVs go by default.
-fn sample_file_of(run: &Path) -> Result<(PathBuf, PathBuf), String> {
+fn sample_file_of(run: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
     if run.is_dir() {
-        let file = run.join(SAMPLES_FILE);
+        let run_dir = RunDir::new(run);
+        let file = run_dir.samples(0);
         if !file.is_file() {
-            return Err(format!(
-                "{}: no {SAMPLES_FILE} in it (not a run directory?)",
-                run.display()
-            ));
+            bail!(
+                "{}: no {} in it (not a run directory?)",
+                run.display(),
+                RunDir::SAMPLES
+            );
         }
-        return Ok((file, run.join(CSV_DIR)));
+        return Ok((file, run_dir.csv()));
     }
     if run.is_file() {
         let stem = run
@@ -96,12 +97,12 @@ fn sample_file_of(run: &Path) -> Result<(PathBuf, PathBuf), String> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "samples".into());
         let parent = run.parent().unwrap_or(Path::new("."));
-        return Ok((run.to_path_buf(), parent.join(format!("{stem}-{CSV_DIR}"))));
+        return Ok((
+            run.to_path_buf(),
+            parent.join(format!("{stem}-{}", RunDir::CSV)),
+        ));
     }
-    Err(format!(
-        "{}: no such run directory or sample file",
-        run.display()
-    ))
+    bail!("{}: no such run directory or sample file", run.display())
 }
 
 fn as_bytes<T: Copy>(value: &T) -> &[u8] {

@@ -3,20 +3,20 @@
 //! at all, both timed by the plant itself (its own histograms, from the
 //! commands' stamps), so that the difference is what recording costs.
 
-use crate::{LoopArgs, prepare, run_registered_with};
-use flexloop_node::summary::{PLANT_LATENCY_FILE, write_json_atomically};
-use flexloop_runtime::latency::QUANTILE_LABELS;
+use crate::bench::BenchArgs;
+use crate::launch::{LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise};
+use anyhow::{Context, bail};
+use flexloop_runfiles::bench::LoggingCost;
+use flexloop_runfiles::json::write_json_atomically;
+use flexloop_runfiles::{PlantLatency, RunDir};
+use flexloop_runtime::latency::Metric;
 use flexloop_scenario::{Mode, Overrides};
-use serde_json::{Value, json};
-use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 /// The goal for what logging may add at p99.99.
 const GOAL_US: f64 = 5.0;
 
-const USAGE: &str = "flexloop bench --logging-cost [SCENARIO] [--duration S (10, per run)] [--rate HZ] [--no-realtime] [--run-dir DIR]";
-
-struct Options {
+pub struct Options {
     scenario: Option<PathBuf>,
     duration_s: f64,
     rate_hz: Option<f64>,
@@ -24,37 +24,24 @@ struct Options {
     out: Option<PathBuf>,
 }
 
-fn parse(args: Vec<OsString>) -> Result<Options, String> {
-    use lexopt::prelude::*;
-    let mut o = Options {
-        scenario: None,
-        duration_s: 10.0,
-        rate_hz: None,
-        no_realtime: false,
-        out: None,
-    };
-    let mut parser = lexopt::Parser::from_args(args);
-    let number = |p: &mut lexopt::Parser, flag: &str| -> Result<f64, String> {
-        let v = p.value().map_err(|e| e.to_string())?;
-        v.to_str()
-            .and_then(|s| s.parse::<f64>().ok())
-            .filter(|x| x.is_finite() && *x > 0.0)
-            .ok_or_else(|| format!("{flag} needs a positive number, got {v:?}"))
-    };
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Long("logging-cost") => {}
-            Value(v) if o.scenario.is_none() => o.scenario = Some(PathBuf::from(v)),
-            Long("duration") => o.duration_s = number(&mut parser, "--duration")?,
-            Long("rate") => o.rate_hz = Some(number(&mut parser, "--rate")?),
-            Long("no-realtime") => o.no_realtime = true,
-            Long("run-dir") => {
-                o.out = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?))
+impl Options {
+    /// `bench --logging-cost`'s options, checked.
+    pub fn from_args(args: &BenchArgs) -> anyhow::Result<Self> {
+        let o = args.overrides;
+        let positive = |flag: &str, v: Option<f64>| match v {
+            Some(x) if !(x.is_finite() && x > 0.0) => {
+                bail!("{flag} needs a positive number, got {x}")
             }
-            other => return Err(format!("{}\nusage: {USAGE}", other.unexpected())),
-        }
+            _ => Ok(v),
+        };
+        Ok(Options {
+            scenario: args.scenario.clone(),
+            duration_s: positive("--duration", o.duration_s)?.unwrap_or(10.0),
+            rate_hz: positive("--rate", o.rate_hz)?,
+            no_realtime: o.no_realtime,
+            out: args.run_dir.clone(),
+        })
     }
-    Ok(o)
 }
 
 /// The scenario text with `[logger] enabled = false` (an existing
@@ -89,7 +76,7 @@ fn without_logger(text: &str) -> String {
 }
 
 /// One run; the plant's own figures.
-fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> Result<Value, String> {
+fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> anyhow::Result<PlantLatency> {
     let args = LoopArgs {
         scenario: scenario.to_path_buf(),
         overrides: Overrides {
@@ -99,28 +86,22 @@ fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> Result<Value, Strin
             no_realtime: o.no_realtime,
         },
         run_dir: Some(run_dir.to_path_buf()),
-        probes: false,
-        swap_every_s: None,
     };
-    run_registered_with(prepare(&args)?, |_, _| None)?;
-    let path = run_dir.join(PLANT_LATENCY_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    supervise(prepare(&args)?, |_, _| None)?;
+    Ok(RunDir::new(run_dir).read_plant_latency()?)
 }
 
-pub fn logging_cost(args: Vec<OsString>) -> Result<i32, String> {
-    let o = parse(args)?;
-    let scenario = crate::resolve_scenario(o.scenario.clone())?;
+pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
+    let scenario = resolve_scenario(o.scenario.clone())?;
     let text =
-        std::fs::read_to_string(&scenario).map_err(|e| format!("{}: {e}", scenario.display()))?;
+        std::fs::read_to_string(&scenario).with_context(|| scenario.display().to_string())?;
     let root = o
         .out
         .clone()
-        .unwrap_or_else(|| crate::stamped_run_dir("logging-cost"));
-    std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
+        .unwrap_or_else(|| stamped_run_dir("logging-cost"));
+    std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
     let silent = root.join("without-logger.toml");
-    std::fs::write(&silent, without_logger(&text))
-        .map_err(|e| format!("{}: {e}", silent.display()))?;
+    std::fs::write(&silent, without_logger(&text)).with_context(|| silent.display().to_string())?;
     eprintln!(
         "flexloop bench --logging-cost: {} for {} s with the logger, then {} s without; runs in {}",
         scenario.display(),
@@ -130,7 +111,7 @@ pub fn logging_cost(args: Vec<OsString>) -> Result<i32, String> {
     );
     let with = run_once(&o, &scenario, &root.join("with-logger"))?;
     if flexloop_runtime::shutdown::requested() {
-        return Err("interrupted".into());
+        bail!("interrupted");
     }
     let without = run_once(&o, &silent, &root.join("without-logger"))?;
 
@@ -138,36 +119,26 @@ pub fn logging_cost(args: Vec<OsString>) -> Result<i32, String> {
         "\n{:<30}{:>9}{:>8}{:>9}{:>9}{:>9}{:>9}{:>9}{:>9}   (µs, the plant's own histograms)",
         "", "ticks", "misses", "p50", "p90", "p99", "p99.9", "p99.99", "max"
     );
-    let row = |name: &str, run: &Value, metric: &str| {
-        let v = &run["latency"][metric];
-        let us = |q: &str| v[format!("{q}_ns")].as_u64().unwrap_or(0) as f64 / 1e3;
+    let row = |name: &str, run: &PlantLatency, metric: Metric| {
+        let [p50, p90, p99, p999, p9999, max] = run
+            .latency(metric.name())
+            .percentiles
+            .values()
+            .map(|ns| ns as f64 / 1e3);
         println!(
             "{:<30}{:>9}{:>8}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}",
-            name,
-            run["ticks"].as_u64().unwrap_or(0),
-            run["counters"]["misses"].as_u64().unwrap_or(0),
-            us(QUANTILE_LABELS[0]),
-            us(QUANTILE_LABELS[1]),
-            us(QUANTILE_LABELS[2]),
-            us(QUANTILE_LABELS[3]),
-            us(QUANTILE_LABELS[4]),
-            us(QUANTILE_LABELS[5])
+            name, run.ticks, run.counters.misses, p50, p90, p99, p999, p9999, max
         );
     };
-    row("round trip, logger on", &with, "round_trip");
-    row("round trip, logger off", &without, "round_trip");
-    row("tick -> u(k), logger on", &with, "tick_to_command");
-    row("tick -> u(k), logger off", &without, "tick_to_command");
-    row("tick lateness, logger on", &with, "tick_lateness");
-    row("tick lateness, logger off", &without, "tick_lateness");
-    let p9999 = |run: &Value| {
-        run["latency"]["round_trip"]["p99.99_ns"]
-            .as_u64()
-            .unwrap_or(0) as f64
-            / 1e3
-    };
-    let p50 =
-        |run: &Value| run["latency"]["round_trip"]["p50_ns"].as_u64().unwrap_or(0) as f64 / 1e3;
+    row("round trip, logger on", &with, Metric::RoundTrip);
+    row("round trip, logger off", &without, Metric::RoundTrip);
+    row("tick -> u(k), logger on", &with, Metric::TickToCommand);
+    row("tick -> u(k), logger off", &without, Metric::TickToCommand);
+    row("tick lateness, logger on", &with, Metric::TickLateness);
+    row("tick lateness, logger off", &without, Metric::TickLateness);
+    let round_trip = |run: &PlantLatency| run.latency(Metric::RoundTrip.name()).percentiles;
+    let p9999 = |run: &PlantLatency| round_trip(run).p99_99 as f64 / 1e3;
+    let p50 = |run: &PlantLatency| round_trip(run).p50 as f64 / 1e3;
     let cost = p9999(&with) - p9999(&without);
     println!(
         "\nlogging costs {:+.1} µs at the round trip's p99.99 ({:+.1} µs at p50); goal under {GOAL_US} µs: {}",
@@ -178,16 +149,16 @@ pub fn logging_cost(args: Vec<OsString>) -> Result<i32, String> {
     println!(
         "(one run each, one after the other: on a shared machine a stall in either moves p99.99 by more than this)"
     );
-    let document = json!({
-        "scenario": scenario.display().to_string(),
-        "duration_s": o.duration_s,
-        "with_logger": with,
-        "without_logger": without,
-        "round_trip_p9999_cost_us": cost,
-        "goal_us": GOAL_US,
-    });
+    let document = LoggingCost {
+        scenario: scenario.display().to_string(),
+        duration_s: o.duration_s,
+        with_logger: with,
+        without_logger: without,
+        round_trip_p9999_cost_us: cost,
+        goal_us: GOAL_US,
+    };
     let path = root.join("logging_cost.json");
-    write_json_atomically(&path, &document).map_err(|e| format!("{}: {e}", path.display()))?;
+    write_json_atomically(&path, &document)?;
     println!("{}", path.display());
     Ok(0)
 }

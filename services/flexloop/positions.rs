@@ -8,16 +8,18 @@
 //! runs every position through the real processes in lockstep instead. The
 //! feed-forward error is discussed in flexloop_analysis::positions.
 
-use crate::{LoopArgs, prepare, run_registered_with};
+use crate::launch::{LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise};
+use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::feedforward_fit::FittedFeedforward;
 use flexloop_analysis::positions::{
     FeedforwardChoice, PositionError, PositionRms, PositionScan, position_scan, scenario_at,
     sensor_positions, thesis_table_4_1,
 };
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{Mode, Overrides, Scenario};
 use serde_json::json;
-use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 /// The seven cases of Table 4.1, in the thesis' order.
@@ -31,102 +33,68 @@ const CASES: [&str; 7] = [
     "thesis-mc-ad-redesigned",
 ];
 
-struct Options {
+/// `positions [SCENARIO...] [--per-span N | --at P,P...] [--feedforward F] [--processes] [--json] [--each]`.
+#[derive(Debug, clap::Args)]
+pub struct PositionsArgs {
+    /// Scenarios of the thesis chain [default: the seven thesis cases]
     scenarios: Vec<PathBuf>,
+    /// Print JSON instead of the table
+    #[arg(long)]
     json: bool,
+    /// Every position's rms under its case
+    #[arg(long)]
     each: bool,
+    /// Run every position through the processes in lockstep
+    #[arg(long)]
     processes: bool,
+    /// With --processes: keep every position's sample file
+    #[arg(long)]
     keep_logs: bool,
-    per_span: usize,
-    /// Explicit positions (`--at`), in place of the grid.
+    /// Positions per span between two masses: 7·N+1 in all
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..=100))]
+    per_span: u16,
+    /// These positions instead of the grid (0 = ma, 1..7 = m1..m7)
+    #[arg(long, value_name = "P,P...", value_delimiter = ',')]
     at: Option<Vec<f64>>,
+    /// The feedforward at each position: compliance-shifted, as-tuned or mass-only
+    #[arg(long, value_name = "F", default_value = "compliance-shifted", value_parser = feedforward_choice)]
     feedforward: FeedforwardChoice,
+    /// With --processes: where the runs go [default: runs/<stamp>-positions-<pid>]
+    #[arg(long, value_name = "DIR")]
     run_dir: Option<PathBuf>,
 }
 
-fn parse(args: Vec<OsString>) -> Result<Options, String> {
-    use lexopt::prelude::*;
-    let mut parser = lexopt::Parser::from_args(args);
-    let mut o = Options {
-        scenarios: Vec::new(),
-        json: false,
-        each: false,
-        processes: false,
-        keep_logs: false,
-        per_span: 4,
-        at: None,
-        feedforward: FeedforwardChoice::ComplianceShifted,
-        run_dir: None,
-    };
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Value(v) => o.scenarios.push(PathBuf::from(v)),
-            Long("json") => o.json = true,
-            Long("each") => o.each = true,
-            Long("processes") => o.processes = true,
-            Long("keep-logs") => o.keep_logs = true,
-            Long("per-span") => {
-                let v = parser.value().map_err(|e| e.to_string())?;
-                o.per_span = v
-                    .to_str()
-                    .and_then(|s| s.parse::<usize>().ok())
-                    .filter(|n| (1..=100).contains(n))
-                    .ok_or_else(|| format!("--per-span needs a whole number 1..=100, got {v:?}"))?;
-            }
-            Long("at") => {
-                let v = parser.value().map_err(|e| e.to_string())?;
-                let text = v.to_string_lossy();
-                let list = text
-                    .split(',')
-                    .map(|p| p.trim().parse::<f64>())
-                    .collect::<Result<Vec<_>, _>>()
-                    .map_err(|_| format!("--at needs positions like 4.25,5 got `{text}`"))?;
-                o.at = Some(list);
-            }
-            Long("feedforward") => {
-                let v = parser.value().map_err(|e| e.to_string())?;
-                let text = v.to_string_lossy();
-                o.feedforward = FeedforwardChoice::parse(&text).ok_or_else(|| {
-                    format!(
-                        "--feedforward is compliance-shifted, as-tuned or mass-only, got `{text}`"
-                    )
-                })?;
-            }
-            Long("run-dir") => {
-                o.run_dir = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?))
-            }
-            other => return Err(other.unexpected().to_string()),
-        }
-    }
-    Ok(o)
+fn feedforward_choice(text: &str) -> Result<FeedforwardChoice, String> {
+    FeedforwardChoice::parse(text).ok_or_else(|| {
+        format!("--feedforward is compliance-shifted, as-tuned or mass-only, got `{text}`")
+    })
 }
 
-pub fn positions(args: Vec<OsString>) -> Result<i32, String> {
-    let o = parse(args)?;
-    let paths: Vec<PathBuf> = if o.scenarios.is_empty() {
-        CASES
-            .iter()
-            .map(|name| crate::resolve_scenario(Some(PathBuf::from(name))))
-            .collect::<Result<_, _>>()?
+pub fn positions(o: PositionsArgs) -> anyhow::Result<i32> {
+    let given: Vec<PathBuf> = if o.scenarios.is_empty() {
+        CASES.iter().map(PathBuf::from).collect()
     } else {
-        o.scenarios
-            .iter()
-            .map(|p| crate::resolve_scenario(Some(p.clone())))
-            .collect::<Result<_, _>>()?
+        o.scenarios.clone()
     };
-    let positions = o.at.clone().unwrap_or_else(|| sensor_positions(o.per_span));
+    let paths = given
+        .into_iter()
+        .map(|p| resolve_scenario(Some(p)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let positions =
+        o.at.clone()
+            .unwrap_or_else(|| sensor_positions(usize::from(o.per_span)));
     let mut scans = Vec::new();
     for path in &paths {
         if shutdown::requested() {
-            return Err("interrupted".into());
+            bail!("interrupted");
         }
-        let s = Scenario::load(path, &Overrides::default()).map_err(|e| e.to_string())?;
+        let s = Scenario::load(path, &Overrides::default())?;
         if s.plant.model != "thesis-chain" {
-            return Err(format!(
+            bail!(
                 "scenario {}: field `plant.model`: positions are along the thesis chain, not `{}`",
                 path.display(),
                 s.plant.model
-            ));
+            );
         }
         eprintln!(
             "flexloop positions: {} at {} positions{}",
@@ -169,25 +137,22 @@ pub fn positions(args: Vec<OsString>) -> Result<i32, String> {
             "unit": "m",
             "cases": cases,
         });
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?
-        );
+        println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         print_table(&scans, &positions, &o);
     }
     Ok(0)
 }
 
-fn in_file(path: &Path, e: PositionError) -> String {
+fn in_file(path: &Path, e: PositionError) -> anyhow::Error {
     match e {
         // The design error already names the file and the field.
-        PositionError::Design { .. } | PositionError::NoScan(_) => e.to_string(),
-        PositionError::Loop { .. } => format!("{}: {e}", path.display()),
+        PositionError::Design { .. } | PositionError::NoScan(_) => anyhow::Error::new(e),
+        PositionError::Loop { .. } => anyhow::Error::new(e).context(path.display().to_string()),
     }
 }
 
-fn print_table(scans: &[PositionScan], positions: &[f64], o: &Options) {
+fn print_table(scans: &[PositionScan], positions: &[f64], o: &PositionsArgs) {
     println!(
         "rms e_true over the scan [nm], sensor at {} positions {}..{} (0 = ma, 1..7 = m1..m7), \
          feedforward {}, {}",
@@ -240,29 +205,24 @@ fn through_processes(
     feedforward: FeedforwardChoice,
     root: Option<&Path>,
     keep_logs: bool,
-) -> Result<PositionScan, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    let root = root.map(Path::to_path_buf).unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!("{stamp}-positions-{}", std::process::id()))
-    });
+) -> anyhow::Result<PositionScan> {
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    let root = root
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| stamped_run_dir("positions"));
     let mut runs = Vec::with_capacity(positions.len());
     for &position in positions {
         if shutdown::requested() {
-            return Err("interrupted".into());
+            bail!("interrupted");
         }
         let name = format!("{}-p{position:.2}", s.name);
-        let run_dir = root.join(&name);
-        std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
+        let run_dir = RunDir::new(root.join(&name));
+        std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
         let file = root.join(format!("{name}.toml"));
         std::fs::write(&file, with_sensor_position(&text, position))
-            .map_err(|e| format!("{}: {e}", file.display()))?;
+            .with_context(|| file.display().to_string())?;
         if feedforward != FeedforwardChoice::AsTuned {
-            let ff = scenario_at(s, position, feedforward)
-                .map_err(|e| e.to_string())?
+            let ff = scenario_at(s, position, feedforward)?
                 .controller
                 .feedforward
                 .unwrap_or_default();
@@ -297,15 +257,15 @@ const ATTEMPTS: u32 = 3;
 /// One position through the processes; rms of e_true over the scan [m].
 fn run_position(
     file: &Path,
-    run_dir: &Path,
+    run_dir: &RunDir,
     name: &str,
     source: &Path,
     keep_logs: bool,
-) -> Result<f64, String> {
+) -> anyhow::Result<f64> {
     let mut last_gaps = 0;
     for _ in 0..ATTEMPTS {
         // Each attempt starts from an empty directory.
-        let _ = std::fs::remove_dir_all(run_dir);
+        let _ = std::fs::remove_dir_all(run_dir.path());
         let args = LoopArgs {
             scenario: file.to_path_buf(),
             overrides: Overrides {
@@ -314,18 +274,12 @@ fn run_position(
                 no_realtime: true,
                 ..Overrides::default()
             },
-            run_dir: Some(run_dir.to_path_buf()),
-            probes: false,
-            swap_every_s: None,
+            run_dir: Some(run_dir.path().to_path_buf()),
         };
         let prepared = prepare(&args)?;
-        run_registered_with(prepared, |_, _| None).map_err(|e| format!("{name}: {e}"))?;
+        supervise(prepared, |_, _| None).with_context(|| name.to_string())?;
         let report = crate::run::RunReport::load(run_dir)?;
-        let gaps: u64 = ["measurement", "estimate", "command"]
-            .iter()
-            .map(|k| report.summary["gaps"][k].as_u64().unwrap_or(0))
-            .sum::<u64>()
-            + report.trace.incomplete_ticks;
+        let gaps = report.summary.gaps.total() + report.trace.incomplete_ticks;
         if gaps > 0 {
             last_gaps = gaps;
             eprintln!(
@@ -334,26 +288,24 @@ fn run_position(
             continue;
         }
         let rms = report.metrics.rms_e_true_scan.ok_or_else(|| {
-            format!(
+            anyhow!(
                 "{}: field `reference.shape`: no complete scan in the run",
                 source.display()
             )
         })?;
-        let metrics = run_dir.join(crate::run::METRICS_FILE);
-        flexloop_node::summary::write_json_atomically(&metrics, &report.to_json())
-            .map_err(|e| format!("{}: {e}", metrics.display()))?;
+        write_json_atomically(&run_dir.metrics(), &report.metrics_file())?;
         if !keep_logs {
             // ~5 MB per position, 1 GB for the whole table; the summary and
             // the metrics stay.
-            let _ = std::fs::remove_file(run_dir.join(flexloop_node::logger::SAMPLES_FILE));
+            let _ = std::fs::remove_file(run_dir.samples(0));
         }
         return Ok(rms);
     }
-    Err(format!(
+    bail!(
         "{name}: the log of {} missed {last_gaps} samples in each of {ATTEMPTS} runs \
          (a busy machine); the in-process table (without --processes) is the same loop",
-        run_dir.display()
-    ))
+        run_dir.path().display()
+    )
 }
 
 /// The scenario text with the sensor at `position`: `output` and any

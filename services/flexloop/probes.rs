@@ -3,19 +3,23 @@
 //! one (both under the plant's priority and CPU), and the loop's chain by
 //! hand over Unix sockets.
 
+use anyhow::{Context, anyhow};
 use flexloop_node::Role;
 use flexloop_node::args::realtime_settings;
+use flexloop_node::summary::floor_histogram;
 use flexloop_protocol::channels::events;
 use flexloop_runtime::clock::{TickGrid, sleep_until};
 use flexloop_runtime::latency::LatencyHistogram;
-use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_runtime::monotonic_ns;
 use flexloop_runtime::realtime::{self, RealtimeSettings};
 use flexloop_runtime::wait::{Readiness, wait_readable};
 use flexloop_scenario::Scenario;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
-use serde_json::{Value, json};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::Receiver;
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 /// The four floors, measured one after the other with the scenario's
@@ -28,15 +32,7 @@ pub struct Floors {
 }
 
 impl Floors {
-    /// JSON keys and table labels, in the table's order.
-    pub const ROWS: [(&str, &str); 4] = [
-        ("timer_wakeup", "probe: timer wake-up"),
-        ("iceoryx2_event_ping_pong", "probe: iox2 ping-pong"),
-        ("iceoryx2_polling_ping_pong", "probe: iox2 polling"),
-        ("unix_socket_ring", "probe: socket ring"),
-    ];
-
-    pub fn measure(scenario: &Scenario, prefix: &str, samples: u64) -> Result<Self, String> {
+    pub fn measure(scenario: &Scenario, prefix: &str, samples: u64) -> anyhow::Result<Self> {
         eprintln!(
             "flexloop bench: measuring the wake-up floor, an iceoryx2 event and a polling ping-pong, and a Unix-socket ring ({:.1} s each)",
             samples as f64 / scenario.timing.rate_hz
@@ -64,24 +60,108 @@ impl Floors {
         })
     }
 
-    /// `{key: {count, p50_ns, …}}` for every floor, keys as in [`Self::ROWS`].
-    pub fn json(&self) -> Value {
-        let one = |h: &LatencyHistogram| {
-            let p = h.percentiles();
-            let mut m = serde_json::Map::new();
-            m.insert("count".into(), json!(p.count));
-            for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
-                m.insert(format!("{label}_ns"), json!(value));
-            }
-            Value::Object(m)
-        };
-        json!({
-            "timer_wakeup": one(&self.timer_wakeup),
-            "iceoryx2_event_ping_pong": one(&self.event_ping_pong),
-            "iceoryx2_polling_ping_pong": one(&self.polling_ping_pong),
-            "unix_socket_ring": one(&self.socket_ring),
-        })
+    /// The floors as `bench.json` and `sweep.json` keep them.
+    pub fn file(&self) -> flexloop_runfiles::bench::Floors {
+        flexloop_runfiles::bench::Floors {
+            timer_wakeup: floor_histogram(&self.timer_wakeup),
+            iceoryx2_event_ping_pong: floor_histogram(&self.event_ping_pong),
+            iceoryx2_polling_ping_pong: floor_histogram(&self.polling_ping_pong),
+            unix_socket_ring: floor_histogram(&self.socket_ring),
+        }
     }
+}
+
+/// The pong side of a ping-pong probe: a thread that set up its own ports
+/// and answers until stopped.
+struct Pong {
+    stop: Arc<AtomicBool>,
+    ready: Receiver<()>,
+    thread: JoinHandle<anyhow::Result<()>>,
+}
+
+impl Pong {
+    /// Starts `serve` on a thread of its own; it gets its node, a `ready`
+    /// to call once its ports exist, and the flag that stops it.
+    fn spawn(
+        domain: &flexloop_transport::Domain,
+        node_name: &'static str,
+        serve: impl FnOnce(Node<ipc::Service>, &dyn Fn(), &AtomicBool) -> anyhow::Result<()>
+        + Send
+        + 'static,
+    ) -> Self {
+        let domain = domain.clone();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop_pong = stop.clone();
+        let (ready_tx, ready) = std::sync::mpsc::channel();
+        let thread = std::thread::spawn(move || {
+            let node = domain.node(node_name)?;
+            serve(
+                node,
+                &|| {
+                    let _ = ready_tx.send(());
+                },
+                &stop_pong,
+            )
+        });
+        Self {
+            stop,
+            ready,
+            thread,
+        }
+    }
+
+    /// Waits (bounded) until the pong's ports exist.
+    fn await_ready(&self) {
+        let _ = self.ready.recv_timeout(Duration::from_secs(5));
+    }
+
+    /// Runs the ping over its `ports` on this thread under `settings`,
+    /// gives the settings back (threads spawned here later would inherit
+    /// them), stops the pong, then closes the ports and removes what the
+    /// probe left under `prefix`.
+    fn ping<P, T>(
+        self,
+        name: &str,
+        settings: &RealtimeSettings,
+        prefix: &str,
+        ports: P,
+        ping: impl FnOnce(&P) -> T,
+    ) -> T {
+        let result = {
+            let _rt = realtime::apply(name, settings);
+            ping(&ports)
+        };
+        realtime::step_down(settings.cpu);
+        self.stop.store(true, Ordering::Relaxed);
+        let _ = self.thread.join();
+        drop(ports);
+        flexloop_transport::remove_leftovers(prefix);
+        result
+    }
+}
+
+/// On the tick grid: for sample k, `round_trip(k)` sends and waits (bounded)
+/// for the answer; the span from the send to its answer is recorded, and a
+/// failed send or a lost answer (false) records nothing.
+fn round_trips(
+    period_ns: u64,
+    samples: u64,
+    mut round_trip: impl FnMut(u64) -> bool,
+) -> LatencyHistogram {
+    let grid = TickGrid::starting_in(period_ns, 1_000_000);
+    let mut h = LatencyHistogram::new();
+    for k in 0..samples {
+        sleep_until(grid.tick_ns(k));
+        let sent = monotonic_ns();
+        if round_trip(k) {
+            h.record_span(sent, monotonic_ns());
+        }
+    }
+    h
+}
+
+fn port_error(e: impl std::fmt::Debug) -> anyhow::Error {
+    anyhow!("{e:?}")
 }
 
 /// Lateness of absolute wake-ups on the tick grid.
@@ -110,36 +190,34 @@ pub fn event_ping_pong(
     pong: &RealtimeSettings,
     period_ns: u64,
     samples: u64,
-) -> Result<LatencyHistogram, String> {
-    let domain = flexloop_transport::Domain::new(prefix).map_err(|e| e.to_string())?;
-    let open = |node: &Node<ipc::Service>, name: &str| {
-        let service_name: ServiceName = name.try_into().map_err(|e| format!("{e:?}"))?;
+) -> anyhow::Result<LatencyHistogram> {
+    let domain = flexloop_transport::Domain::new(prefix)?;
+    fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+    ) -> anyhow::Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>> {
+        let service_name: ServiceName = name.try_into().map_err(port_error)?;
         node.service_builder(&service_name)
             .event()
             .open_or_create()
-            .map_err(|e| format!("{e:?}"))
-    };
+            .map_err(port_error)
+    }
     let pong_settings = pong.clone();
-    let pong_domain = domain.clone();
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let stop_pong = stop.clone();
-    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-    let pong_thread = std::thread::spawn(move || -> Result<(), String> {
-        let node = pong_domain.node("pong").map_err(|e| e.to_string())?;
+    let pong = Pong::spawn(&domain, "pong", move |node, ready, stop| {
         let listener = open(&node, "probe/ping")?
             .listener_builder()
             .create()
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(port_error)?;
         let notifier = open(&node, "probe/pong")?
             .notifier_builder()
             .default_event_id(EventId::new(events::SAMPLE))
             .create()
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(port_error)?;
         let _rt = realtime::apply("bench-pong", &pong_settings);
-        let _ = ready_tx.send(());
+        ready();
         // SAFETY: the fd stays owned by the listener.
         let fd = unsafe { listener.file_descriptor().native_handle() };
-        while !stop_pong.load(std::sync::atomic::Ordering::Relaxed) {
+        while !stop.load(Ordering::Relaxed) {
             if let Ok(Readiness::Ready(_)) = wait_readable(&[fd], 50_000_000) {
                 let _ = listener.try_wait(|_| {});
                 let _ = notifier.notify();
@@ -147,44 +225,42 @@ pub fn event_ping_pong(
         }
         Ok(())
     });
-    let node = domain.node("ping").map_err(|e| e.to_string())?;
+    let node = domain.node("ping")?;
     let listener = open(&node, "probe/pong")?
         .listener_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(port_error)?;
     let notifier = open(&node, "probe/ping")?
         .notifier_builder()
         .default_event_id(EventId::new(events::SAMPLE))
         .create()
-        .map_err(|e| format!("{e:?}"))?;
-    let _ = ready_rx.recv_timeout(Duration::from_secs(5));
-    let result = std::thread::scope(|_| {
-        let _rt = realtime::apply("bench-ping", ping);
-        // SAFETY: the fd stays owned by the listener.
-        let fd = unsafe { listener.file_descriptor().native_handle() };
-        let grid = TickGrid::starting_in(period_ns, 1_000_000);
-        let mut h = LatencyHistogram::new();
-        for k in 0..samples {
-            sleep_until(grid.tick_ns(k));
-            let sent = monotonic_ns();
-            if notifier.notify().is_err() {
-                continue;
-            }
-            // Bounded: a lost pong costs at most one period of waiting.
-            if let Ok(Readiness::Ready(_)) = wait_readable(&[fd], period_ns * 10) {
-                let _ = listener.try_wait(|_| {});
-                h.record_span(sent, monotonic_ns());
-            }
-        }
-        h
-    });
-    // The ping ran on this thread: give its real-time settings back before
-    // anything else runs here (threads spawned later would inherit them).
-    realtime::step_down(ping.cpu);
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    let _ = pong_thread.join();
-    drop((listener, notifier, node));
-    flexloop_transport::remove_leftovers(prefix);
+        .map_err(port_error)?;
+    pong.await_ready();
+    let ports = (listener, notifier, node);
+    let result = pong.ping(
+        "bench-ping",
+        ping,
+        prefix,
+        ports,
+        |(listener, notifier, _)| {
+            // SAFETY: the fd stays owned by the listener.
+            let fd = unsafe { listener.file_descriptor().native_handle() };
+            round_trips(period_ns, samples, |_| {
+                if notifier.notify().is_err() {
+                    return false;
+                }
+                // Bounded: a lost pong costs at most ten periods of waiting.
+                let answered = matches!(
+                    wait_readable(&[fd], period_ns * 10),
+                    Ok(Readiness::Ready(_))
+                );
+                if answered {
+                    let _ = listener.try_wait(|_| {});
+                }
+                answered
+            })
+        },
+    );
     Ok(result)
 }
 
@@ -200,15 +276,20 @@ pub fn polling_ping_pong(
     ping: &RealtimeSettings,
     period_ns: u64,
     samples: u64,
-) -> Result<LatencyHistogram, String> {
-    let domain = flexloop_transport::Domain::new(prefix).map_err(|e| e.to_string())?;
-    let open = |node: &Node<ipc::Service>, name: &str| {
-        let service_name: ServiceName = name.try_into().map_err(|e| format!("{e:?}"))?;
+) -> anyhow::Result<LatencyHistogram> {
+    let domain = flexloop_transport::Domain::new(prefix)?;
+    fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+    ) -> anyhow::Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, u64, ()>,
+    > {
+        let service_name: ServiceName = name.try_into().map_err(port_error)?;
         node.service_builder(&service_name)
             .publish_subscribe::<u64>()
             .open_or_create()
-            .map_err(|e| format!("{e:?}"))
-    };
+            .map_err(port_error)
+    }
     let ping_cpu = ping.cpu.unwrap_or(0);
     let pong_cpu = (0..realtime::online_cpus())
         .find(|cpu| *cpu != ping_cpu)
@@ -219,36 +300,29 @@ pub fn polling_ping_pong(
         ..ping.clone()
     };
     // Our ports first, so that the pong's publisher finds our subscriber.
-    let node = domain.node("poll-ping").map_err(|e| e.to_string())?;
+    let node = domain.node("poll-ping")?;
     let subscriber = open(&node, "probe/poll-pong")?
         .subscriber_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(port_error)?;
     let publisher = open(&node, "probe/poll-ping")?
         .publisher_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
-    let pong_domain = domain.clone();
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let stop_pong = stop.clone();
-    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-    let pong_thread = std::thread::spawn(move || -> Result<(), String> {
-        let node = pong_domain.node("poll-pong").map_err(|e| e.to_string())?;
+        .map_err(port_error)?;
+    let pong = Pong::spawn(&domain, "poll-pong", move |node, ready, stop| {
         let subscriber = open(&node, "probe/poll-ping")?
             .subscriber_builder()
             .create()
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(port_error)?;
         let publisher = open(&node, "probe/poll-pong")?
             .publisher_builder()
             .create()
-            .map_err(|e| format!("{e:?}"))?;
-        publisher
-            .update_connections()
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(port_error)?;
+        publisher.update_connections().map_err(port_error)?;
         let _rt = realtime::apply("bench-poll-pong", &pong_settings);
-        let _ = ready_tx.send(());
+        ready();
         let mut idle_polls = 0u32;
-        while !stop_pong.load(std::sync::atomic::Ordering::Relaxed) {
+        while !stop.load(Ordering::Relaxed) {
             match subscriber.receive() {
                 Ok(Some(sample)) => {
                     let _ = publisher.send_copy(*sample);
@@ -266,43 +340,32 @@ pub fn polling_ping_pong(
         }
         Ok(())
     });
-    let _ = ready_rx.recv_timeout(Duration::from_secs(5));
+    pong.await_ready();
     // The pong's subscriber came after our publisher.
-    publisher
-        .update_connections()
-        .map_err(|e| format!("{e:?}"))?;
-    let result = std::thread::scope(|_| {
-        let _rt = realtime::apply("bench-poll-ping", ping);
-        let grid = TickGrid::starting_in(period_ns, 1_000_000);
-        let mut h = LatencyHistogram::new();
-        for k in 0..samples {
-            sleep_until(grid.tick_ns(k));
-            let sent = monotonic_ns();
-            if publisher.send_copy(k).is_err() {
-                continue;
-            }
-            let give_up = sent + 10 * period_ns;
-            loop {
-                match subscriber.receive() {
-                    Ok(Some(sample)) if *sample == k => {
-                        h.record_span(sent, monotonic_ns());
-                        break;
-                    }
-                    Ok(Some(_)) => {}
-                    Ok(None) if monotonic_ns() < give_up => std::hint::spin_loop(),
-                    _ => break,
+    publisher.update_connections().map_err(port_error)?;
+    let ports = (subscriber, publisher, node);
+    let result = pong.ping(
+        "bench-poll-ping",
+        ping,
+        prefix,
+        ports,
+        |(subscriber, publisher, _)| {
+            round_trips(period_ns, samples, |k| {
+                if publisher.send_copy(k).is_err() {
+                    return false;
                 }
-            }
-        }
-        h
-    });
-    // The ping ran on this thread: give its real-time settings back before
-    // anything else runs here (threads spawned later would inherit them).
-    realtime::step_down(ping.cpu);
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    let _ = pong_thread.join();
-    drop((subscriber, publisher, node));
-    flexloop_transport::remove_leftovers(prefix);
+                let give_up = monotonic_ns() + 10 * period_ns;
+                loop {
+                    match subscriber.receive() {
+                        Ok(Some(sample)) if *sample == k => return true,
+                        Ok(Some(_)) => {}
+                        Ok(None) if monotonic_ns() < give_up => std::hint::spin_loop(),
+                        _ => return false,
+                    }
+                }
+            })
+        },
+    );
     Ok(result)
 }
 
@@ -318,21 +381,19 @@ pub fn socket_ring(
     controller: &RealtimeSettings,
     period_ns: u64,
     samples: u64,
-) -> Result<LatencyHistogram, String> {
+) -> anyhow::Result<LatencyHistogram> {
     use flexloop_protocol::{Command, Estimate, Measurement};
     use std::os::unix::net::UnixDatagram;
-    let pair = || UnixDatagram::pair().map_err(|e| format!("socketpair: {e}"));
+    let pair = || UnixDatagram::pair().context("socketpair");
     let (plant_out, observer_in) = pair()?;
     let (observer_out, controller_in) = pair()?;
     let (controller_out, plant_in) = pair()?;
     let idle = Some(Duration::from_millis(50));
     for s in [&observer_in, &controller_in] {
-        s.set_read_timeout(idle).map_err(|e| e.to_string())?;
+        s.set_read_timeout(idle)?;
     }
-    plant_in
-        .set_read_timeout(Some(Duration::from_nanos(period_ns * 10)))
-        .map_err(|e| e.to_string())?;
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    plant_in.set_read_timeout(Some(Duration::from_nanos(period_ns * 10)))?;
+    let stop = Arc::new(AtomicBool::new(false));
     // One stage: receive what the one before sent, send `reply` bytes on.
     let stage = |name: &'static str,
                  settings: &RealtimeSettings,
@@ -345,7 +406,7 @@ pub fn socket_ring(
             let _rt = realtime::apply(name, &settings);
             let mut buffer = vec![0u8; 8192];
             let message = vec![1u8; reply];
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            while !stop.load(Ordering::Relaxed) {
                 if input.recv(&mut buffer).is_ok() {
                     let _ = output.send(&message);
                 }
@@ -371,24 +432,14 @@ pub fn socket_ring(
         let _rt = realtime::apply("bench-socket-plant", &plant);
         let measurement = vec![1u8; size_of::<Measurement>()];
         let mut buffer = vec![0u8; 8192];
-        let grid = TickGrid::starting_in(period_ns, 1_000_000);
-        let mut h = LatencyHistogram::new();
-        for k in 0..samples {
-            sleep_until(grid.tick_ns(k));
-            let sent = monotonic_ns();
-            if plant_out.send(&measurement).is_err() {
-                continue;
-            }
+        round_trips(period_ns, samples, |_| {
             // Bounded by the read timeout: a lost reply costs ten periods.
-            if plant_in.recv(&mut buffer).is_ok() {
-                h.record_span(sent, monotonic_ns());
-            }
-        }
-        h
+            plant_out.send(&measurement).is_ok() && plant_in.recv(&mut buffer).is_ok()
+        })
     })
     .join()
-    .map_err(|_| "the socket ring's plant thread panicked".to_string());
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    .map_err(|_| anyhow!("the socket ring's plant thread panicked"));
+    stop.store(true, Ordering::Relaxed);
     let _ = observer_thread.join();
     let _ = controller_thread.join();
     result

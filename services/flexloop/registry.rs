@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 const DIR: &str = "/tmp/flexloop/loops";
 
-#[derive(Debug, Clone)]
+/// One running loop: `/tmp/flexloop/loops/<prefix>.json`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Entry {
     pub prefix: String,
     pub supervisor_pid: i32,
@@ -19,13 +20,7 @@ fn path(prefix: &str) -> PathBuf {
 
 pub fn register(entry: &Entry) -> std::io::Result<()> {
     std::fs::create_dir_all(DIR)?;
-    let json = serde_json::json!({
-        "prefix": entry.prefix,
-        "supervisor_pid": entry.supervisor_pid,
-        "run_dir": entry.run_dir.display().to_string(),
-        "scenario": entry.scenario,
-    });
-    std::fs::write(path(&entry.prefix), json.to_string())
+    std::fs::write(path(&entry.prefix), serde_json::to_string(entry)?)
 }
 
 pub fn unregister(prefix: &str) {
@@ -56,14 +51,9 @@ pub fn list() -> Vec<Entry> {
         let Ok(text) = std::fs::read_to_string(file.path()) else {
             continue;
         };
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        // Half written (its supervisor is writing it now): skipped, not removed.
+        let Ok(entry) = serde_json::from_str::<Entry>(&text) else {
             continue;
-        };
-        let entry = Entry {
-            prefix: v["prefix"].as_str().unwrap_or_default().to_string(),
-            supervisor_pid: v["supervisor_pid"].as_i64().unwrap_or(0) as i32,
-            run_dir: PathBuf::from(v["run_dir"].as_str().unwrap_or_default()),
-            scenario: v["scenario"].as_str().unwrap_or_default().to_string(),
         };
         if alive(entry.supervisor_pid) {
             entries.push(entry);

@@ -3,30 +3,29 @@
 //! summary. `flexloop tune-ff RUN`: fits the feedforward gains from a recorded
 //! run and writes them into a scenario file.
 
-use crate::{LoopArgs, prepare, run_registered_with};
+use crate::launch::{LoopArgs, prepare, supervise};
+use anyhow::{Context, bail};
 use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::LogReader;
-use flexloop_node::logger::SAMPLES_FILE;
+use flexloop_runfiles::json::write_json_atomically;
+use flexloop_runfiles::summary::Counters;
+use flexloop_runfiles::{Histogram, RunDir, RunSummary};
+use flexloop_runtime::latency::Metric;
 use flexloop_scenario::reference::Reference;
 use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
-use serde_json::{Value, json};
-use std::ffi::OsString;
+use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// The scenario as it ran, copied into every run directory.
-pub const SCENARIO_COPY: &str = "scenario.toml";
-pub const METRICS_FILE: &str = "metrics.json";
-
-pub fn run(args: LoopArgs) -> Result<i32, String> {
+pub fn run(args: LoopArgs) -> anyhow::Result<i32> {
     let prepared = prepare(&args)?;
-    let run_dir = prepared.plan.run_dir.clone();
+    let run_dir = prepared.run_dir();
     if prepared.scenario.ticks().is_none() {
-        return Err(format!(
+        bail!(
             "{}: loop.duration_s is 0 (run until stopped); `flexloop run` needs a duration",
             args.scenario.display()
-        ));
+        );
     }
     eprintln!(
         "flexloop run: {} for {} s at {} Hz ({}), run directory {}",
@@ -34,15 +33,37 @@ pub fn run(args: LoopArgs) -> Result<i32, String> {
         prepared.scenario.timing.duration_s,
         prepared.scenario.timing.rate_hz,
         prepared.scenario.timing.mode.as_str(),
-        run_dir.display()
+        run_dir.path().display()
     );
-    run_registered_with(prepared, |_, _| None)?;
+    supervise(prepared, |_, _| None)?;
     let report = RunReport::load(&run_dir)?;
     report.print();
-    flexloop_node::summary::write_json_atomically(&run_dir.join(METRICS_FILE), &report.to_json())
-        .map_err(|e| format!("{}: {e}", run_dir.join(METRICS_FILE).display()))?;
-    println!("\nmetrics: {}", run_dir.join(METRICS_FILE).display());
+    write_json_atomically(&run_dir.metrics(), &report.metrics_file())?;
+    println!("\nmetrics: {}", run_dir.metrics().display());
     Ok(0)
+}
+
+/// `metrics.json`: `flexloop run`'s control metrics beside its timing.
+#[derive(Serialize)]
+pub struct MetricsFile<'a> {
+    pub scenario: &'a str,
+    pub outputs: &'a [String],
+    pub output_unit: &'a str,
+    pub input_unit: &'a str,
+    pub mode: &'a str,
+    pub rate_hz: f64,
+    pub loop_delay_samples: u32,
+    pub control: &'a ControlMetrics,
+    pub modal_damping: &'a [ModeDamping],
+    pub timing: MetricsTiming,
+    pub incomplete_ticks: u64,
+}
+
+#[derive(Serialize)]
+pub struct MetricsTiming {
+    pub counters: Counters,
+    pub round_trip: Histogram,
+    pub tick_to_command: Histogram,
 }
 
 /// A finished run, read back from its directory.
@@ -50,25 +71,25 @@ pub struct RunReport {
     pub scenario: Scenario,
     pub design: LoopDesign,
     pub trace: RunTrace,
-    pub summary: Value,
+    pub summary: RunSummary,
     pub metrics: ControlMetrics,
     pub damping: Vec<ModeDamping>,
 }
 
 impl RunReport {
-    pub fn load(run_dir: &Path) -> Result<Self, String> {
-        let summary = flexloop_node::summary::read_summary(run_dir)?;
+    pub fn load(run_dir: &RunDir) -> anyhow::Result<Self> {
+        let summary = run_dir.read_summary()?;
+        // The run's own rate, mode and duration, whatever the file says now.
         let overrides = Overrides {
-            rate_hz: summary["rate_hz"].as_f64(),
-            mode: summary["mode"].as_str().and_then(Mode::parse),
-            duration_s: summary["duration_s"].as_f64(),
+            rate_hz: Some(summary.rate_hz),
+            mode: Mode::parse(&summary.mode),
+            duration_s: Some(summary.duration_s),
             no_realtime: false,
         };
-        let scenario =
-            Scenario::load(&run_dir.join(SCENARIO_COPY), &overrides).map_err(|e| e.to_string())?;
-        let design = LoopDesign::from_scenario(&scenario).map_err(|e| e.to_string())?;
-        let log_path = run_dir.join(SAMPLES_FILE);
-        let log = LogReader::open(&log_path).map_err(|e| format!("{}: {e}", log_path.display()))?;
+        let scenario = Scenario::load(&run_dir.scenario_copy(), &overrides)?;
+        let design = LoopDesign::from_scenario(&scenario)?;
+        let log_path = run_dir.samples(0);
+        let log = LogReader::open(&log_path).with_context(|| log_path.display().to_string())?;
         let trace = RunTrace::from_log(&log, design.ts);
         let end_s = trace.rows.last().map(|r| trace.time(r)).unwrap_or_default();
         let windows = design.reference.scan_windows(end_s);
@@ -187,35 +208,35 @@ impl RunReport {
             }
         }
         let s = &self.summary;
-        let us = |metric: &str, q: &str| {
-            s["latency"][metric][format!("{q}_ns")]
-                .as_u64()
-                .unwrap_or(0) as f64
-                / 1e3
-        };
         println!();
         println!(
             "timing ({} mode at {} Hz):",
-            s["mode"].as_str().unwrap_or("?"),
-            s["rate_hz"]
+            s.mode,
+            serde_json::Value::from(s.rate_hz)
         );
         println!(
             "  ticks {}, loop misses {}, late commands {}, stalled ticks {} ({} misses after stalls), held inputs {}, stale estimates {}",
-            s["ticks"],
-            s["counters"]["misses"],
-            s["counters"]["late_commands"],
-            s["counters"]["stalled_ticks"],
-            s["counters"]["stall_misses"],
+            s.ticks,
+            s.counters.misses,
+            s.counters.late_commands,
+            s.counters.stalled_ticks,
+            s.counters.stall_misses,
             m.held_ticks,
             m.stale_estimates
         );
-        for metric in ["round_trip", "tick_to_command"] {
+        for metric in [Metric::RoundTrip, Metric::TickToCommand] {
+            let us = s
+                .latency(metric.name())
+                .percentiles
+                .values()
+                .map(|ns| ns as f64 / 1e3);
             println!(
-                "  {metric:<16} p50 {:>8.1} µs   p99 {:>8.1} µs   p99.99 {:>8.1} µs   max {:>9.1} µs",
-                us(metric, "p50"),
-                us(metric, "p99"),
-                us(metric, "p99.99"),
-                us(metric, "max")
+                "  {:<16} p50 {:>8.1} µs   p99 {:>8.1} µs   p99.99 {:>8.1} µs   max {:>9.1} µs",
+                metric.name(),
+                us[0],
+                us[2],
+                us[4],
+                us[5]
             );
         }
         if self.trace.incomplete_ticks > 0 {
@@ -226,24 +247,24 @@ impl RunReport {
         }
     }
 
-    pub fn to_json(&self) -> Value {
-        json!({
-            "scenario": self.scenario.name,
-            "outputs": self.design.output_names,
-            "output_unit": self.design.output_unit,
-            "input_unit": self.design.input_unit,
-            "mode": self.summary["mode"],
-            "rate_hz": self.summary["rate_hz"],
-            "loop_delay_samples": self.design.loop_delay_samples,
-            "control": self.metrics,
-            "modal_damping": self.damping,
-            "timing": {
-                "counters": self.summary["counters"],
-                "round_trip": self.summary["latency"]["round_trip"],
-                "tick_to_command": self.summary["latency"]["tick_to_command"],
+    pub fn metrics_file(&self) -> MetricsFile<'_> {
+        MetricsFile {
+            scenario: &self.scenario.name,
+            outputs: &self.design.output_names,
+            output_unit: self.design.output_unit,
+            input_unit: self.design.input_unit,
+            mode: &self.summary.mode,
+            rate_hz: self.summary.rate_hz,
+            loop_delay_samples: self.design.loop_delay_samples,
+            control: &self.metrics,
+            modal_damping: &self.damping,
+            timing: MetricsTiming {
+                counters: self.summary.counters,
+                round_trip: self.summary.latency(Metric::RoundTrip.name()),
+                tick_to_command: self.summary.latency(Metric::TickToCommand.name()),
             },
-            "incomplete_ticks": self.trace.incomplete_ticks,
-        })
+            incomplete_ticks: self.trace.incomplete_ticks,
+        }
     }
 }
 
@@ -268,41 +289,34 @@ fn ring_down_window(design: &LoopDesign, end_s: f64) -> (f64, f64) {
     }
 }
 
-/// `flexloop tune-ff RUN [--into SCENARIO]`.
-pub fn tune_ff(args: Vec<OsString>) -> Result<i32, String> {
-    use lexopt::prelude::*;
-    let mut parser = lexopt::Parser::from_args(args);
-    let mut run_dir = None;
-    let mut into = None;
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Value(v) if run_dir.is_none() => run_dir = Some(PathBuf::from(v)),
-            Long("into") => into = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?)),
-            other => return Err(other.unexpected().to_string()),
-        }
-    }
-    let run_dir = run_dir.ok_or("usage: flexloop tune-ff RUN_DIR [--into SCENARIO]")?;
-    let report = RunReport::load(&run_dir)?;
+/// `tune-ff RUN_DIR [--into SCENARIO]`.
+#[derive(Debug, clap::Args)]
+pub struct TuneFfArgs {
+    /// The recorded run's directory
+    pub run_dir: PathBuf,
+    /// The scenario file to write the gains into [default: the one the run used]
+    #[arg(long, value_name = "SCENARIO")]
+    pub into: Option<PathBuf>,
+}
+
+pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
+    let run_dir = args.run_dir;
+    let report = RunReport::load(&RunDir::new(&run_dir))?;
     if report.design.n_inputs != 1 || report.design.n_outputs != 1 {
-        return Err(format!(
+        bail!(
             "{}: tune-ff fits the four-gain feedforward of a loop with one input and one \
              output; `{}` has {} and {} (it uses the rigid-body feedforward)",
             run_dir.display(),
             report.scenario.plant.model,
             report.design.n_inputs,
             report.design.n_outputs
-        ));
+        );
     }
     let fit = fit_from_run(&report.design, &report.trace)
-        .map_err(|e| format!("{}: cannot fit the feedforward: {e}", run_dir.display()))?;
-    let target = match into {
-        Some(p) => p,
-        None => PathBuf::from(
-            report.summary["scenario_file"]
-                .as_str()
-                .ok_or("the run's summary does not name its scenario file; use --into")?,
-        ),
-    };
+        .with_context(|| format!("{}: cannot fit the feedforward", run_dir.display()))?;
+    let target = args
+        .into
+        .unwrap_or_else(|| PathBuf::from(&report.summary.scenario_file));
     // Write before printing: a closed stdout must not lose the fit.
     write_feedforward(&target, &fit)?;
     println!(
@@ -323,17 +337,17 @@ const FIT_NOTE: &str = "# Fitted by `flexloop tune-ff`";
 /// Replaces (or adds) the `[controller.feedforward]` table of a scenario
 /// file, keeping everything else as written; the result is parsed before it
 /// replaces the file, so a failed edit leaves the file as it was.
-pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> Result<(), String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
     if text
         .lines()
         .any(|l| l.trim_start().starts_with("feedforward") && l.contains('{'))
     {
-        return Err(format!(
+        bail!(
             "{}: field controller.feedforward is an inline table; write it as a \
              [controller.feedforward] table so that tune-ff can replace it",
             path.display()
-        ));
+        );
     }
     let mut out = String::with_capacity(text.len() + 200);
     let mut skipping = false;
@@ -357,12 +371,12 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> Result<(), Str
          [controller.feedforward]\nsnap = {:e}\njerk = {:e}\nacc = {}\nvel = {:e}\n",
         fit.samples, fit.snap, fit.jerk, fit.acc, fit.vel
     ));
-    let mut check = Scenario::parse(path, &out).map_err(|e| e.to_string())?;
+    let mut check = Scenario::parse(path, &out)?;
     check.apply(&Overrides::default());
-    check.validate().map_err(|e| e.to_string())?;
+    check.validate()?;
     let tmp = path.with_extension("toml.tmp");
-    std::fs::write(&tmp, &out).map_err(|e| format!("{}: {e}", tmp.display()))?;
-    std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+    std::fs::write(&tmp, &out).with_context(|| tmp.display().to_string())?;
+    std::fs::rename(&tmp, path).with_context(|| path.display().to_string())
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ pub struct LaunchPlan {
     pub prefix: String,
     pub run_dir: PathBuf,
     /// Overrides passed to every process (`--rate`, `--mode`, ...).
-    pub overrides: Vec<String>,
+    pub overrides: flexloop_node::overrides::OverrideFlags,
     pub with_logger: bool,
     /// Start an idle controller and observer beside the loop (scenario
     /// `supervision.warm_spares`).
@@ -170,7 +170,7 @@ fn spawn(
         .arg(&plan.prefix)
         .arg("--run-dir")
         .arg(&plan.run_dir)
-        .args(&plan.overrides)
+        .args(plan.overrides.to_args())
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(stderr)

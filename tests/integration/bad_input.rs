@@ -13,11 +13,8 @@ fn up_with(scenario_path: &std::path::Path, run_dir: &std::path::Path) -> std::p
 }
 
 fn write_variant(dir: &std::path::Path, from: &str, to: &str) -> std::path::PathBuf {
-    let text = std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap();
-    assert!(text.contains(from));
-    let path = dir.join("bad.toml");
-    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
-    path
+    let lecture = "lecture-double-integrator";
+    scenario_variant(dir, lecture, "bad.toml", &[(from, to)], "")
 }
 
 #[test]
@@ -80,7 +77,6 @@ fn unwritable_run_directory_is_reported_before_anything_starts() {
 #[test]
 fn supervision_settings_are_checked() {
     let dir = temp_dir("bad-supervision");
-    let text = std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap();
     for (section, field) in [
         (
             "command_watchdog_ticks = 0",
@@ -88,8 +84,8 @@ fn supervision_settings_are_checked() {
         ),
         ("safe_action = \"explode\"", "safe_action"),
     ] {
-        let path = dir.join("bad.toml");
-        std::fs::write(&path, format!("{text}\n[supervision]\n{section}\n")).unwrap();
+        let table = format!("[supervision]\n{section}");
+        let path = scenario_variant(&dir, "lecture-double-integrator", "bad.toml", &[], &table);
         let out = up_with(&path, &dir.join("run"));
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
@@ -120,11 +116,7 @@ fn a_swap_into_another_plant_is_refused_and_the_loop_runs_on() {
 
 /// A variant of the shipped scenario `name` with `from` replaced by `to`.
 fn variant_of(dir: &std::path::Path, name: &str, from: &str, to: &str) -> std::path::PathBuf {
-    let text = std::fs::read_to_string(scenario(name)).unwrap();
-    assert!(text.contains(from), "{name} has no `{from}`");
-    let path = dir.join(format!("bad-{name}.toml"));
-    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
-    path
+    scenario_variant(dir, name, &format!("bad-{name}.toml"), &[(from, to)], "")
 }
 
 /// `flexloop up` refuses the file with exit status 2 and a message naming the
@@ -144,7 +136,7 @@ fn refused(dir: &std::path::Path, path: &std::path::Path, field: &str, reason: &
     assert!(processes_mentioning(&dir.display().to_string()).is_empty());
     assert!(
         !dir.join("run")
-            .join(flexloop_node::logger::SAMPLES_FILE)
+            .join(flexloop_runfiles::RunDir::SAMPLES)
             .exists()
     );
 }

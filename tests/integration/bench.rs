@@ -10,27 +10,26 @@ fn json(path: &std::path::Path) -> Value {
     serde_json::from_str(&text).unwrap()
 }
 
+/// `flexloop bench ARGS thesis-mc` for half a second at 2 kHz, which must
+/// succeed; its stdout. thesis-mc designs at 2 kHz (the default's AD
+/// band-passes sit above its Nyquist frequency).
+fn bench_thesis_mc_briefly(args: &[&str], run_dir: &std::path::Path) -> String {
+    let mut cmd = flexloop();
+    cmd.arg("bench")
+        .args(args)
+        .args(["thesis-mc", "--duration", "0.5", "--rate", "2000"])
+        .args(["--no-realtime", "--run-dir"])
+        .arg(run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 #[test]
 fn bench_measures_the_loop_and_every_floor() {
     let dir = temp_dir("bench-floors");
     let run = dir.join("run");
-    let mut cmd = flexloop();
-    // thesis-mc designs at 2 kHz (the default's AD band-passes sit above
-    // its Nyquist frequency).
-    cmd.args([
-        "bench",
-        "thesis-mc",
-        "--duration",
-        "0.5",
-        "--rate",
-        "2000",
-        "--no-realtime",
-    ])
-    .arg("--run-dir")
-    .arg(&run);
-    let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = bench_thesis_mc_briefly(&[], &run);
     for row in [
         "round_trip",
         "tick_to_command",
@@ -154,32 +153,31 @@ fn the_sweep_refuses_bad_lists_by_flag() {
 /// `realtime.profile = "dedicated-cores"` with plant, observer and
 /// controller on CPUs 1, 2, 3 and the logger on 0.
 fn dedicated_copy(dir: &std::path::Path) -> std::path::PathBuf {
-    let text = std::fs::read_to_string(crate::util::scenario("default")).unwrap();
-    let text = text
-        .replace("[realtime]", "[realtime]\nprofile = \"dedicated-cores\"")
-        .replace(
-            "plant = { priority = 79, cpu = 0 }",
-            "plant = { priority = 79, cpu = 1 }",
-        )
-        .replace(
-            "observer = { priority = 80, cpu = 0 }",
-            "observer = { priority = 80, cpu = 2 }",
-        )
-        .replace(
-            "controller = { priority = 81, cpu = 0 }",
-            "controller = { priority = 81, cpu = 3 }",
-        )
-        .replace(
-            "logger = { priority = 10, cpu = 1 }",
-            "logger = { priority = 10, cpu = 0 }",
-        );
-    assert!(
-        text.contains("cpu = 3"),
-        "the default scenario's placement changed"
-    );
-    let file = dir.join("dedicated.toml");
-    std::fs::write(&file, text).unwrap();
-    file
+    crate::util::scenario_variant(
+        dir,
+        "default",
+        "dedicated.toml",
+        &[
+            ("[realtime]", "[realtime]\nprofile = \"dedicated-cores\""),
+            (
+                "plant = { priority = 79, cpu = 0 }",
+                "plant = { priority = 79, cpu = 1 }",
+            ),
+            (
+                "observer = { priority = 80, cpu = 0 }",
+                "observer = { priority = 80, cpu = 2 }",
+            ),
+            (
+                "controller = { priority = 81, cpu = 0 }",
+                "controller = { priority = 81, cpu = 3 }",
+            ),
+            (
+                "logger = { priority = 10, cpu = 1 }",
+                "logger = { priority = 10, cpu = 0 }",
+            ),
+        ],
+        "",
+    )
 }
 
 /// Commands of a lockstep run, bit for bit.
@@ -230,22 +228,7 @@ fn dedicated_cores_spins_the_same_loop_or_is_refused_on_too_few_cpus() {
 fn logging_cost_runs_the_loop_with_and_without_a_logger() {
     let dir = temp_dir("bench-logging-cost");
     let out_dir = dir.join("cost");
-    let mut cmd = flexloop();
-    cmd.args([
-        "bench",
-        "--logging-cost",
-        "thesis-mc",
-        "--duration",
-        "0.5",
-        "--rate",
-        "2000",
-        "--no-realtime",
-    ])
-    .arg("--run-dir")
-    .arg(&out_dir);
-    let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = bench_thesis_mc_briefly(&["--logging-cost"], &out_dir);
     assert!(stdout.contains("round trip, logger off"), "{stdout}");
     let cost = json(&out_dir.join("logging_cost.json"));
     for run in ["with_logger", "without_logger"] {

@@ -53,7 +53,7 @@ pub fn run_file(path: &std::path::Path, label: &str, duration_s: Option<f64>) ->
     let s = Scenario::load(path, &overrides).unwrap();
     let design = LoopDesign::from_scenario(&s).unwrap();
     let ticks = s.ticks().unwrap() as usize;
-    let log = LogReader::open(&dir.join(flexloop_node::logger::SAMPLES_FILE)).unwrap();
+    let log = LogReader::open(&dir.join(flexloop_runfiles::RunDir::SAMPLES)).unwrap();
     let process = RunTrace::from_log(&log, design.ts);
     let mut in_process_loop = InProcessLoop::new(&design).unwrap();
     let in_process = RunTrace::simulate(&mut in_process_loop, design.ts, ticks as u64);

@@ -16,6 +16,23 @@ fn report(run: &Path, extra: &[&str]) -> std::process::Output {
     run_bounded(cmd, Duration::from_secs(120))
 }
 
+/// `flexloop run SCENARIO` in lockstep into `dir`, then its report; both
+/// must succeed. The report's folder.
+fn run_and_report(dir: &Path, scenario_name: &str, extra: &[&str]) -> std::path::PathBuf {
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(scenario(scenario_name))
+        .args(["--mode", "lockstep", "--no-realtime"])
+        .args(extra)
+        .arg("--run-dir")
+        .arg(dir);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let out = report(dir, &[]);
+    assert!(out.status.success(), "{}", describe(&out));
+    dir.join("report")
+}
+
 /// The cells of the Markdown table row whose first cell is `name`.
 fn row<'a>(md: &'a str, name: &str) -> Vec<&'a str> {
     let line = md
@@ -37,17 +54,7 @@ fn copy_run(from: &Path, to: &Path) {
 #[test]
 fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
     let dir = temp_dir("report");
-    let mut cmd = flexloop();
-    cmd.arg("run")
-        .arg(scenario("thesis-mc-ad-redesigned"))
-        .args(["--mode", "lockstep", "--no-realtime", "--run-dir"])
-        .arg(&dir);
-    let out = run_bounded(cmd, Duration::from_secs(180));
-    assert!(out.status.success(), "{}", describe(&out));
-    let out = report(&dir, &[]);
-    assert!(out.status.success(), "{}", describe(&out));
-
-    let files = dir.join("report");
+    let files = run_and_report(&dir, "thesis-mc-ad-redesigned", &[]);
     let md = std::fs::read_to_string(files.join("report.md")).unwrap();
     let html = std::fs::read_to_string(files.join("report.html")).unwrap();
 
@@ -164,7 +171,7 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
 
     let corrupt_log = temp_dir("report-corrupt-log");
     copy_run(&dir, &corrupt_log);
-    let samples = flexloop_node::logger::SAMPLES_FILE;
+    let samples = flexloop_runfiles::RunDir::SAMPLES;
     std::fs::write(corrupt_log.join(samples), b"not a sample log").unwrap();
     let out = report(&corrupt_log, &[]);
     assert!(!out.status.success());
@@ -187,23 +194,7 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
 #[test]
 fn a_report_of_the_two_inertia_setup_is_in_its_units() {
     let dir = temp_dir("report-two-inertia");
-    let mut cmd = flexloop();
-    cmd.arg("run")
-        .arg(scenario("two-inertia"))
-        .args([
-            "--mode",
-            "lockstep",
-            "--no-realtime",
-            "--duration",
-            "0.3",
-            "--run-dir",
-        ])
-        .arg(&dir);
-    let out = run_bounded(cmd, Duration::from_secs(180));
-    assert!(out.status.success(), "{}", describe(&out));
-    let out = report(&dir, &[]);
-    assert!(out.status.success(), "{}", describe(&out));
-    let files = dir.join("report");
+    let files = run_and_report(&dir, "two-inertia", &["--duration", "0.3"]);
     let md = std::fs::read_to_string(files.join("report.md")).unwrap();
     assert!(md.contains("µrad") && md.contains("| A |"), "{md}");
     assert!(!md.contains(" nm") && !md.contains("| N |"), "{md}");

@@ -27,16 +27,16 @@ fn a_scanned_sensor_schedules_the_observer_across_the_processes() {
     );
 
     let dir = temp_dir("sensor-scan-tv-file");
-    let text = std::fs::read_to_string(scenario("thesis-sensor-scan-ad")).unwrap();
-    let path = dir.join("thesis-sensor-scan-ad-tv.toml");
-    std::fs::write(
-        &path,
-        text.replace(
+    let path = scenario_variant(
+        &dir,
+        "thesis-sensor-scan-ad",
+        "thesis-sensor-scan-ad-tv.toml",
+        &[(
             "\nscheduling = \"interpolated\"",
             "\nscheduling = \"time-varying\"",
-        ),
-    )
-    .unwrap();
+        )],
+        "",
+    );
     let time_varying = run_file(&path, "sensor-scan-tv", None);
     let m_tv = assert_scan_tracks(&time_varying, &[400e-9]);
     // The two schedulings give the same tracking (the thesis' §5.6), but

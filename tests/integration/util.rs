@@ -17,6 +17,29 @@ pub fn scenario(name: &str) -> PathBuf {
         .join(format!("{name}.toml"))
 }
 
+/// A test's own variant of the shipped scenario `name`, written as
+/// `dir/file`: each `(from, to)` replaced once (every `from` must be in it),
+/// then `append` added at the end (a table such as `[supervision]`).
+pub fn scenario_variant(
+    dir: &Path,
+    name: &str,
+    file: &str,
+    edits: &[(&str, &str)],
+    append: &str,
+) -> PathBuf {
+    let mut text = std::fs::read_to_string(scenario(name)).unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "{name} has no `{from}`");
+        text = text.replacen(from, to, 1);
+    }
+    if !append.is_empty() {
+        text = format!("{text}\n{append}\n");
+    }
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 /// A fresh directory under target/ for one test.
 pub fn temp_dir(test: &str) -> TestDir {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{test}-{}", std::process::id()));

@@ -7,8 +7,8 @@ use super::RunData;
 use super::document::{Block, Document, FigureBlock, Table};
 use super::figures::{self, Plot};
 use flexloop_analysis::flexible::FlexibleComparison;
+use flexloop_runfiles::{RunDir, RunSummary};
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
-use serde_json::Value;
 
 pub fn document(data: &RunData) -> Document {
     let run = &data.run;
@@ -25,12 +25,12 @@ pub fn document(data: &RunData) -> Document {
          distributions), `{}` (traces and control metrics), `events.jsonl` (events), \
          `scenario.toml` (the scenario as it ran).",
         data.dir.display(),
-        s["mode"].as_str().unwrap_or("?"),
-        s["rate_hz"].as_f64().unwrap_or(f64::NAN),
-        s["duration_s"].as_f64().unwrap_or(f64::NAN),
-        s["ticks"],
+        s.mode,
+        s.rate_hz,
+        s.duration_s,
+        s.ticks,
         data.period_ns as f64 / 1e3,
-        flexloop_node::logger::SAMPLES_FILE,
+        RunDir::SAMPLES,
     )));
     doc.push(Block::Heading("Timing".into()));
     doc.push(Block::Paragraph(verdict(s, data.lockstep)));
@@ -184,16 +184,15 @@ fn number(v: f64) -> String {
     }
 }
 
-fn count(v: &Value) -> u64 {
-    v.as_u64().unwrap_or(0)
-}
-
-fn verdict(s: &Value, lockstep: bool) -> String {
-    let c = &s["counters"];
-    let ticks = count(&s["ticks"]);
-    let misses = count(&c["misses"]);
-    let stall_misses = count(&c["stall_misses"]);
-    let over = count(&s["latency"]["tick_to_command"]["over_one_period"]);
+fn verdict(s: &RunSummary, lockstep: bool) -> String {
+    let c = &s.counters;
+    let ticks = s.ticks;
+    let misses = c.misses;
+    let stall_misses = c.stall_misses;
+    let over = s
+        .latency(Metric::TickToCommand.name())
+        .over_one_period
+        .unwrap_or(0);
     format!(
         "u(k) was available before tick k+1 in {} of {} ticks: {} loop misses, {} misses after \
          machine stalls ({} stalled ticks); {} commands were published later than one period \
@@ -202,7 +201,7 @@ fn verdict(s: &Value, lockstep: bool) -> String {
         ticks,
         misses,
         stall_misses,
-        count(&c["stalled_ticks"]),
+        c.stalled_ticks,
         over,
         if lockstep {
             " In lockstep the plant waits for every command, so there is no deadline to miss: \
@@ -215,21 +214,22 @@ fn verdict(s: &Value, lockstep: bool) -> String {
 }
 
 /// One row per histogram, in µs: the same values as the bench table.
-pub fn latency_table(s: &Value) -> Table {
+pub fn latency_table(s: &RunSummary) -> Table {
     let mut header = vec!["histogram".to_string(), "count".to_string()];
     header.extend(QUANTILE_LABELS.iter().map(|l| l.to_string()));
     header.push("over one period".into());
     let rows = Metric::ALL
         .iter()
         .map(|m| {
-            let v = &s["latency"][m.name()];
-            let mut row = vec![m.name().to_string(), count(&v["count"]).to_string()];
+            let h = s.latency(m.name());
+            let mut row = vec![m.name().to_string(), h.count.to_string()];
             row.extend(
-                QUANTILE_LABELS
+                h.percentiles
+                    .values()
                     .iter()
-                    .map(|l| format!("{:.1}", count(&v[format!("{l}_ns")]) as f64 / 1e3)),
+                    .map(|ns| format!("{:.1}", *ns as f64 / 1e3)),
             );
-            row.push(count(&v["over_one_period"]).to_string());
+            row.push(h.over_one_period.unwrap_or(0).to_string());
             row
         })
         .collect();
@@ -246,7 +246,7 @@ fn hlog_check(data: &RunData) -> String {
         .iter()
         .filter_map(|m| {
             let logged = data.latency.histograms.get(m.name()).map_or(0, |h| h.len());
-            let summary = count(&data.run.summary["latency"][m.name()]["count"]);
+            let summary = data.run.summary.latency(m.name()).count;
             (logged != summary).then(|| format!("{} ({logged} against {summary})", m.name()))
         })
         .collect();
@@ -271,20 +271,19 @@ fn hlog_check(data: &RunData) -> String {
 
 fn counters_table(data: &RunData) -> Table {
     let s = &data.run.summary;
-    let c = &s["counters"];
-    let gaps = |k: &str| count(&s["gaps"][k]);
+    let c = &s.counters;
     let rows: Vec<(&str, u64)> = vec![
-        ("ticks", count(&s["ticks"])),
-        ("loop misses", count(&c["misses"])),
-        ("late commands (dropped)", count(&c["late_commands"])),
-        ("stalled ticks", count(&c["stalled_ticks"])),
-        ("misses after stalls", count(&c["stall_misses"])),
-        ("stale estimates", count(&c["stale_estimates"])),
-        ("ticks under the safe action", count(&c["fallback_ticks"])),
-        ("rejected commands", count(&c["rejected_commands"])),
-        ("log gaps: measurements", gaps("measurement")),
-        ("log gaps: estimates", gaps("estimate")),
-        ("log gaps: commands", gaps("command")),
+        ("ticks", s.ticks),
+        ("loop misses", c.misses),
+        ("late commands (dropped)", c.late_commands),
+        ("stalled ticks", c.stalled_ticks),
+        ("misses after stalls", c.stall_misses),
+        ("stale estimates", c.stale_estimates),
+        ("ticks under the safe action", c.fallback_ticks),
+        ("rejected commands", c.rejected_commands),
+        ("log gaps: measurements", s.gaps.measurement),
+        ("log gaps: estimates", s.gaps.estimate),
+        ("log gaps: commands", s.gaps.command),
         (
             "ticks missing a command or estimate",
             data.run.trace.incomplete_ticks,
@@ -302,104 +301,53 @@ fn counters_table(data: &RunData) -> Table {
 
 fn control_table(data: &RunData) -> Table {
     let m = &data.run.metrics;
-    let nm = |v: f64| number(data.length.of(v));
-    let newton = number;
+    let length = data.length.unit;
+    let input = data.run.design.input_unit;
+    // A row: what, its value (already formatted), its unit.
+    let row = |name: &str, value: String, unit: &str| [name.to_string(), value, unit.to_string()];
+    let nm = |name: &str, v: f64| row(name, number(data.length.of(v)), length);
+    let effort = |name: &str, v: f64| row(name, number(v), input);
     let mut rows: Vec<[String; 3]> = Vec::new();
     if let Some(rms) = m.rms_e_true_scan {
-        rows.push([
-            format!(
-                "rms e_true over the scan window{}",
-                if m.scans.len() > 1 { "s" } else { "" }
-            ),
-            nm(rms),
-            data.length.unit.into(),
-        ]);
+        let windows = if m.scans.len() > 1 { "s" } else { "" };
+        rows.push(nm(
+            &format!("rms e_true over the scan window{windows}"),
+            rms,
+        ));
         let largest = |f: fn(&flexloop_analysis::metrics::ScanMetrics) -> f64| {
             m.scans.iter().map(f).fold(0.0, f64::max)
         };
-        rows.push([
-            "largest |MA| in a scan".into(),
-            nm(largest(|s| s.max_abs_ma)),
-            data.length.unit.into(),
-        ]);
-        rows.push([
-            "largest MSD in a scan".into(),
-            nm(largest(|s| s.max_msd)),
-            data.length.unit.into(),
-        ]);
-        rows.push([
-            "peak |e_true| in a scan".into(),
-            nm(largest(|s| s.peak_e_true)),
-            data.length.unit.into(),
-        ]);
+        rows.push(nm("largest |MA| in a scan", largest(|s| s.max_abs_ma)));
+        rows.push(nm("largest MSD in a scan", largest(|s| s.max_msd)));
+        rows.push(nm("peak |e_true| in a scan", largest(|s| s.peak_e_true)));
     } else {
-        rows.push([
-            "rms e_true over the scan".into(),
-            "-".into(),
-            "no scan".into(),
-        ]);
+        rows.push(row("rms e_true over the scan", "-".into(), "no scan"));
     }
     rows.extend([
-        [
-            "peak |e_true| over the run".into(),
-            nm(m.e_true.peak),
-            data.length.unit.into(),
-        ],
-        [
-            "rms e_true over the run".into(),
-            nm(m.e_true.rms),
-            data.length.unit.into(),
-        ],
-        [
-            "effort: rms u".into(),
-            newton(m.u.rms),
-            data.run.design.input_unit.into(),
-        ],
-        [
-            "effort: peak |u|".into(),
-            newton(m.u.peak),
-            data.run.design.input_unit.into(),
-        ],
-        [
-            "rms u_fb (feedback)".into(),
-            newton(m.u_fb.rms),
-            data.run.design.input_unit.into(),
-        ],
-        [
-            "rms u_ff (feedforward)".into(),
-            newton(m.u_ff.rms),
-            data.run.design.input_unit.into(),
-        ],
-        [
-            "rms u_d (active damping)".into(),
-            newton(m.u_d.rms),
-            data.run.design.input_unit.into(),
-        ],
-        [
-            "innovation mean".into(),
-            format!("{:.3e}", m.innovation.mean),
-            "m".into(),
-        ],
-        [
-            "innovation standard deviation".into(),
+        nm("peak |e_true| over the run", m.e_true.peak),
+        nm("rms e_true over the run", m.e_true.rms),
+        effort("effort: rms u", m.u.rms),
+        effort("effort: peak |u|", m.u.peak),
+        effort("rms u_fb (feedback)", m.u_fb.rms),
+        effort("rms u_ff (feedforward)", m.u_ff.rms),
+        effort("rms u_d (active damping)", m.u_d.rms),
+        row("innovation mean", format!("{:.3e}", m.innovation.mean), "m"),
+        row(
+            "innovation standard deviation",
             format!("{:.3e}", m.innovation.std),
-            "m".into(),
-        ],
-        [
-            "innovation lag-1 autocorrelation".into(),
+            "m",
+        ),
+        row(
+            "innovation lag-1 autocorrelation",
             format!("{:.3}", m.innovation.lag1_autocorrelation),
-            "".into(),
-        ],
-        [
-            "ticks with the input held".into(),
-            m.held_ticks.to_string(),
-            "".into(),
-        ],
-        [
-            "commands from a stale estimate".into(),
+            "",
+        ),
+        row("ticks with the input held", m.held_ticks.to_string(), ""),
+        row(
+            "commands from a stale estimate",
             m.stale_estimates.to_string(),
-            "".into(),
-        ],
+            "",
+        ),
     ]);
     Table {
         header: vec!["quantity".into(), "value".into(), "unit".into()],

@@ -11,18 +11,22 @@ mod document;
 mod figures;
 
 use crate::run::RunReport;
+use anyhow::{Context, anyhow};
 use flexloop_analysis::flexible::{FlexibleComparison, NoComparison};
 use flexloop_analysis::latency_log::LatencyLog;
-use serde_json::Value;
-use std::ffi::OsString;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::SupervisorEvent;
 use std::path::{Path, PathBuf};
 
-pub const REPORT_DIR: &str = "report";
-pub const MARKDOWN_FILE: &str = "report.md";
-pub const HTML_FILE: &str = "report.html";
-
-const USAGE: &str =
-    "usage: flexloop report RUN [--out DIR]  (RUN: a run directory, or a name under runs/)";
+/// `report RUN [--out DIR]`.
+#[derive(Debug, clap::Args)]
+pub struct ReportArgs {
+    /// A run directory, or its name under runs/
+    run: PathBuf,
+    /// Where the report goes [default: RUN/report]
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
 
 /// A swap, crash or restart from the supervisor's `events.jsonl`.
 #[derive(Debug, Clone, PartialEq)]
@@ -82,19 +86,17 @@ pub struct RunData {
 
 impl RunData {
     /// Reads a run directory; every error names the file it concerns.
-    pub fn load(dir: &Path) -> Result<Self, String> {
-        let run = RunReport::load(dir)?;
-        let latency = LatencyLog::read(&dir.join(flexloop_node::logger::HISTOGRAM_LOG))
-            .map_err(|e| e.to_string())?;
-        let events = read_events(&dir.join(crate::conductor::EVENTS_FILE), run.design.ts)?;
+    pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        let run_dir = RunDir::new(dir);
+        let run = RunReport::load(&run_dir)?;
+        let latency = LatencyLog::read(&run_dir.histogram_log(0))?;
+        let events = read_events(&run_dir.events(), run.design.ts)?;
         let flexible =
             FlexibleComparison::compute(&run.design, &run.trace, run.scenario.observer.mc);
-        let period_ns = run.summary["period_ns"]
-            .as_u64()
-            .unwrap_or_else(|| (run.design.ts * 1e9).round() as u64);
-        let lockstep = run.summary["mode"] == "lockstep";
+        let period_ns = run.summary.period_ns;
+        let lockstep = run.summary.mode == "lockstep";
         let other_generations = (1..=64)
-            .flat_map(crate::logger_files)
+            .flat_map(flexloop_runfiles::run_dir::logger_files)
             .filter(|f| dir.join(f).exists())
             .collect();
         Ok(Self {
@@ -111,30 +113,22 @@ impl RunData {
     }
 }
 
-pub fn report(args: Vec<OsString>) -> Result<i32, String> {
-    use lexopt::prelude::*;
-    let mut parser = lexopt::Parser::from_args(args);
-    let mut run = None;
-    let mut out = None;
-    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
-        match arg {
-            Value(v) if run.is_none() => run = Some(PathBuf::from(v)),
-            Long("out") => out = Some(PathBuf::from(parser.value().map_err(|e| e.to_string())?)),
-            other => return Err(format!("{}\n{USAGE}", other.unexpected())),
-        }
-    }
-    let run_dir = resolve_run(&run.ok_or(USAGE)?)?;
-    let out_dir = out.unwrap_or_else(|| run_dir.join(REPORT_DIR));
+pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
+    let run_dir = resolve_run(&args.run)?;
+    let out_dir = args.out.unwrap_or_else(|| RunDir::new(&run_dir).report());
     let data = RunData::load(&run_dir)?;
     let doc = content::document(&data);
     write_report(&out_dir, &doc)?;
-    println!("report: {}", out_dir.join(MARKDOWN_FILE).display());
-    println!("        {}", out_dir.join(HTML_FILE).display());
+    println!(
+        "report: {}",
+        out_dir.join(RunDir::REPORT_MARKDOWN).display()
+    );
+    println!("        {}", out_dir.join(RunDir::REPORT_HTML).display());
     Ok(0)
 }
 
 /// A run directory, or the name of one under `runs/`.
-fn resolve_run(given: &Path) -> Result<PathBuf, String> {
+fn resolve_run(given: &Path) -> anyhow::Result<PathBuf> {
     if given.is_dir() {
         return Ok(given.to_path_buf());
     }
@@ -142,7 +136,7 @@ fn resolve_run(given: &Path) -> Result<PathBuf, String> {
     if given.components().count() == 1 && under_runs.is_dir() {
         return Ok(under_runs);
     }
-    Err(format!(
+    Err(anyhow!(
         "{}: no such run directory{}",
         given.display(),
         if given.components().count() == 1 {
@@ -155,54 +149,50 @@ fn resolve_run(given: &Path) -> Result<PathBuf, String> {
 
 /// Each file is written whole under a temporary name, then renamed, so that
 /// a reader never opens a half-written report.
-fn write_report(out_dir: &Path, doc: &document::Document) -> Result<(), String> {
-    std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
-    let write = |name: &str, text: &str| -> Result<(), String> {
+fn write_report(out_dir: &Path, doc: &document::Document) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out_dir).with_context(|| out_dir.display().to_string())?;
+    let write = |name: &str, text: &str| -> anyhow::Result<()> {
         let path = out_dir.join(name);
         let tmp = out_dir.join(format!(".{name}.tmp"));
         std::fs::write(&tmp, text)
             .and_then(|()| std::fs::rename(&tmp, &path))
-            .map_err(|e| format!("{}: {e}", path.display()))
+            .with_context(|| path.display().to_string())
     };
     for f in doc.figures() {
         write(&f.file, &f.svg)?;
     }
-    write(MARKDOWN_FILE, &doc.markdown())?;
-    write(HTML_FILE, &doc.html())
+    write(RunDir::REPORT_MARKDOWN, &doc.markdown())?;
+    write(RunDir::REPORT_HTML, &doc.html())
 }
 
 /// Reads `events.jsonl` (absent: no events); `ts` places each on the tick clock.
-fn read_events(path: &Path, ts: f64) -> Result<Vec<Event>, String> {
+fn read_events(path: &Path, ts: f64) -> anyhow::Result<Vec<Event>> {
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(format!("{}: {e}", path.display())),
+        Err(e) => return Err(e).with_context(|| path.display().to_string()),
     };
     text.lines()
         .enumerate()
         .filter(|(_, line)| !line.trim().is_empty())
         .map(|(i, line)| {
-            let bad = |reason: String| format!("{} line {}: {reason}", path.display(), i + 1);
-            let v: Value = serde_json::from_str(line).map_err(|e| bad(e.to_string()))?;
-            let kind = v["kind"]
-                .as_str()
-                .ok_or_else(|| bad("field kind missing".into()))?;
-            let seq = v["seq"].as_u64();
-            let time_s = match seq {
+            let e: SupervisorEvent = serde_json::from_str(line)
+                .with_context(|| format!("{} line {}", path.display(), i + 1))?;
+            let time_s = match e.seq {
                 Some(seq) => seq as f64 * ts,
-                None => v["t_s"].as_f64().unwrap_or(0.0),
+                None => e.t_s,
             };
-            let detail = match &v["detail"] {
-                Value::Null => String::new(),
-                Value::String(s) => s.clone(),
+            let detail = match &e.detail {
+                serde_json::Value::Null => String::new(),
+                serde_json::Value::String(s) => s.clone(),
                 other => other.to_string(),
             };
             Ok(Event {
                 time_s,
-                kind: kind.to_string(),
-                role: v["role"].as_str().unwrap_or("?").to_string(),
-                generation: v["generation"].as_u64().unwrap_or(0),
-                seq,
+                kind: e.kind,
+                role: e.role,
+                generation: e.generation.map_or(0, u64::from),
+                seq: e.seq,
                 detail: shorten(&detail, 120),
             })
         })
@@ -239,8 +229,8 @@ mod tests {
         assert!((events[0].time_s - 0.2).abs() < 1e-12, "placed by its tick");
         assert_eq!(events[0].detail, "{\"ok\":true}");
         assert_eq!(events[1].time_s, 2.5);
-        std::fs::write(&path, "{\"kind\":\"swap\"}\nnot json\n").unwrap();
-        let e = read_events(&path, 1e-4).unwrap_err();
+        std::fs::write(&path, "{\"t_s\":0.5,\"kind\":\"swap\",\"role\":\"observer\",\"generation\":null,\"seq\":null}\nnot json\n").unwrap();
+        let e = format!("{:#}", read_events(&path, 1e-4).unwrap_err());
         assert!(e.contains("events.jsonl line 2"), "{e}");
         assert!(
             read_events(&dir.join("absent.jsonl"), 1e-4)
@@ -252,7 +242,9 @@ mod tests {
 
     #[test]
     fn a_missing_run_is_named() {
-        let e = resolve_run(Path::new("no-such-run-xyz")).unwrap_err();
+        let e = resolve_run(Path::new("no-such-run-xyz"))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("no-such-run-xyz: no such run directory (nor runs/no-such-run-xyz)"),
             "{e}"

@@ -1,8 +1,9 @@
 //! The command line every loop process shares.
 
 use crate::NodeError;
+use crate::overrides::OverrideFlags;
 use flexloop_runtime::realtime::RealtimeSettings;
-use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use std::ffi::OsString;
 use std::path::PathBuf;
 
@@ -53,81 +54,66 @@ pub struct ServiceArgs {
     pub spare: bool,
 }
 
-pub const USAGE: &str = "--scenario FILE --prefix PREFIX --run-dir DIR [--rate HZ] [--duration S] [--mode realtime|lockstep] [--no-realtime] [--generation N] [--join] [--standby] [--restart] [--spare]";
+/// The command line as clap reads it; [`ServiceArgs::parse`] checks the
+/// flags only some roles take.
+#[derive(Debug, clap::Parser)]
+#[command(no_binary_name = true, disable_help_flag = true)]
+struct Flags {
+    #[arg(long, value_name = "FILE")]
+    scenario: PathBuf,
+    #[arg(long, value_name = "PREFIX")]
+    prefix: String,
+    #[arg(long, value_name = "DIR")]
+    run_dir: PathBuf,
+    #[command(flatten)]
+    overrides: OverrideFlags,
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    generation: u32,
+    #[arg(long)]
+    join: bool,
+    #[arg(long)]
+    standby: bool,
+    #[arg(long)]
+    restart: bool,
+    #[arg(long)]
+    spare: bool,
+}
 
 impl ServiceArgs {
     pub fn parse(role: Role, args: impl IntoIterator<Item = OsString>) -> Result<Self, NodeError> {
-        use lexopt::prelude::*;
-        let usage =
-            |m: String| NodeError::Usage(format!("{m}\n  flexloop-{} {USAGE}", role.name()));
-        let mut parser =
-            lexopt::Parser::from_iter(std::iter::once(OsString::from("x")).chain(args));
-        let (mut scenario, mut prefix, mut run_dir) = (None, None, None);
-        let mut overrides = Overrides::default();
-        let mut generation = 0;
-        let mut join = false;
-        let mut standby = false;
-        let mut restart = false;
-        let mut spare = false;
-        while let Some(arg) = parser.next().map_err(|e| usage(e.to_string()))? {
-            let value = |p: &mut lexopt::Parser| -> Result<String, NodeError> {
-                p.value()
-                    .map_err(|e| usage(e.to_string()))?
-                    .into_string()
-                    .map_err(|_| usage("argument is not UTF-8".into()))
-            };
-            match arg {
-                Long("scenario") => scenario = Some(PathBuf::from(value(&mut parser)?)),
-                Long("prefix") => prefix = Some(value(&mut parser)?),
-                Long("run-dir") => run_dir = Some(PathBuf::from(value(&mut parser)?)),
-                Long("rate") => {
-                    overrides.rate_hz = Some(
-                        value(&mut parser)?
-                            .parse()
-                            .map_err(|_| usage("--rate needs a number".into()))?,
-                    )
-                }
-                Long("duration") => {
-                    overrides.duration_s = Some(
-                        value(&mut parser)?
-                            .parse()
-                            .map_err(|_| usage("--duration needs a number".into()))?,
-                    )
-                }
-                Long("mode") => {
-                    let v = value(&mut parser)?;
-                    overrides.mode =
-                        Some(Mode::parse(&v).ok_or_else(|| usage(format!("unknown mode `{v}`")))?)
-                }
-                Long("no-realtime") => overrides.no_realtime = true,
-                Long("join") => join = true,
-                Long("standby") if role == Role::Controller => standby = true,
-                Long("restart") => restart = true,
-                Long("spare") if matches!(role, Role::Controller | Role::Observer) => spare = true,
-                Long("generation") => {
-                    generation = value(&mut parser)?
-                        .parse()
-                        .map_err(|_| usage("--generation needs a number".into()))?
-                }
-                other => {
-                    return Err(usage(format!(
-                        "unexpected argument {:?}",
-                        other.unexpected()
-                    )));
-                }
+        use clap::Parser;
+        let flags = Flags::try_parse_from(args).map_err(|e| NodeError::Usage(e.to_string()))?;
+        let only = |taken: bool, flag: &str, roles: &str| {
+            if taken {
+                Err(NodeError::Usage(format!(
+                    "{flag}: only the {roles} takes it, not the {}",
+                    role.name()
+                )))
+            } else {
+                Ok(())
             }
-        }
+        };
+        only(
+            flags.standby && role != Role::Controller,
+            "--standby",
+            "controller",
+        )?;
+        only(
+            flags.spare && !matches!(role, Role::Controller | Role::Observer),
+            "--spare",
+            "controller or observer",
+        )?;
         Ok(Self {
             role,
-            scenario: scenario.ok_or_else(|| usage("--scenario is required".into()))?,
-            prefix: prefix.ok_or_else(|| usage("--prefix is required".into()))?,
-            run_dir: run_dir.ok_or_else(|| usage("--run-dir is required".into()))?,
-            overrides,
-            generation,
-            join: join || standby || restart || spare,
-            standby,
-            restart,
-            spare,
+            scenario: flags.scenario,
+            prefix: flags.prefix,
+            run_dir: flags.run_dir,
+            overrides: flags.overrides.into(),
+            generation: flags.generation,
+            join: flags.join || flags.standby || flags.restart || flags.spare,
+            standby: flags.standby,
+            restart: flags.restart,
+            spare: flags.spare,
         })
     }
 
@@ -187,6 +173,7 @@ pub fn realtime_settings(scenario: &Scenario, role: Role) -> RealtimeSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use flexloop_scenario::Mode;
 
     fn os(v: &[&str]) -> Vec<OsString> {
         v.iter().map(OsString::from).collect()
@@ -218,6 +205,24 @@ mod tests {
     }
 
     #[test]
+    fn only_a_controller_stands_by() {
+        let e = ServiceArgs::parse(
+            Role::Observer,
+            os(&[
+                "--scenario",
+                "s",
+                "--prefix",
+                "p",
+                "--run-dir",
+                "r",
+                "--standby",
+            ]),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("--standby"), "{e}");
+    }
+
+    #[test]
     fn a_restart_joins_the_running_loop() {
         let a = ServiceArgs::parse(
             Role::Observer,
@@ -238,7 +243,7 @@ mod tests {
     #[test]
     fn missing_and_bad_flags_are_usage_errors() {
         let e = ServiceArgs::parse(Role::Plant, os(&["--prefix", "p"])).unwrap_err();
-        assert!(e.to_string().contains("--scenario is required"));
+        assert!(e.to_string().contains("--scenario"), "{e}");
         let e = ServiceArgs::parse(Role::Plant, os(&["--scenario", "s", "--mode", "fast"]))
             .unwrap_err();
         assert!(e.to_string().contains("unknown mode"));

@@ -8,6 +8,7 @@ pub mod controller;
 pub mod handover;
 pub mod logger;
 pub mod observer;
+pub mod overrides;
 pub mod plant;
 pub mod recording;
 pub mod replay;
@@ -33,6 +34,8 @@ pub enum NodeError {
     },
     /// Another process did not show up or went silent.
     Peer(String),
+    /// A run file (the summary) could not be written.
+    RunFile(flexloop_runfiles::FileError),
 }
 
 impl fmt::Display for NodeError {
@@ -43,6 +46,7 @@ impl fmt::Display for NodeError {
             NodeError::Transport(e) => e.fmt(f),
             NodeError::Io { path, error } => write!(f, "{path}: {error}"),
             NodeError::Peer(m) => f.write_str(m),
+            NodeError::RunFile(e) => e.fmt(f),
         }
     }
 }
@@ -52,6 +56,12 @@ impl std::error::Error for NodeError {}
 impl From<flexloop_scenario::ScenarioError> for NodeError {
     fn from(e: flexloop_scenario::ScenarioError) -> Self {
         NodeError::Scenario(e)
+    }
+}
+
+impl From<flexloop_runfiles::FileError> for NodeError {
+    fn from(e: flexloop_runfiles::FileError) -> Self {
+        NodeError::RunFile(e)
     }
 }
 

@@ -12,11 +12,15 @@
 use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::recording::{self, Files, Item, Queue};
 use crate::run_metadata::run_metadata;
-use crate::summary::{run_summary, write_json_atomically};
+use crate::summary::run_summary;
 use crate::{NodeError, await_peers};
 use flexloop_components::{Recorder, SampleWriter};
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, flags};
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::json::write_json_atomically;
+use flexloop_runfiles::run_dir::generation_file;
+use flexloop_runfiles::summary::Recording;
 use flexloop_runtime::clock::sleep_until;
 use flexloop_runtime::latency::Metric;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown, usage};
@@ -28,13 +32,6 @@ const POLL_NS: u64 = 2_000_000;
 const INTERVAL_NS: u64 = 1_000_000_000;
 /// After the last measurement, how long to wait for its command and estimate.
 const END_GRACE_NS: u64 = 500_000_000;
-
-pub const SAMPLES_FILE: &str = "samples.mcap";
-pub const HISTOGRAM_LOG: &str = "latency.hlog";
-pub const SUMMARY_FILE: &str = "summary.json";
-/// The supervisor's events (swap, crash, restart, ...), one JSON object a
-/// line; the logger copies them into the sample file.
-pub const EVENTS_FILE: &str = "events.jsonl";
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> NodeError + '_ {
     move |error| NodeError::Io {
@@ -53,11 +50,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     // Files first: an unwritable run directory fails before the loop starts.
     // A restarted logger (generation > 0) never touches its predecessor's
     // files, which may end in a torn chunk.
-    let samples_name = generation_file(SAMPLES_FILE, args.generation);
-    let samples_path = args.run_dir.join(&samples_name);
-    let hlog_path = args
-        .run_dir
-        .join(generation_file(HISTOGRAM_LOG, args.generation));
+    let run_dir = RunDir::new(&args.run_dir);
+    let samples_name = generation_file(RunDir::SAMPLES, args.generation);
+    let samples_path = run_dir.samples(args.generation);
+    let hlog_path = run_dir.histogram_log(args.generation);
     let log_time_offset_ns = wall_clock_ns().saturating_sub(monotonic_ns());
     let samples =
         SampleWriter::create(&samples_path, log_time_offset_ns).map_err(io_err(&samples_path))?;
@@ -160,27 +156,34 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         elapsed: Duration::from_nanos(now - start_ns),
     });
     queue.close(now);
-    let dropped = queue.dropped_json();
+    let dropped_in_logger = queue.dropped_in_logger();
     let outcome = writer
         .join()
         .map_err(|_| NodeError::Peer("the logger's writer thread panicked".into()))?;
-    let mut summary = run_summary(&recorder, &scenario, period_ns, usage::process_cpu_ns());
+    let recording = Recording {
+        sample_file: outcome.sample_file,
+        file: samples_name,
+        latency_log_complete: outcome.latency_log_complete,
+        dropped_in_logger,
+    };
+    let mut summary = run_summary(
+        &recorder,
+        &scenario,
+        period_ns,
+        usage::process_cpu_ns(),
+        recording,
+    );
     // Gaps: everything the file lacks, also what the writer had no room for.
-    for (channel, n) in ["measurement", "estimate", "command"]
-        .iter()
-        .zip(recorder.sink_ref().dropped)
-    {
-        summary["gaps"][channel] = (summary["gaps"][channel].as_u64().unwrap_or(0) + n).into();
+    for (gaps, dropped) in summary.gaps.iter_mut().zip(recorder.sink_ref().dropped) {
+        *gaps += dropped;
     }
-    summary["recording"] = outcome.recording;
-    summary["recording"]["file"] = samples_name.clone().into();
-    summary["recording"]["latency_log_complete"] = outcome.latency_log_complete.into();
-    summary["recording"]["dropped_in_logger"] = dropped;
     let gaps = missing(&recorder);
-    let summary_path = args.run_dir.join(SUMMARY_FILE);
-    write_json_atomically(&summary_path, &summary).map_err(io_err(&summary_path))?;
+    write_json_atomically(&run_dir.summary(), &summary)?;
     if gaps > 0 {
-        eprintln!("flexloop-logger: {gaps} samples never reached the log (see {SUMMARY_FILE})");
+        eprintln!(
+            "flexloop-logger: {gaps} samples never reached the log (see {})",
+            RunDir::SUMMARY
+        );
     }
     drained.map(|_| ())
 }
@@ -309,14 +312,6 @@ fn wall_clock_ns() -> u64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64)
-}
-
-/// `samples.mcap` for the first logger, `samples.g2.mcap` for generation 2.
-pub fn generation_file(name: &str, generation: u32) -> String {
-    match (generation, name.rsplit_once('.')) {
-        (0, _) | (_, None) => name.to_string(),
-        (g, Some((stem, ext))) => format!("{stem}.g{g}.{ext}"),
-    }
 }
 
 fn publish_telemetry(out: &Outlet<Telemetry>, recorder: &Recorder<Queue>) -> Result<(), NodeError> {

@@ -134,11 +134,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         "flexloop-plant: {} ticks, {} misses, {} late commands, {} stalled ticks ({} misses after stalls)",
         c.ticks, c.misses, c.late_commands, c.stalled_ticks, c.stall_misses
     );
-    let path = args.run_dir.join(crate::summary::PLANT_LATENCY_FILE);
-    let own = crate::summary::plant_latency_json(&c, &core.latencies, period_ns);
-    if let Err(e) = crate::summary::write_json_atomically(&path, &own) {
+    let path = flexloop_runfiles::RunDir::new(&args.run_dir).plant_latency();
+    let own = crate::summary::plant_latency(&c, &core.latencies, period_ns);
+    if let Err(e) = flexloop_runfiles::json::write_json_atomically(&path, &own) {
         // The loop's work is done; the logger's summary has the same figures.
-        eprintln!("flexloop-plant: {}: {e}", path.display());
+        eprintln!("flexloop-plant: {e}");
     }
     Ok(())
 }

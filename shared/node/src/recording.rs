@@ -11,9 +11,9 @@
 //! (cause `logger-queue`) once there is room again. The messages' queues
 //! copy each message once and make no system call; the writer polls them.
 
-use crate::logger::EVENTS_FILE;
 use flexloop_components::{RecordSink, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_runfiles::summary::{DroppedInLogger, SampleFileState};
 use flexloop_runtime::latency::{LoopLatencies, Metric};
 use flexloop_runtime::monotonic_ns;
 use flexloop_runtime::spsc;
@@ -122,13 +122,13 @@ impl Queue {
         let _ = self.tx.send(item);
     }
 
-    pub fn dropped_json(&self) -> Value {
-        json!({
-            "measurement": self.dropped[0],
-            "estimate": self.dropped[1],
-            "command": self.dropped[2],
-            "events": self.dropped_events,
-        })
+    pub fn dropped_in_logger(&self) -> DroppedInLogger {
+        DroppedInLogger {
+            measurement: self.dropped[0],
+            estimate: self.dropped[1],
+            command: self.dropped[2],
+            events: self.dropped_events,
+        }
     }
 }
 
@@ -178,7 +178,7 @@ pub struct Files {
 
 /// How the recording went, for the run summary.
 pub struct Outcome {
-    pub recording: Value,
+    pub sample_file: SampleFileState,
     pub latency_log_complete: bool,
 }
 
@@ -252,7 +252,8 @@ fn write(mut files: Files, mut queues: Queues) -> Outcome {
     let samples = &mut files.samples;
     let mut previous = LoopLatencies::new();
     let mut interval_start = Duration::ZERO;
-    let mut supervisor_events = EventsTail::new(files.run_dir.join(EVENTS_FILE));
+    let mut supervisor_events =
+        EventsTail::new(files.run_dir.join(flexloop_runfiles::RunDir::EVENTS));
     let mut next_flush = Instant::now() + FLUSH;
     let mut next_events = Instant::now();
     let mut finished = false;
@@ -307,7 +308,8 @@ fn write(mut files: Files, mut queues: Queues) -> Outcome {
     samples.finish();
     report_failure(samples, &files.samples_path);
     Outcome {
-        recording: samples.recording_json(),
+        // The writer reports as JSON (components knows no run files).
+        sample_file: serde_json::from_value(samples.recording_json()).unwrap_or_default(),
         latency_log_complete,
     }
 }

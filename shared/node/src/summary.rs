@@ -1,119 +1,140 @@
-//! The run summary the logger writes (`summary.json`) and `flexloop` reads.
+//! The run summary the logger writes (`summary.json`) and the plant's own
+//! figures (`plant_latency.json`), from their counters and histograms (the
+//! files' types: [`flexloop_runfiles::summary`]).
 
 use flexloop_components::{RecordSink, Recorder};
-use flexloop_runtime::latency::{
-    LatencyHistogram, LoopLatencies, Metric, PlantLatencies, QUANTILE_LABELS,
-};
-use serde_json::{Value, json};
-use std::io::Write;
-
-/// The plant's own latency file in the run directory (written at its exit).
-pub const PLANT_LATENCY_FILE: &str = "plant_latency.json";
+use flexloop_runfiles::summary::{Counters, PerChannel, PlantCounters, Recording};
+use flexloop_runfiles::{Histogram, Percentiles, PlantLatency, RunSummary};
+use flexloop_runtime::latency::{LatencyHistogram, LoopLatencies, Metric, PlantLatencies};
+use std::collections::BTreeMap;
 
 /// Count, percentiles and how many samples exceeded `budget_ns`.
-fn histogram_json(h: &LatencyHistogram, budget_ns: u64) -> Value {
+fn histogram(h: &LatencyHistogram, budget_ns: u64) -> Histogram {
     let p = h.percentiles();
-    let mut entry = serde_json::Map::new();
-    entry.insert("count".into(), json!(p.count));
-    for (label, value) in QUANTILE_LABELS.iter().zip(p.values_ns) {
-        entry.insert(format!("{label}_ns"), json!(value));
+    Histogram {
+        count: p.count,
+        percentiles: Percentiles::from_values(p.values_ns),
+        over_one_period: Some(h.count_above(budget_ns)),
     }
-    entry.insert("over_one_period".into(), json!(h.count_above(budget_ns)));
-    Value::Object(entry)
 }
 
-/// Percentiles of every metric, plus how many samples exceeded `budget_ns`.
-pub fn latencies_json(latencies: &LoopLatencies, budget_ns: u64) -> Value {
-    let mut map = serde_json::Map::new();
-    for metric in Metric::ALL {
-        map.insert(
-            metric.name().into(),
-            histogram_json(latencies.get(metric), budget_ns),
-        );
+/// Count and percentiles, without a budget (the machine's floors).
+pub fn floor_histogram(h: &LatencyHistogram) -> Histogram {
+    let p = h.percentiles();
+    Histogram {
+        count: p.count,
+        percentiles: Percentiles::from_values(p.values_ns),
+        over_one_period: None,
     }
-    Value::Object(map)
+}
+
+/// Every metric by name, plus how many samples exceeded `budget_ns`.
+pub fn latencies(latencies: &LoopLatencies, budget_ns: u64) -> BTreeMap<String, Histogram> {
+    Metric::ALL
+        .iter()
+        .map(|m| {
+            (
+                m.name().to_string(),
+                histogram(latencies.get(*m), budget_ns),
+            )
+        })
+        .collect()
 }
 
 /// What the plant measured itself: its counters and its latencies (the
 /// same metric names as the logger's summary).
-pub fn plant_latency_json(
+pub fn plant_latency(
     counters: &flexloop_components::plant::PlantCounters,
     latencies: &PlantLatencies,
     period_ns: u64,
-) -> Value {
-    json!({
-        "ticks": counters.ticks,
-        "counters": {
-            "misses": counters.misses,
-            "late_commands": counters.late_commands,
-            "stalled_ticks": counters.stalled_ticks,
-            "stall_misses": counters.stall_misses,
+) -> PlantLatency {
+    let own = [
+        (Metric::TickLateness, &latencies.tick_lateness),
+        (Metric::RoundTrip, &latencies.round_trip),
+        (Metric::TickToCommand, &latencies.tick_to_command),
+    ];
+    PlantLatency {
+        ticks: counters.ticks,
+        counters: PlantCounters {
+            misses: counters.misses,
+            late_commands: counters.late_commands,
+            stalled_ticks: counters.stalled_ticks,
+            stall_misses: counters.stall_misses,
         },
-        "latency": {
-            Metric::TickLateness.name(): histogram_json(&latencies.tick_lateness, period_ns),
-            Metric::RoundTrip.name(): histogram_json(&latencies.round_trip, period_ns),
-            Metric::TickToCommand.name(): histogram_json(&latencies.tick_to_command, period_ns),
-        },
-    })
+        latency: own
+            .into_iter()
+            .map(|(m, h)| (m.name().to_string(), histogram(h, period_ns)))
+            .collect(),
+    }
 }
 
-/// The whole summary of a run, from the logger's recorder.
+/// The whole summary of a run, from the logger's recorder; the recording's
+/// account comes from the writer thread.
 pub fn run_summary<O: RecordSink>(
     recorder: &Recorder<O>,
     scenario: &flexloop_scenario::Scenario,
     period_ns: u64,
     logger_cpu_ns: u64,
-) -> Value {
+    recording: Recording,
+) -> RunSummary {
     let m = recorder.last_measurement.unwrap_or_default();
-    json!({
-        "scenario": scenario.name,
-        "scenario_file": scenario.source.display().to_string(),
-        "mode": scenario.timing.mode.as_str(),
-        "rate_hz": scenario.timing.rate_hz,
-        "duration_s": scenario.timing.duration_s,
-        "period_ns": period_ns,
-        "ticks": recorder.measurements.samples,
-        "last_seq": m.seq,
-        "counters": {
-            "misses": m.misses,
-            "late_commands": m.late_commands,
-            "stalled_ticks": m.stalled_ticks,
-            "stall_misses": m.stall_misses,
-            "stale_estimates": recorder.stale_estimates,
-            "fallback_ticks": m.fallback_ticks,
-            "rejected_commands": m.rejected_commands,
+    RunSummary {
+        scenario: scenario.name.clone(),
+        scenario_file: scenario.source.display().to_string(),
+        mode: scenario.timing.mode.as_str().to_string(),
+        rate_hz: scenario.timing.rate_hz,
+        duration_s: scenario.timing.duration_s,
+        period_ns,
+        ticks: recorder.measurements.samples,
+        last_seq: m.seq,
+        counters: Counters {
+            misses: m.misses,
+            late_commands: m.late_commands,
+            stalled_ticks: m.stalled_ticks,
+            stall_misses: m.stall_misses,
+            stale_estimates: recorder.stale_estimates,
+            fallback_ticks: m.fallback_ticks,
+            rejected_commands: m.rejected_commands,
         },
-        "samples": {
-            "measurement": recorder.measurements.samples,
-            "estimate": recorder.estimates.samples,
-            "command": recorder.commands.samples,
+        samples: PerChannel {
+            measurement: recorder.measurements.samples,
+            estimate: recorder.estimates.samples,
+            command: recorder.commands.samples,
         },
-        "gaps": {
-            "measurement": recorder.measurements.gaps(),
-            "estimate": recorder.estimates.gaps(),
-            "command": recorder.commands.gaps(),
+        gaps: PerChannel {
+            measurement: recorder.measurements.gaps(),
+            estimate: recorder.estimates.gaps(),
+            command: recorder.commands.gaps(),
         },
-        "logger_cpu_ns": logger_cpu_ns,
-        "latency": latencies_json(&recorder.latencies, period_ns),
-    })
-}
-
-/// Reads a run directory's `summary.json`; the error names the file.
-pub fn read_summary(run_dir: &std::path::Path) -> Result<Value, String> {
-    let path = run_dir.join(crate::logger::SUMMARY_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
-}
-
-/// Writes `value` to `path` atomically (temporary file, then rename), so that
-/// a reader never sees a half-written summary.
-pub fn write_json_atomically(path: &std::path::Path, value: &Value) -> std::io::Result<()> {
-    let tmp = path.with_extension("json.tmp");
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(serde_json::to_string_pretty(value)?.as_bytes())?;
-        f.write_all(b"\n")?;
-        f.sync_all()?;
+        logger_cpu_ns,
+        latency: latencies(&recorder.latencies, period_ns),
+        recording,
     }
-    std::fs::rename(&tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use flexloop_runfiles::Percentiles;
+    use flexloop_runfiles::summary::SampleFileState;
+    use flexloop_runtime::latency::QUANTILE_LABELS;
+
+    #[test]
+    fn the_sample_writers_account_reads_as_the_summarys_type() {
+        let path = std::env::temp_dir().join(format!("flexloop-state-{}.mcap", std::process::id()));
+        let mut writer = flexloop_components::SampleWriter::create(&path, 0).unwrap();
+        writer.finish();
+        let json = writer.recording_json();
+        let _ = std::fs::remove_file(&path);
+        let state: SampleFileState = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(state.state, "complete");
+        assert_eq!(serde_json::to_value(&state).unwrap(), json);
+    }
+
+    #[test]
+    fn the_files_percentile_keys_are_the_runtimes_labels() {
+        let v = serde_json::to_value(Percentiles::from_values([1, 2, 3, 4, 5, 6])).unwrap();
+        for (i, label) in QUANTILE_LABELS.iter().enumerate() {
+            assert_eq!(v[format!("{label}_ns")], i as u64 + 1, "{label}");
+        }
+    }
 }

@@ -1,0 +1,259 @@
+//! Launching a loop: the scenario found and checked, the run directory
+//! made, the processes started, supervised and stopped, and the loop
+//! registered meanwhile so that `down`, `status` and `swap` find it. Every
+//! command that runs a loop (`up`, `run`, `bench`, `positions`) goes
+//! through [`prepare`] and [`supervise`].
+
+use crate::conductor::{Conductor, Switch};
+use crate::supervisor::{LaunchPlan, Outcome, RunningLoop};
+use crate::{progress, registry, supervisor};
+use anyhow::{Context, anyhow, bail};
+use flexloop_node::overrides::OverrideFlags;
+use flexloop_runfiles::RunDir;
+use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// `[SCENARIO] [--rate HZ] [--duration S] [--mode M] [--no-realtime] [--run-dir DIR]`:
+/// the command line of `up` and `run`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoopFlags {
+    /// Scenario file, or its name under scenarios/ [default: scenarios/default.toml]
+    pub scenario: Option<PathBuf>,
+    #[command(flatten)]
+    pub overrides: OverrideFlags,
+    /// Where the run's files go [default: runs/<stamp>-<scenario>-<pid>]
+    #[arg(long, value_name = "DIR")]
+    pub run_dir: Option<PathBuf>,
+}
+
+impl LoopFlags {
+    pub fn into_loop_args(self) -> anyhow::Result<LoopArgs> {
+        Ok(LoopArgs {
+            scenario: resolve_scenario(self.scenario)?,
+            overrides: self.overrides.into(),
+            run_dir: self.run_dir,
+        })
+    }
+}
+
+/// What a loop is started from.
+#[derive(Debug, Clone)]
+pub struct LoopArgs {
+    pub scenario: PathBuf,
+    pub overrides: Overrides,
+    pub run_dir: Option<PathBuf>,
+}
+
+/// A scenario given by path, or by name from the scenarios directory.
+pub fn resolve_scenario(given: Option<PathBuf>) -> anyhow::Result<PathBuf> {
+    let dirs = scenario_dirs();
+    let Some(given) = given else {
+        return dirs
+            .iter()
+            .map(|d| d.join("default.toml"))
+            .find(|p| p.is_file())
+            .ok_or_else(|| anyhow!("no scenario given and no scenarios/default.toml found"));
+    };
+    if given.is_file() || given.components().count() > 1 {
+        return Ok(given);
+    }
+    let named = given.with_extension("toml");
+    Ok(dirs
+        .iter()
+        .map(|d| d.join(&named))
+        .find(|p| p.is_file())
+        .unwrap_or(given))
+}
+
+/// A shipped scenario by name; an error if there is none.
+pub fn named_scenario(name: &str) -> anyhow::Result<PathBuf> {
+    let path = resolve_scenario(Some(PathBuf::from(name)))?;
+    if path.is_file() {
+        Ok(path)
+    } else {
+        bail!("scenario `{name}` not found in scenarios/")
+    }
+}
+
+fn scenario_dirs() -> Vec<PathBuf> {
+    let mut dirs = vec![PathBuf::from("scenarios")];
+    if let Ok(exe) = std::env::current_exe()
+        && let Some(repo) = exe.parent().and_then(Path::parent).and_then(Path::parent)
+    {
+        dirs.push(repo.join("scenarios"));
+    }
+    dirs
+}
+
+/// A loop ready to start: the validated scenario and what to launch.
+pub struct Prepared {
+    pub scenario: Scenario,
+    pub overrides: Overrides,
+    pub plan: LaunchPlan,
+}
+
+impl Prepared {
+    pub fn run_dir(&self) -> RunDir {
+        RunDir::new(&self.plan.run_dir)
+    }
+}
+
+/// Validates the scenario and designs it before anything starts, then makes
+/// the run directory.
+pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
+    let scenario = Scenario::load(&args.scenario, &args.overrides)?;
+    scenario.check_machine(flexloop_runtime::realtime::online_cpus())?;
+    LoopDesign::from_scenario(&scenario)?;
+    let run_dir = match &args.run_dir {
+        Some(d) => d.clone(),
+        None => stamped_run_dir(&scenario.name),
+    };
+    let in_run_dir = || format!("run directory {}", run_dir.display());
+    std::fs::create_dir_all(&run_dir).with_context(in_run_dir)?;
+    let probe = run_dir.join(".writable");
+    std::fs::write(&probe, b"")
+        .context("not writable")
+        .with_context(in_run_dir)?;
+    let _ = std::fs::remove_file(probe);
+    // The scenario as it ran, so that the run can be analysed and refitted later.
+    std::fs::copy(&args.scenario, RunDir::new(&run_dir).scenario_copy())
+        .context("cannot copy the scenario")
+        .with_context(in_run_dir)?;
+    let prefix = format!("flx{}_", std::process::id());
+    Ok(Prepared {
+        plan: LaunchPlan {
+            scenario: args.scenario.clone(),
+            prefix,
+            run_dir,
+            overrides: OverrideFlags::from(&args.overrides),
+            with_logger: scenario.logger.enabled,
+            warm_spares: scenario.supervision.warm_spares,
+        },
+        scenario,
+        overrides: args.overrides.clone(),
+    })
+}
+
+/// A loop that ran to its end.
+pub struct Finished {
+    pub running: RunningLoop,
+    /// The swaps and restarts made.
+    pub switches: Vec<Switch>,
+}
+
+/// Starts the loop, registers it while it runs (so that `flexloop down`,
+/// `status` and `swap` find it) and supervises it until the end, with
+/// `hook` called every 20 ms beside the conductor (bench swaps, CPU
+/// snapshots).
+pub fn supervise(
+    prepared: Prepared,
+    hook: impl FnMut(&mut RunningLoop, &mut Conductor) -> Option<Outcome>,
+) -> anyhow::Result<Finished> {
+    let entry = registry::Entry {
+        prefix: prepared.plan.prefix.clone(),
+        supervisor_pid: std::process::id() as i32,
+        run_dir: prepared.plan.run_dir.clone(),
+        scenario: prepared.scenario.name.clone(),
+    };
+    registry::register(&entry).context("cannot register the loop")?;
+    let result = run_to_the_end(prepared, hook);
+    registry::unregister(&entry.prefix);
+    result
+}
+
+fn run_to_the_end(
+    prepared: Prepared,
+    mut hook: impl FnMut(&mut RunningLoop, &mut Conductor) -> Option<Outcome>,
+) -> anyhow::Result<Finished> {
+    let limit = prepared
+        .scenario
+        .ticks()
+        .map(|_| Duration::from_secs_f64(prepared.scenario.timing.duration_s * 3.0 + 30.0));
+    let rate_hz = prepared.scenario.timing.rate_hz;
+    let prefix = prepared.plan.prefix.clone();
+    let run_dir = prepared.run_dir();
+    let mut conductor = Conductor::open(
+        &prefix,
+        run_dir.path(),
+        &prepared.scenario,
+        &prepared.overrides,
+    )
+    .map_err(anyhow::Error::msg)?;
+    // The supervisor and every process it starts (they inherit it) work off
+    // the loop's CPU: on a kernel without preemption their system calls
+    // (fork, exec, mapping memory) would delay the loop there by up to a
+    // millisecond each (seen in a scheduler trace of a swap).
+    if let Some(cpu) = prepared.scenario.realtime.plant.cpu
+        && prepared.scenario.timing.mode == Mode::Realtime
+    {
+        let _ = flexloop_runtime::realtime::avoid_cpu(cpu);
+    }
+    let mut running = supervisor::start(prepared.plan).map_err(anyhow::Error::msg)?;
+    let mut progress = progress::Progress::open(&prefix);
+    let outcome = running.watch(limit, |running| {
+        progress.show(rate_hz);
+        conductor
+            .tick(running)
+            .or_else(|| hook(running, &mut conductor))
+    });
+    let switches = std::mem::take(&mut conductor.switches);
+    // Our own nodes go first: cleanup removes every file of the prefix.
+    drop(progress);
+    drop(conductor);
+    running.stop();
+    running.cleanup();
+    // It lists live processes: there are none now.
+    let _ = std::fs::remove_file(run_dir.processes());
+    close_sample_files(&run_dir);
+    match outcome {
+        Outcome::ChildFailed(role, code) => Err(anyhow!(
+            "flexloop-{} failed (exit {code}); all processes stopped\n{}",
+            role.name(),
+            running.failure_report()
+        )),
+        Outcome::TimedOut => Err(anyhow!(
+            "the run did not end in time; all processes stopped\n{}",
+            running.failure_report()
+        )),
+        _ => Ok(Finished { running, switches }),
+    }
+}
+
+/// `runs/<stamp>-<kind>-<pid>`, for a run or a command's results.
+pub fn stamped_run_dir(kind: &str) -> PathBuf {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    PathBuf::from("runs").join(format!("{stamp}-{kind}-{}", std::process::id()))
+}
+
+/// Closes the sample files of a run whose logger was killed before it
+/// finished them (a restarted logger writes its own), so that every MCAP
+/// reader opens them; finished files are left as they are.
+fn close_sample_files(run_dir: &RunDir) {
+    let Ok(entries) = std::fs::read_dir(run_dir.path()) else {
+        return;
+    };
+    for path in entries.flatten().map(|e| e.path()) {
+        let is_samples = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(flexloop_runfiles::run_dir::is_sample_file);
+        if !is_samples {
+            continue;
+        }
+        match flexloop_components::mcap_repair::repair_file(&path) {
+            Ok(c) if c.already_complete => {}
+            Ok(c) => eprintln!(
+                "flexloop: {}: the logger did not finish it; closed after its last complete chunk ({} messages in {} chunks kept, {} bytes of torn data cut)",
+                path.display(),
+                c.messages,
+                c.chunks,
+                c.cut_bytes
+            ),
+            Err(e) => eprintln!("flexloop: {}: cannot close it: {e}", path.display()),
+        }
+    }
+}

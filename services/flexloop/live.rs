@@ -1,0 +1,225 @@
+//! The live commands: `up` starts a loop and supervises it in the
+//! foreground; `down`, `status` and `swap` find a running one through the
+//! registry and stop, show or change it.
+
+use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
+use crate::registry;
+use anyhow::{Context, bail};
+use flexloop_protocol::Telemetry;
+use flexloop_protocol::channels::TELEMETRY;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::json::read_json;
+use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
+use flexloop_runtime::latency::QUANTILE_LABELS;
+use flexloop_transport::{Domain, Inlet};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// `[--prefix P]`: which running loop (default: every one, or the only one).
+#[derive(Debug, clap::Args)]
+pub struct PrefixArg {
+    /// The loop's iceoryx2 prefix, as `flexloop status` shows it
+    #[arg(long, value_name = "P")]
+    pub prefix: Option<String>,
+}
+
+/// `swap controller|observer SCENARIO [--prefix P]`.
+#[derive(Debug, clap::Args)]
+pub struct SwapArgs {
+    /// The component to replace
+    #[arg(value_enum)]
+    pub role: SwapRole,
+    /// The scenario to design the new one from (same [loop] and [plant])
+    pub scenario: PathBuf,
+    #[command(flatten)]
+    pub which: PrefixArg,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SwapRole {
+    Controller,
+    Observer,
+}
+
+impl SwapRole {
+    fn name(self) -> &'static str {
+        match self {
+            SwapRole::Controller => "controller",
+            SwapRole::Observer => "observer",
+        }
+    }
+}
+
+pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
+    let prepared = prepare(&args)?;
+    eprintln!(
+        "flexloop: {} at {} Hz ({}), run directory {}; Ctrl-C or `flexloop down` stops it",
+        prepared.scenario.name,
+        prepared.scenario.timing.rate_hz,
+        prepared.scenario.timing.mode.as_str(),
+        prepared.plan.run_dir.display()
+    );
+    supervise(prepared, |_, _| None).map(|_| 0)
+}
+
+pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
+    let loops = registry::matching(prefix.as_deref());
+    if loops.is_empty() {
+        println!("flexloop: no loop running");
+        return Ok(0);
+    }
+    let mut code = 0;
+    for entry in loops {
+        if registry::stop(&entry, Duration::from_secs(15)) {
+            println!(
+                "flexloop: stopped {} ({})",
+                entry.scenario,
+                entry.run_dir.display()
+            );
+        } else {
+            eprintln!("flexloop: supervisor {} did not stop", entry.supervisor_pid);
+            code = 1;
+        }
+    }
+    Ok(code)
+}
+
+pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
+    let loops = registry::matching(prefix.as_deref());
+    if loops.is_empty() {
+        println!("flexloop: no loop running");
+        return Ok(1);
+    }
+    for entry in loops {
+        print_status(&entry)?;
+    }
+    Ok(0)
+}
+
+pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
+    let role = args.role.name();
+    let scenario = resolve_scenario(Some(args.scenario))?;
+    let loops = registry::matching(args.which.prefix.as_deref());
+    let entry = match loops.as_slice() {
+        [] => bail!("no loop running"),
+        [one] => one.clone(),
+        _ => bail!("several loops are running: name one with --prefix"),
+    };
+    let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)
+        .map_err(anyhow::Error::msg)?;
+    let answer: flexloop_runfiles::supervision::SwapAnswer =
+        serde_json::from_value(answer).context("the supervisor's answer")?;
+    let switch = match (answer.ok, answer.switch) {
+        (true, Some(switch)) => switch,
+        _ => bail!(
+            "swap refused: {}",
+            answer.error.as_deref().unwrap_or("no reason given")
+        ),
+    };
+    println!(
+        "flexloop: {role} generation {} active from sample {}; |Δu| at the switch {:.3e}, largest ordinary |Δu| over 100 samples before {:.3e} and after {:.3e}",
+        switch.generation, switch.from_seq, switch.du_switch, switch.du_before, switch.du_after
+    );
+    Ok(0)
+}
+
+/// Prints the newest telemetry of a running loop (waits up to 3 s for it),
+/// its processes and its events so far.
+fn print_status(entry: &registry::Entry) -> anyhow::Result<()> {
+    let domain = Domain::new(&entry.prefix)?;
+    let node = domain.node("status")?;
+    let inlet =
+        Inlet::<Telemetry>::open_polling(&node, &TELEMETRY, TELEMETRY.qos.loop_buffer_size)?;
+    let since = Instant::now();
+    let mut first: Option<Telemetry> = None;
+    let mut last: Option<Telemetry> = None;
+    while since.elapsed() < Duration::from_secs(3) {
+        while let Some(t) = inlet.receive()? {
+            if first.is_none() {
+                first = Some(*t);
+            }
+            last = Some(*t);
+        }
+        if let (Some(a), Some(b)) = (first, last)
+            && b.published_ns > a.published_ns
+        {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let run_dir = RunDir::new(&entry.run_dir);
+    println!(
+        "loop {} ({}), run directory {}",
+        entry.scenario,
+        entry.prefix,
+        entry.run_dir.display()
+    );
+    print_processes(&run_dir);
+    let Some(t) = last else {
+        println!("  no telemetry yet (the logger publishes once a second)");
+        return Ok(());
+    };
+    if let Some(a) = first.filter(|a| t.published_ns > a.published_ns) {
+        let rate =
+            (t.samples - a.samples) as f64 / ((t.published_ns - a.published_ns) as f64 / 1e9);
+        println!("  rate {rate:.0} samples/s");
+    }
+    println!(
+        "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, stale estimates {}, log gaps {}",
+        t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.stale_estimates, t.gaps
+    );
+    let fmt = |v: [u64; 6]| {
+        QUANTILE_LABELS
+            .iter()
+            .zip(v)
+            .map(|(l, ns)| format!("{l} {:.1}", ns as f64 / 1e3))
+            .collect::<Vec<_>>()
+            .join("  ")
+    };
+    println!("  round trip µs:    {}", fmt(t.round_trip));
+    println!("  tick lateness µs: {}", fmt(t.tick_lateness));
+    print_events(&run_dir);
+    Ok(())
+}
+
+/// The loop's processes and their duties, from the supervisor's list.
+fn print_processes(run_dir: &RunDir) {
+    let Ok(list) = read_json::<Processes>(&run_dir.processes()) else {
+        return;
+    };
+    let shown: Vec<String> = list
+        .processes
+        .iter()
+        .map(|p| {
+            let generation = p.generation.map(|g| format!(" g{g}")).unwrap_or_default();
+            format!("{} {}{} (pid {})", p.role, p.duty, generation, p.pid)
+        })
+        .collect();
+    println!("  processes: {}", shown.join(", "));
+}
+
+/// Swaps, crashes and restarts so far, from the supervisor's events file.
+fn print_events(run_dir: &RunDir) {
+    let text = std::fs::read_to_string(run_dir.events()).unwrap_or_default();
+    let events: Vec<SupervisorEvent> = text
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
+    let count = |kind: &str| events.iter().filter(|e| e.kind == kind).count();
+    println!(
+        "  events: {} swaps, {} crashes, {} restarts",
+        count("swap"),
+        count("crash"),
+        count("restart")
+    );
+    if let Some(last) = events.last() {
+        println!(
+            "  last: {} of {} (generation {}) at {:.1} s",
+            last.kind,
+            last.role,
+            last.generation
+                .map_or("null".to_string(), |g| g.to_string()),
+            last.t_s
+        );
+    }
+}

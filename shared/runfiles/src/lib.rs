@@ -1,0 +1,23 @@
+//! flexloop-runfiles: what a run directory holds, named once and typed once.
+//!
+//! The logger (in `flexloop-node`) and the `flexloop` binary both write and
+//! read these files; a low crate of plain data serves both without a circle.
+//!
+//! - [`RunDir`]: the path of every file of a run directory.
+//! - [`json`]: reading and atomically writing one JSON file, errors naming it.
+//! - [`latency`]: a histogram's count and percentiles, as every file keeps them.
+//! - [`summary`]: `summary.json` (the logger) and `plant_latency.json` (the plant).
+//! - [`supervision`]: `events.jsonl`, `processes.json` and the registry of running loops.
+//! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
+
+pub mod bench;
+pub mod json;
+pub mod latency;
+pub mod run_dir;
+pub mod summary;
+pub mod supervision;
+
+pub use json::FileError;
+pub use latency::{Histogram, Percentiles};
+pub use run_dir::RunDir;
+pub use summary::{PlantLatency, RunSummary};

@@ -1,0 +1,170 @@
+//! The names of a run directory's files, in one place.
+
+use crate::json::{FileError, read_json};
+use crate::summary::{PlantLatency, RunSummary};
+use std::path::{Path, PathBuf};
+
+/// A run directory: where one run of the loop keeps everything it writes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunDir(PathBuf);
+
+impl RunDir {
+    /// The scenario as it ran, copied in before the processes start.
+    pub const SCENARIO_COPY: &str = "scenario.toml";
+    /// The logger's run summary ([`RunSummary`]).
+    pub const SUMMARY: &str = "summary.json";
+    /// The plant's own counters and latencies ([`PlantLatency`]).
+    pub const PLANT_LATENCY: &str = "plant_latency.json";
+    /// The sample file (MCAP) of the first logger.
+    pub const SAMPLES: &str = "samples.mcap";
+    /// The latency histogram log (HdrHistogram intervals) of the first logger.
+    pub const HISTOGRAM_LOG: &str = "latency.hlog";
+    /// The supervisor's events (swap, crash, restart, ...), one JSON object a
+    /// line; the logger copies them into the sample file.
+    pub const EVENTS: &str = "events.jsonl";
+    /// The supervisor's list of live processes and their duties.
+    pub const PROCESSES: &str = "processes.json";
+    /// Where `flexloop swap` leaves requests and finds the answers.
+    pub const REQUESTS: &str = "requests";
+    /// `flexloop run`'s control metrics.
+    pub const METRICS: &str = "metrics.json";
+    /// `flexloop bench`'s results.
+    pub const BENCH: &str = "bench.json";
+    /// `flexloop report`'s folder and its two documents.
+    pub const REPORT: &str = "report";
+    pub const REPORT_MARKDOWN: &str = "report.md";
+    pub const REPORT_HTML: &str = "report.html";
+    /// `flexloop export --csv`'s folder.
+    pub const CSV: &str = "csv";
+
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self(path.into())
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+
+    /// A file of the run directory by name.
+    pub fn join(&self, name: impl AsRef<Path>) -> PathBuf {
+        self.0.join(name)
+    }
+
+    pub fn scenario_copy(&self) -> PathBuf {
+        self.join(Self::SCENARIO_COPY)
+    }
+
+    pub fn summary(&self) -> PathBuf {
+        self.join(Self::SUMMARY)
+    }
+
+    pub fn plant_latency(&self) -> PathBuf {
+        self.join(Self::PLANT_LATENCY)
+    }
+
+    /// The sample file of the logger of `generation`.
+    pub fn samples(&self, generation: u32) -> PathBuf {
+        self.join(generation_file(Self::SAMPLES, generation))
+    }
+
+    /// The histogram log of the logger of `generation`.
+    pub fn histogram_log(&self, generation: u32) -> PathBuf {
+        self.join(generation_file(Self::HISTOGRAM_LOG, generation))
+    }
+
+    pub fn events(&self) -> PathBuf {
+        self.join(Self::EVENTS)
+    }
+
+    pub fn processes(&self) -> PathBuf {
+        self.join(Self::PROCESSES)
+    }
+
+    pub fn requests(&self) -> PathBuf {
+        self.join(Self::REQUESTS)
+    }
+
+    pub fn metrics(&self) -> PathBuf {
+        self.join(Self::METRICS)
+    }
+
+    pub fn bench(&self) -> PathBuf {
+        self.join(Self::BENCH)
+    }
+
+    pub fn report(&self) -> PathBuf {
+        self.join(Self::REPORT)
+    }
+
+    pub fn csv(&self) -> PathBuf {
+        self.join(Self::CSV)
+    }
+
+    /// The stderr file of a process: `role.stderr` for the first instance,
+    /// `role.gN.stderr` for the one of generation N.
+    pub fn stderr(&self, role: &str, generation: u32) -> PathBuf {
+        self.join(stderr_name(role, generation))
+    }
+
+    /// The logger's summary, typed; the error names the file.
+    pub fn read_summary(&self) -> Result<RunSummary, FileError> {
+        read_json(&self.summary())
+    }
+
+    /// The plant's own figures, typed; the error names the file.
+    pub fn read_plant_latency(&self) -> Result<PlantLatency, FileError> {
+        read_json(&self.plant_latency())
+    }
+}
+
+impl AsRef<Path> for RunDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+/// `samples.mcap` for the first logger, `samples.g2.mcap` for generation 2.
+pub fn generation_file(name: &str, generation: u32) -> String {
+    match (generation, name.rsplit_once('.')) {
+        (0, _) | (_, None) => name.to_string(),
+        (g, Some((stem, ext))) => format!("{stem}.g{g}.{ext}"),
+    }
+}
+
+/// The sample file and the histogram log of the logger of `generation`.
+pub fn logger_files(generation: u32) -> [String; 2] {
+    [
+        generation_file(RunDir::SAMPLES, generation),
+        generation_file(RunDir::HISTOGRAM_LOG, generation),
+    ]
+}
+
+/// Whether `name` is a sample file of any logger generation.
+pub fn is_sample_file(name: &str) -> bool {
+    name.starts_with("samples") && name.ends_with(".mcap")
+}
+
+/// The stderr file name of a role's instance of `generation`.
+pub fn stderr_name(role: &str, generation: u32) -> String {
+    if generation == 0 {
+        format!("{role}.stderr")
+    } else {
+        format!("{role}.g{generation}.stderr")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generations_after_the_first_get_their_own_files() {
+        let dir = RunDir::new("r");
+        assert_eq!(dir.samples(0), Path::new("r/samples.mcap"));
+        assert_eq!(dir.samples(2), Path::new("r/samples.g2.mcap"));
+        assert_eq!(logger_files(3), ["samples.g3.mcap", "latency.g3.hlog"]);
+        assert!(is_sample_file("samples.g3.mcap") && !is_sample_file("latency.hlog"));
+        assert_eq!(dir.stderr("observer", 0), Path::new("r/observer.stderr"));
+        assert_eq!(dir.stderr("observer", 4), Path::new("r/observer.g4.stderr"));
+    }
+}

@@ -1,0 +1,155 @@
+//! `summary.json`, the logger's account of a run, and `plant_latency.json`,
+//! what the plant measured itself.
+
+use crate::latency::Histogram;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// `summary.json`: written by the logger at its exit, read by every command
+/// that reports on a run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunSummary {
+    /// The scenario's name and the file it was loaded from.
+    pub scenario: String,
+    pub scenario_file: String,
+    /// `realtime` or `lockstep`.
+    pub mode: String,
+    pub rate_hz: f64,
+    pub duration_s: f64,
+    pub period_ns: u64,
+    /// Measurements the logger received.
+    pub ticks: u64,
+    pub last_seq: u64,
+    pub counters: Counters,
+    pub samples: PerChannel,
+    /// Samples the file lacks per channel: never received, or no room in
+    /// the logger's writer queue.
+    pub gaps: PerChannel,
+    pub logger_cpu_ns: u64,
+    /// Every latency metric by its name (`flexloop_runtime::latency::Metric::name`).
+    pub latency: BTreeMap<String, Histogram>,
+    pub recording: Recording,
+}
+
+impl RunSummary {
+    /// The histogram of the metric named `name` (empty if the run has none).
+    pub fn latency(&self, name: &str) -> Histogram {
+        self.latency.get(name).copied().unwrap_or_default()
+    }
+}
+
+/// The loop's counters, as the plant's last measurement and the logger saw them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counters {
+    pub misses: u64,
+    pub late_commands: u64,
+    pub stalled_ticks: u64,
+    pub stall_misses: u64,
+    pub stale_estimates: u64,
+    pub fallback_ticks: u64,
+    pub rejected_commands: u64,
+}
+
+/// One count per message channel.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PerChannel {
+    pub measurement: u64,
+    pub estimate: u64,
+    pub command: u64,
+}
+
+impl PerChannel {
+    pub fn total(&self) -> u64 {
+        self.measurement + self.estimate + self.command
+    }
+
+    /// The counts in channel order (measurement, estimate, command).
+    pub fn iter_mut(&mut self) -> impl Iterator<Item = &mut u64> {
+        [&mut self.measurement, &mut self.estimate, &mut self.command].into_iter()
+    }
+}
+
+/// How the sample file was written.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Recording {
+    #[serde(flatten)]
+    pub sample_file: SampleFileState,
+    /// The sample file's name in the run directory.
+    pub file: String,
+    pub latency_log_complete: bool,
+    /// Messages and events the logger had no room for in its writer queue.
+    pub dropped_in_logger: DroppedInLogger,
+}
+
+/// The sample file's writer's own account (`flexloop_components::SampleWriter`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SampleFileState {
+    pub format: String,
+    pub compression: String,
+    /// `complete`, `stopped` (a write failed) or `recording`.
+    pub state: String,
+    pub messages: u64,
+    pub stored_messages: u64,
+    pub dropped_messages: u64,
+    pub bytes: u64,
+    /// Why writing stopped, if it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// How the file was closed after writing stopped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub closed: Option<ClosedFile>,
+}
+
+impl SampleFileState {
+    pub fn stopped(&self) -> bool {
+        self.state == "stopped"
+    }
+}
+
+/// A sample file closed at its last complete chunk, or why it could not be.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ClosedFile {
+    Closed {
+        bytes: u64,
+        cut_bytes: u64,
+        chunks: u64,
+        messages: u64,
+        indexed: bool,
+    },
+    Failed {
+        error: String,
+    },
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DroppedInLogger {
+    pub measurement: u64,
+    pub estimate: u64,
+    pub command: u64,
+    pub events: u64,
+}
+
+/// `plant_latency.json`: the plant's own counters and latencies, written at
+/// its exit (the same metric names as [`RunSummary::latency`]).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PlantLatency {
+    pub ticks: u64,
+    pub counters: PlantCounters,
+    pub latency: BTreeMap<String, Histogram>,
+}
+
+impl PlantLatency {
+    /// The histogram of the metric named `name` (empty if the plant has none).
+    pub fn latency(&self, name: &str) -> Histogram {
+        self.latency.get(name).copied().unwrap_or_default()
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PlantCounters {
+    pub misses: u64,
+    pub late_commands: u64,
+    pub stalled_ticks: u64,
+    pub stall_misses: u64,
+}

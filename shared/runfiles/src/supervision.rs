@@ -1,0 +1,98 @@
+//! What the supervisor writes while the loop runs: `events.jsonl`,
+//! `processes.json`, and the swap requests and answers under `requests/`.
+
+use serde::{Deserialize, Serialize};
+
+/// One line of `events.jsonl`: a swap, crash, restart, spare, ...
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SupervisorEvent {
+    /// Seconds since the supervisor started the loop.
+    pub t_s: f64,
+    pub kind: String,
+    pub role: String,
+    /// The instance's generation; none for a spare that has served none.
+    pub generation: Option<u32>,
+    /// The loop's newest sample when it happened, if it had ticked.
+    pub seq: Option<u64>,
+    /// Free-form facts of the event (a switch, an exit code, an error).
+    #[serde(default)]
+    pub detail: serde_json::Value,
+}
+
+/// `processes.json`: the loop's live processes and their duties.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Processes {
+    pub processes: Vec<ProcessEntry>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProcessEntry {
+    pub role: String,
+    pub pid: i32,
+    /// `active`, `standby` or `spare`.
+    pub duty: String,
+    pub generation: Option<u32>,
+    pub scenario: String,
+}
+
+/// What one swap or restart did, as the events, `bench.json` and the swap
+/// answer record it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SwitchRecord {
+    pub role: String,
+    pub generation: u32,
+    /// The loop's sample when the replacement was started.
+    pub start_seq: u64,
+    /// The first sample the new instance's command acts on.
+    pub from_seq: u64,
+    /// |u(from) − u(from−1)|, the largest over the inputs (NaN: unknown).
+    #[serde(deserialize_with = "crate::json::f64_or_nan")]
+    pub du_switch: f64,
+    /// The largest ordinary |u(k) − u(k−1)| before and after the switch.
+    #[serde(deserialize_with = "crate::json::f64_or_nan")]
+    pub du_before: f64,
+    #[serde(deserialize_with = "crate::json::f64_or_nan")]
+    pub du_after: f64,
+    /// Served by a warm spare (no process started or stopped).
+    pub warm: bool,
+}
+
+/// A `flexloop swap` request (`requests/*.request`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SwapRequest {
+    pub role: String,
+    pub scenario: String,
+}
+
+/// The supervisor's answer to a [`SwapRequest`] (`requests/*.answer`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SwapAnswer {
+    pub ok: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub switch: Option<SwitchRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unknown_step_reads_back_as_nan() {
+        let record = SwitchRecord {
+            role: "controller".into(),
+            generation: 1,
+            start_seq: 10,
+            from_seq: 20,
+            du_switch: f64::NAN,
+            du_before: 0.5,
+            du_after: 0.25,
+            warm: false,
+        };
+        let text = serde_json::to_string(&record).unwrap();
+        assert!(text.contains("\"du_switch\":null"), "{text}");
+        let back: SwitchRecord = serde_json::from_str(&text).unwrap();
+        assert!(back.du_switch.is_nan() && back.du_before == 0.5);
+    }
+}
