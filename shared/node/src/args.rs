@@ -2,6 +2,7 @@
 
 use crate::NodeError;
 use crate::overrides::OverrideFlags;
+use flexloop_protocol::Joining;
 use flexloop_runtime::realtime::RealtimeSettings;
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
 use std::ffi::OsString;
@@ -38,26 +39,18 @@ pub struct ServiceArgs {
     pub overrides: Overrides,
     /// Generation of this instance (the plant accepts commands of this one).
     pub generation: u32,
-    /// Join a running loop as a replacement (swap or restart): no start-up
-    /// handshake, shadow until the activation hands it its samples.
-    pub join: bool,
-    /// A controller that follows the active one in shadow and publishes its
-    /// commands for the plant's safe action (scenario `safe_action = "standby"`).
-    pub standby: bool,
-    /// Replaces an instance that crashed (implies `join`): its last state
-    /// comes from the supervisor, which replays the measurements since to
-    /// an observer.
-    pub restart: bool,
-    /// Start as a warm spare: open every port, then wait for the
-    /// supervisor's order (`--scenario` gives only the run's real-time
-    /// set-up until then).
-    pub spare: bool,
+    /// How it enters the loop (`--join`, `--restart`, `--standby`,
+    /// `--spare`; none: at start-up). A spare's `--scenario` gives only the
+    /// run's real-time set-up until the supervisor's order names one.
+    pub joining: Joining,
 }
 
 /// The command line as clap reads it; [`ServiceArgs::parse`] checks the
-/// flags only some roles take.
+/// flags only some roles take. The join flags are one way of joining each
+/// (a group of which at most one is given).
 #[derive(Debug, clap::Parser)]
 #[command(no_binary_name = true, disable_help_flag = true)]
+#[command(group(clap::ArgGroup::new("joining").multiple(false)))]
 struct Flags {
     #[arg(long, value_name = "FILE")]
     scenario: PathBuf,
@@ -69,14 +62,30 @@ struct Flags {
     overrides: OverrideFlags,
     #[arg(long, value_name = "N", default_value_t = 0)]
     generation: u32,
-    #[arg(long)]
+    #[arg(long, group = "joining")]
     join: bool,
-    #[arg(long)]
+    #[arg(long, group = "joining")]
     standby: bool,
-    #[arg(long)]
+    #[arg(long, group = "joining")]
     restart: bool,
-    #[arg(long)]
+    #[arg(long, group = "joining")]
     spare: bool,
+}
+
+impl Flags {
+    fn joining(&self) -> Joining {
+        if self.join {
+            Joining::Replacement
+        } else if self.standby {
+            Joining::Standby
+        } else if self.restart {
+            Joining::Restart
+        } else if self.spare {
+            Joining::Spare
+        } else {
+            Joining::AtStart
+        }
+    }
 }
 
 impl ServiceArgs {
@@ -103,6 +112,7 @@ impl ServiceArgs {
             "--spare",
             "controller or observer",
         )?;
+        let joining = flags.joining();
         Ok(Self {
             role,
             scenario: flags.scenario,
@@ -110,10 +120,7 @@ impl ServiceArgs {
             run_dir: flags.run_dir,
             overrides: flags.overrides.into(),
             generation: flags.generation,
-            join: flags.join || flags.standby || flags.restart || flags.spare,
-            standby: flags.standby,
-            restart: flags.restart,
-            spare: flags.spare,
+            joining,
         })
     }
 
@@ -121,7 +128,7 @@ impl ServiceArgs {
     /// real-time set-up) and, unless it is a spare, which designs only once
     /// it is ordered to serve, the design.
     pub fn load_at_start(&self) -> Result<(Scenario, Option<LoopDesign>), NodeError> {
-        if self.spare {
+        if self.joining == Joining::Spare {
             Ok((Scenario::load(&self.scenario, &self.overrides)?, None))
         } else {
             let (scenario, design) = self.load()?;
@@ -204,40 +211,30 @@ mod tests {
         assert!(a.overrides.no_realtime);
     }
 
-    #[test]
-    fn only_a_controller_stands_by() {
-        let e = ServiceArgs::parse(
-            Role::Observer,
-            os(&[
-                "--scenario",
-                "s",
-                "--prefix",
-                "p",
-                "--run-dir",
-                "r",
-                "--standby",
-            ]),
-        )
-        .unwrap_err();
-        assert!(e.to_string().contains("--standby"), "{e}");
+    /// The required arguments and `flags`, parsed for `role`.
+    fn with_flags(role: Role, flags: &[&str]) -> Result<ServiceArgs, NodeError> {
+        let mut v = os(&["--scenario", "s", "--prefix", "p", "--run-dir", "r"]);
+        v.extend(os(flags));
+        ServiceArgs::parse(role, v)
     }
 
     #[test]
-    fn a_restart_joins_the_running_loop() {
-        let a = ServiceArgs::parse(
-            Role::Observer,
-            os(&[
-                "--scenario",
-                "s",
-                "--prefix",
-                "p",
-                "--run-dir",
-                "r",
-                "--restart",
-            ]),
-        )
-        .unwrap();
-        assert!(a.restart && a.join && !a.standby);
+    fn each_flag_names_one_way_of_joining() {
+        let joining = |role, flags: &[&str]| with_flags(role, flags).unwrap().joining;
+        assert_eq!(joining(Role::Observer, &[]), Joining::AtStart);
+        assert_eq!(joining(Role::Observer, &["--join"]), Joining::Replacement);
+        assert_eq!(joining(Role::Observer, &["--restart"]), Joining::Restart);
+        assert_eq!(joining(Role::Controller, &["--standby"]), Joining::Standby);
+        assert_eq!(joining(Role::Observer, &["--spare"]), Joining::Spare);
+        // Only a controller stands by; the plant and the logger are no spares.
+        assert!(with_flags(Role::Observer, &["--standby"]).is_err());
+        assert!(with_flags(Role::Plant, &["--spare"]).is_err());
+    }
+
+    #[test]
+    fn two_ways_of_joining_are_a_usage_error() {
+        let e = with_flags(Role::Controller, &["--restart", "--standby"]).unwrap_err();
+        assert!(e.to_string().contains("cannot be used with"), "{e}");
     }
 
     #[test]

@@ -1,20 +1,20 @@
-//! The controller process: wakes on y(k), publishes u(k).
+//! The controller process: wakes on y(k), publishes u(k). What is its own
+//! in the life every loop component shares ([`crate::instance`]).
 
-use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
-use crate::handover::{
-    ActivationView, HandoverRing, publish_state, raise_priority, shadow_scheduling,
-};
-use crate::spare::{Served, SpareDuty, leave_the_loop, serve_orders};
-use crate::startup::StartupClock;
+use crate::args::{Role, ServiceArgs};
+use crate::duty::Duty;
+use crate::handover::{ActivationView, HandoverRing};
+use crate::instance::{Component, Instance, Ports};
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
-use flexloop_protocol::handover::{ACTIVE, FOLLOWING};
-use flexloop_protocol::{Activation, Command, Estimate, Handover, MAX_INPUTS, Measurement, flags};
-use flexloop_runtime::wait::{WaitMode, wait_for_input, wait_readable};
-use flexloop_runtime::{monotonic_ns, realtime, shutdown};
-use flexloop_scenario::{LoopDesign, Mode, Scenario};
-use flexloop_transport::{Domain, Inlet, LoopNode, Outlet};
+use flexloop_protocol::{
+    Activation, Channel, Command, Estimate, Handover, Joining, MAX_INPUTS, Measurement, flags,
+};
+use flexloop_runtime::wait::{wait_for_input, wait_readable};
+use flexloop_runtime::{monotonic_ns, shutdown};
+use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_transport::{Inlet, LoopNode, Outlet};
 
 /// In lockstep, how long a new instance waits for its predecessor's last
 /// state: the loop waits too, and on a loaded machine 100 ms was sometimes
@@ -24,72 +24,52 @@ const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 2_000_000_000;
 /// In lockstep, how long to wait for the observer before giving up.
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
-pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
-    let clock = StartupClock::start();
-    let (scenario, design) = args.load_at_start()?;
-    // Locked before the ports exist, so their memory is populated now (see plant).
-    let rt = realtime_settings(&scenario, Role::Controller);
-    let _memory = realtime::apply(Role::Controller.name(), &rt.memory_part());
-    let domain = Domain::new(&args.prefix)?;
-    let node = domain.node("controller")?;
-    let mut ring = EstimateRing::new();
-    let Some(mut ports) = Ports::open(&node, args, &scenario, &mut ring)? else {
-        return Ok(());
-    };
-    serve_orders(
-        args,
-        design.map(|d| (scenario.clone(), d)),
-        clock,
-        &mut ports,
-        |p| {
-            let Ports {
-                spare,
-                measurements,
-                ..
-            } = p;
-            spare.as_mut().map(|d| (d, &*measurements))
-        },
-        |args, scenario, design, ports, clock| {
-            serve(args, scenario, design, ports, &mut ring, clock)
-        },
-    )
+/// A controller instance's own: its core and how it takes over.
+pub(crate) struct Controller {
+    core: ControllerCore,
+    n_inputs: usize,
+    takeover: Takeover,
+    backlog: Backlog,
+    shadow_command: Command,
+    stale_estimates: u64,
 }
 
-/// Every port a controller uses, open for the process's life.
-struct Ports {
-    measurements: Inlet<Measurement>,
+/// The controller's own ports.
+pub(crate) struct Own {
     estimates: Inlet<Estimate>,
-    activation: ActivationView,
-    states_in: Inlet<Handover>,
-    states_out: Outlet<Handover>,
     commands: Outlet<Command>,
-    /// With warm spares: orders and idle reports.
-    spare: Option<SpareDuty>,
+    /// Estimates by sequence number, kept across services.
+    ring: EstimateRing,
 }
 
-impl Ports {
-    /// Opens and connects every port; the first instance also waits for the
-    /// observer's first estimate (into `ring`). `None`: a shutdown came first.
-    fn open(
+impl Component for Controller {
+    const ROLE: Role = Role::Controller;
+    const STATE: &'static Channel = &CONTROLLER_STATE;
+    type Own = Own;
+
+    fn open_measurements(
+        node: &LoopNode,
+        _args: &ServiceArgs,
+        _scenario: &Scenario,
+    ) -> Result<Inlet<Measurement>, NodeError> {
+        Ok(Inlet::<Measurement>::open(
+            node,
+            &MEASUREMENT,
+            FOLLOW_DEPTH,
+        )?)
+    }
+
+    /// The first instance also waits for the observer's first estimate
+    /// (into the ring).
+    fn open_own(
         node: &LoopNode,
         args: &ServiceArgs,
-        scenario: &Scenario,
-        ring: &mut EstimateRing,
-    ) -> Result<Option<Self>, NodeError> {
-        let measurements = Inlet::<Measurement>::open(node, &MEASUREMENT, FOLLOW_DEPTH)?;
+        _scenario: &Scenario,
+        measurements: &Inlet<Measurement>,
+        activation: &mut ActivationView,
+    ) -> Result<Option<Own>, NodeError> {
         let estimates = Inlet::<Estimate>::open(node, &ESTIMATE, FOLLOW_DEPTH)?;
-        let mut activation = ActivationView::open(node)?;
-        let states_in = Inlet::<Handover>::open_polling(
-            node,
-            &CONTROLLER_STATE,
-            CONTROLLER_STATE.qos.loop_buffer_size,
-        )?;
-        let states_out = Outlet::<Handover>::open(node, &CONTROLLER_STATE)?;
-        let spare = if scenario.supervision.warm_spares {
-            Some(SpareDuty::open(node)?)
-        } else {
-            None
-        };
+        let mut ring = EstimateRing::new();
         if !await_peers(
             || {
                 if estimates.publishers() >= 1 && measurements.publishers() >= 1 {
@@ -97,7 +77,7 @@ impl Ports {
                 }
                 // A replacement joins a running loop: the estimates it needs
                 // come with the next sample.
-                Ok(ring.any() || (args.join && estimates.publishers() >= 1))
+                Ok(ring.any() || (args.joining.is_late() && estimates.publishers() >= 1))
             },
             || {
                 format!(
@@ -117,157 +97,103 @@ impl Ports {
         // from it; the plant counts a spare's port apart).
         let commands = Outlet::<Command>::open(node, &COMMAND)?;
         commands.connect()?;
-        states_in.connect()?;
-        activation.connect()?;
-        if let Some(duty) = &spare {
-            duty.connect()?;
-        }
-        Ok(Some(Self {
-            measurements,
+        Ok(Some(Own {
             estimates,
+            commands,
+            ring,
+        }))
+    }
+
+    fn design(
+        design: &LoopDesign,
+        scenario: &Scenario,
+        generation: u32,
+    ) -> Result<Self, NodeError> {
+        let mut core = ControllerCore::new(design, generation);
+        core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
+        Ok(Self {
+            core,
+            n_inputs: design.n_inputs,
+            takeover: Takeover::default(),
+            backlog: Backlog::default(),
+            shadow_command: Command::default(),
+            stale_estimates: 0,
+        })
+    }
+
+    fn owner(activation: &Activation, seq: u64) -> u32 {
+        activation.controller_for(seq)
+    }
+
+    fn named(activation: &Activation) -> u32 {
+        activation.controller_generation
+    }
+
+    fn drop_stale(own: &mut Own) -> Result<(), NodeError> {
+        own.estimates.clear_events()?;
+        while own.estimates.receive()?.is_some() {}
+        own.ring = EstimateRing::new();
+        Ok(())
+    }
+
+    fn catch_up(
+        &mut self,
+        instance: &mut Instance,
+        ports: &mut Ports<Own>,
+    ) -> Result<bool, NodeError> {
+        let generation = instance.generation();
+        catch_up_with_loop(
+            &mut self.core,
+            &ports.measurements,
+            &ports.states_in,
+            &mut instance.handovers,
+            generation,
+        )
+    }
+
+    fn on_wakeup(
+        &mut self,
+        instance: &mut Instance,
+        ports: &mut Ports<Own>,
+    ) -> Result<(), NodeError> {
+        let Ports {
+            measurements,
             activation,
             states_in,
             states_out,
-            commands,
             spare,
-        }))
-    }
-}
-
-/// What queued up while this process was idle, or before it joined,
-/// belongs to nobody now.
-fn drop_stale_inputs(
-    measurements: &Inlet<Measurement>,
-    estimates: &Inlet<Estimate>,
-    states_in: &Inlet<Handover>,
-    ring: &mut EstimateRing,
-) -> Result<(), NodeError> {
-    measurements.clear_events()?;
-    while measurements.receive()?.is_some() {}
-    estimates.clear_events()?;
-    while estimates.receive()?.is_some() {}
-    while states_in.receive()?.is_some() {}
-    *ring = EstimateRing::new();
-    Ok(())
-}
-
-/// Serves the loop as `args.generation` with `design` until replaced or
-/// the run ends.
-fn serve(
-    args: &ServiceArgs,
-    scenario: &Scenario,
-    design: &LoopDesign,
-    ports: &mut Ports,
-    ring: &mut EstimateRing,
-    clock: &StartupClock,
-) -> Result<Served, NodeError> {
-    let Ports {
-        measurements,
-        estimates,
-        activation,
-        states_in,
-        states_out,
-        commands,
-        spare,
-    } = ports;
-    let serve_start_ns = monotonic_ns();
-    let mut core = ControllerCore::new(design, args.generation);
-    core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
-    let rt = realtime_settings(scenario, Role::Controller);
-    let mut handovers = HandoverRing::default();
-    if args.join {
-        drop_stale_inputs(measurements, estimates, states_in, ring)?;
-        if !catch_up_with_loop(
-            &mut core,
-            measurements,
-            states_in,
-            &mut handovers,
-            args.generation,
-        )? {
-            return Ok(Served::Ended);
-        }
-    }
-    // Priority and CPU only now, every port open and connected: creating a
-    // port initialises its shared memory, milliseconds of kernel work that
-    // must not run at real-time priority on the loop's CPU (measured: each
-    // controller swap stalled the plant 1–25 ms). See
-    // `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Controller.name(), &shadow_scheduling(&rt, args));
-    let mut priority_raised = !args.join;
-    // A shadow or standby follows on a shared CPU: it waits on events until
-    // it is named for the loop's CPU (and, under dedicated-cores, spins there).
-    let mut waits = if priority_raised {
-        wait_mode(scenario)
-    } else {
-        WaitMode::Events
-    };
-    let lockstep = scenario.timing.mode == Mode::Lockstep;
-    let period_ns = scenario.period_ns();
-    // In realtime, wait for a late estimate at most half a period after the
-    // tick: the wake-up after a timed wait can itself be tens of µs late, and
-    // an estimate one tick old (counted) costs less than a missed command.
-    let estimate_wait_ns = period_ns / 2;
-
-    if args.join {
-        clock.report_joined(args.role);
-    }
-    let mut backlog = Backlog::default();
-    let mut takeover = Takeover::default();
-    let mut shadow_command = Command::default();
-    let mut stale_estimates = 0u64;
-    let mut skipped = 0u64;
-    let mut next_seq: Option<u64> = None;
-    let mut ended = Served::Ended;
-    let mut done = false;
-    while !done && !shutdown::requested() {
-        wait_for_input(waits, &[measurements.fd()], 100_000_000, || {
-            measurements.has_samples().unwrap_or(true)
-        })
-        .map_err(|e| NodeError::Peer(e.to_string()))?;
-        measurements.clear_events()?;
+            own:
+                Own {
+                    estimates,
+                    commands,
+                    ring,
+                },
+        } = ports;
         // The active instance acts on the newest measurement only (an older
         // one is already late); a shadow steps through all of them in order,
         // so that a different design's filters see every sample.
-        backlog.clear();
+        self.backlog.clear();
         while let Some(m) = measurements.receive()? {
-            backlog.push(&m);
+            self.backlog.push(&m);
         }
-        let Some(m) = backlog.newest() else { continue };
+        let Some(m) = self.backlog.newest() else {
+            return Ok(());
+        };
         let received_ns = monotonic_ns();
-        let owner = activation.refresh()?.controller_for(m.seq);
-        let active = owner == args.generation;
-        // Measurements never seen (a shadow steps through the older ones of
-        // a wake-up; the active instance answers the newest only).
-        if let Some(next) = next_seq {
-            let first = match backlog.older().first() {
-                Some(oldest) if !active => oldest.seq,
-                _ => m.seq,
-            };
-            skipped += first.saturating_sub(next);
-        }
-        next_seq = Some(m.seq + 1);
-        // Named for a coming boundary and caught up (nothing left over from
-        // following at low priority), or at the latest at its first sample:
-        // the loop's priority from now on.
-        let named = activation.current().controller_generation == args.generation;
-        if !priority_raised && ((named && backlog.older().is_empty()) || active) {
-            raise_priority(&rt);
-            priority_raised = true;
-            waits = wait_mode(scenario);
-        }
-        if !active && takeover.was_active {
+        let older = self.backlog.older();
+        let step = instance.on_sample::<Self>(
+            activation,
+            spare.as_ref(),
+            m.seq,
+            older.first().map_or(m.seq, |oldest| oldest.seq),
+            // Named for a coming boundary and caught up (nothing left over
+            // from following at low priority).
+            older.is_empty(),
+        )?;
+        let active = step.duty == Duty::Active;
+        if step.duty == Duty::Retiring {
             // Replaced at a sample boundary: the new instance owns this one.
-            ended = Served::Replaced;
-            break;
-        }
-        // A standby of a design no longer active is retired to a spare.
-        if args.standby
-            && !active
-            && let Some(duty) = spare.as_ref()
-            && duty.retire_requested(serve_start_ns)?
-        {
-            ended = Served::Replaced;
-            break;
+            return Ok(());
         }
 
         ring.take(estimates, activation.current())?;
@@ -276,158 +202,224 @@ fn serve(
         // and a sample stepped with the estimate before its own (the
         // observer not yet done) leaves them off, and the switch with them
         // (a step 3 times the ordinary ones, now and then, in lockstep).
-        if (active || args.standby || !takeover.copied) && ring.find(m.seq).is_none() {
-            let deadline = if lockstep {
-                received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
-            } else {
-                m.tick_ns + estimate_wait_ns
-            };
-            loop {
-                let now = monotonic_ns();
-                if now >= deadline {
-                    stale_estimates += 1;
-                    break;
-                }
-                wait_for_input(waits, &[estimates.fd()], deadline - now, || {
-                    estimates.has_samples().unwrap_or(true)
-                })
-                .map_err(|e| NodeError::Peer(e.to_string()))?;
-                // Refreshed: a restarted observer's estimates count from
-                // a boundary announced while this sample waits for them.
-                ring.take(estimates, activation.refresh()?)?;
-                if ring.find(m.seq).is_some() {
-                    break;
-                }
-                if shutdown::requested() {
-                    return Ok(Served::Ended);
-                }
-            }
-            if lockstep && ring.find(m.seq).is_none() && !args.join {
-                return Err(NodeError::Peer(format!(
-                    "lockstep: no estimate for tick {} from the observer",
-                    m.seq
-                )));
-            }
+        if (active || step.duty == Duty::Standby || !self.takeover.copied)
+            && ring.find(m.seq).is_none()
+            && !self.await_estimate(instance, estimates, activation, ring, &m, received_ns)?
+        {
+            return Ok(());
         }
         let estimate = ring.find(m.seq).or_else(|| ring.newest_before(m.seq));
         let Some(estimate) = estimate else {
             // No estimate at all yet (observer not started): skip this tick.
-            continue;
+            return Ok(());
         };
 
-        handovers.take(states_in, args.generation)?;
+        instance.take_handovers(states_in)?;
+        let generation = instance.generation();
         // A design that copies the active state before each sample needs
         // only the newest; another one steps through every sample it missed.
-        if !takeover.was_active && !takeover.copied {
-            for older in backlog.older() {
-                if activation.current().controller_for(older.seq) == args.generation {
+        if step.was != Duty::Active && !self.takeover.copied {
+            for older in self.backlog.older() {
+                if activation.current().controller_for(older.seq) == generation {
                     continue;
                 }
                 if let Some(e) = ring
                     .find(older.seq)
                     .or_else(|| ring.newest_before(older.seq))
                 {
-                    takeover.follow(&mut core, &handovers, older.seq, false);
-                    core.step(older, e, &mut shadow_command);
-                    takeover.shadow_u = shadow_command.u;
-                    takeover.shadow_seq = older.seq;
+                    self.takeover
+                        .follow(&mut self.core, &instance.handovers, older.seq, false);
+                    self.core.step(older, e, &mut self.shadow_command);
+                    self.takeover.shadow_u = self.shadow_command.u;
+                    self.takeover.shadow_seq = older.seq;
                 }
             }
         }
         if !active {
-            // Shadow: follow the active instance, compute, publish nothing.
-            takeover.follow(&mut core, &handovers, m.seq, true);
-            core.step(&m, estimate, &mut shadow_command);
-            takeover.shadow_u = shadow_command.u;
-            takeover.shadow_seq = m.seq;
-            if args.standby {
-                commands.publish(|c| {
-                    *c = shadow_command;
-                    c.flags |= flags::STANDBY;
-                    c.received_ns = received_ns;
-                    c.published_ns = monotonic_ns();
-                })?;
-            }
-            // Following only once a handed-over state is there (as the
-            // observer: after a crash the supervisor hands the dead one's on
-            // until it sees this instance follow).
-            if handovers.newest().is_some() {
-                publish_state(
-                    states_out,
-                    m.seq,
-                    args.generation,
-                    FOLLOWING,
-                    &shadow_command.u[..design.n_inputs],
-                    |h| core.save(h),
-                )?;
-            }
+            self.follow(
+                instance,
+                step.duty,
+                commands,
+                states_out,
+                &m,
+                estimate,
+                received_ns,
+            )?;
             // A shadow ends with the run like everyone else.
-            done = m.flags & flags::END_OF_RUN != 0;
-            continue;
+            instance.served(m.flags);
+            return Ok(());
         }
-        if !takeover.was_active {
-            // The old instance publishes its last state just after its last
-            // command, and the plant may already have moved on: wait for it
-            // briefly (it carries what a retuned design must continue).
-            let deadline = if lockstep {
-                monotonic_ns() + HANDOVER_WAIT_LOCKSTEP_NS
-            } else {
-                m.tick_ns + period_ns / 4
-            };
-            // (A restart's predecessor is dead: nothing more will come.)
-            while !args.restart
-                && m.seq > 0
-                && handovers.find(m.seq - 1).is_none()
-                && monotonic_ns() < deadline
-            {
-                std::thread::sleep(std::time::Duration::from_micros(20));
-                handovers.take(states_in, args.generation)?;
-            }
-            if !args.restart && m.seq > 0 && handovers.find(m.seq - 1).is_none() {
-                // Once, at the switch: a retuned design cannot continue the
-                // old command without it (the supervisor measures the step).
-                eprintln!(
-                    "flexloop-controller: generation {} active from sample {} without its predecessor's state after sample {}",
-                    args.generation,
-                    m.seq,
-                    m.seq - 1
-                );
-            }
-            takeover.activate(&mut core, &handovers, m.seq, design.n_inputs);
-            // A restart owns samples at once, before it ever followed: it
-            // starts from the newest state its predecessor left.
-            if !takeover.copied {
-                takeover.follow(&mut core, &handovers, m.seq, true);
-            }
+        if step.takes_over() {
+            self.take_over(instance, states_in, &m)?;
         }
         let mut sent_u = [0.0; MAX_INPUTS];
+        let core = &mut self.core;
         commands.publish(|c| {
             core.step(&m, estimate, c);
             c.received_ns = received_ns;
             c.published_ns = monotonic_ns();
             sent_u = c.u;
         })?;
-        if lockstep {
+        if instance.lockstep {
             commands.notify()?;
         }
-        publish_state(
-            states_out,
-            m.seq,
-            args.generation,
-            ACTIVE,
-            &sent_u[..design.n_inputs],
-            |h| core.save(h),
-        )?;
-        done = m.flags & flags::END_OF_RUN != 0;
+        let core = &self.core;
+        instance.publish_state(states_out, m.seq, &sent_u[..self.n_inputs], |h| {
+            core.save(h)
+        })?;
+        instance.served(m.flags);
+        Ok(())
     }
-    leave_the_loop(rt.cpu, ended, spare.is_some());
-    if stale_estimates + skipped > 0 {
-        eprintln!(
-            "flexloop-controller: generation {}: {stale_estimates} stale estimates, {skipped} measurements skipped",
-            args.generation
-        );
+
+    fn report(&self, instance: &Instance) {
+        let skipped = instance.skipped();
+        if self.stale_estimates + skipped > 0 {
+            eprintln!(
+                "flexloop-controller: generation {}: {} stale estimates, {skipped} measurements skipped",
+                instance.generation(),
+                self.stale_estimates
+            );
+        }
     }
-    Ok(ended)
+}
+
+impl Controller {
+    /// Waits for the estimate of sample `m` (received at `received_ns`):
+    /// in lockstep as long as the observer may take, in realtime at most
+    /// half a period after the tick (the wake-up after a timed wait can
+    /// itself be tens of µs late, and an estimate one tick old, counted
+    /// stale, costs less than a missed command). False: a shutdown came.
+    fn await_estimate(
+        &mut self,
+        instance: &Instance,
+        estimates: &Inlet<Estimate>,
+        activation: &mut ActivationView,
+        ring: &mut EstimateRing,
+        m: &Measurement,
+        received_ns: u64,
+    ) -> Result<bool, NodeError> {
+        let deadline = if instance.lockstep {
+            received_ns + LOCKSTEP_ESTIMATE_WAIT_NS
+        } else {
+            m.tick_ns + instance.period_ns / 2
+        };
+        loop {
+            let now = monotonic_ns();
+            if now >= deadline {
+                self.stale_estimates += 1;
+                break;
+            }
+            wait_for_input(instance.waits(), &[estimates.fd()], deadline - now, || {
+                estimates.has_samples().unwrap_or(true)
+            })
+            .map_err(|e| NodeError::Peer(e.to_string()))?;
+            // Refreshed: a restarted observer's estimates count from a
+            // boundary announced while this sample waits for them.
+            ring.take(estimates, activation.refresh()?)?;
+            if ring.find(m.seq).is_some() {
+                break;
+            }
+            if shutdown::requested() {
+                return Ok(false);
+            }
+        }
+        if instance.lockstep && ring.find(m.seq).is_none() && !instance.joining.is_late() {
+            return Err(NodeError::Peer(format!(
+                "lockstep: no estimate for tick {} from the observer",
+                m.seq
+            )));
+        }
+        Ok(true)
+    }
+
+    /// Shadow or standby: follows the active instance through sample `m`
+    /// and computes; only a standby publishes its command (for the plant's
+    /// safe action).
+    #[allow(clippy::too_many_arguments)]
+    fn follow(
+        &mut self,
+        instance: &Instance,
+        duty: Duty,
+        commands: &Outlet<Command>,
+        states_out: &Outlet<Handover>,
+        m: &Measurement,
+        estimate: &Estimate,
+        received_ns: u64,
+    ) -> Result<(), NodeError> {
+        self.takeover
+            .follow(&mut self.core, &instance.handovers, m.seq, true);
+        self.core.step(m, estimate, &mut self.shadow_command);
+        self.takeover.shadow_u = self.shadow_command.u;
+        self.takeover.shadow_seq = m.seq;
+        if duty == Duty::Standby {
+            let shadow_command = &self.shadow_command;
+            commands.publish(|c| {
+                *c = *shadow_command;
+                c.flags |= flags::STANDBY;
+                c.received_ns = received_ns;
+                c.published_ns = monotonic_ns();
+            })?;
+        }
+        // Following only once a handed-over state is there (as the
+        // observer: after a crash the supervisor hands the dead one's on
+        // until it sees this instance follow).
+        if instance.handovers.newest().is_some() {
+            let core = &self.core;
+            instance.publish_state(
+                states_out,
+                m.seq,
+                &self.shadow_command.u[..self.n_inputs],
+                |h| core.save(h),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// The first sample this instance owns, `m`.
+    fn take_over(
+        &mut self,
+        instance: &mut Instance,
+        states_in: &Inlet<Handover>,
+        m: &Measurement,
+    ) -> Result<(), NodeError> {
+        // The old instance publishes its last state just after its last
+        // command, and the plant may already have moved on: wait for it
+        // briefly (it carries what a retuned design must continue).
+        let deadline = if instance.lockstep {
+            monotonic_ns() + HANDOVER_WAIT_LOCKSTEP_NS
+        } else {
+            m.tick_ns + instance.period_ns / 4
+        };
+        // (A restart's predecessor is dead: nothing more will come.)
+        let restart = instance.joining == Joining::Restart;
+        while !restart
+            && m.seq > 0
+            && instance.handovers.find(m.seq - 1).is_none()
+            && monotonic_ns() < deadline
+        {
+            std::thread::sleep(std::time::Duration::from_micros(20));
+            instance.take_handovers(states_in)?;
+        }
+        if !restart && m.seq > 0 && instance.handovers.find(m.seq - 1).is_none() {
+            // Once, at the switch: a retuned design cannot continue the
+            // old command without it (the supervisor measures the step).
+            eprintln!(
+                "flexloop-controller: generation {} active from sample {} without its predecessor's state after sample {}",
+                instance.generation(),
+                m.seq,
+                m.seq - 1
+            );
+        }
+        self.takeover
+            .activate(&mut self.core, &instance.handovers, m.seq, self.n_inputs);
+        // A restart owns samples at once, before it ever followed: it
+        // starts from the newest state its predecessor left.
+        if !self.takeover.copied {
+            self.takeover
+                .follow(&mut self.core, &instance.handovers, m.seq, true);
+        }
+        Ok(())
+    }
 }
 
 /// A replacement joining a running loop brings its feedforward block to the
@@ -525,7 +517,6 @@ impl Backlog {
 /// design); at its first active sample it continues the old command.
 #[derive(Default)]
 struct Takeover {
-    was_active: bool,
     /// Whether the state was copied from the active instance.
     copied: bool,
     shadow_u: [f64; MAX_INPUTS],
@@ -567,7 +558,6 @@ impl Takeover {
         seq: u64,
         n_inputs: usize,
     ) {
-        self.was_active = true;
         let Some(last) = seq.checked_sub(1).and_then(|s| handovers.find(s)) else {
             return;
         };

@@ -2,7 +2,7 @@
 //! activation as every process sees it, and the active instance's recent
 //! states as a replacement sees them.
 
-use crate::{NodeError, ServiceArgs};
+use crate::NodeError;
 use flexloop_protocol::channels::ACTIVATION;
 use flexloop_protocol::{Activation, Handover};
 use flexloop_runtime::realtime::{self, RealtimeSettings};
@@ -108,24 +108,6 @@ pub fn publish_state(
         h.u[..u.len()].copy_from_slice(u);
     })?;
     Ok(())
-}
-
-/// A replacement follows in shadow off the loop's CPU and without real-time
-/// priority, so that stepping through its backlog never competes with the
-/// active loop; it moves to the loop's CPU and priority once it is named
-/// for a boundary ([`raise_priority`]).
-///
-/// A standby controller keeps its real-time priority on the other CPU: its
-/// commands are the plant's safe action and must be on time.
-pub fn shadow_scheduling(rt: &RealtimeSettings, args: &ServiceArgs) -> RealtimeSettings {
-    let mut scheduling = rt.scheduling_part();
-    if args.join {
-        if !args.standby {
-            scheduling.fifo_priority = None;
-        }
-        scheduling.avoid_cpu = scheduling.cpu.take();
-    }
-    scheduling
 }
 
 pub fn raise_priority(rt: &RealtimeSettings) {

@@ -5,7 +5,9 @@
 
 pub mod args;
 pub mod controller;
+pub mod duty;
 pub mod handover;
+pub mod instance;
 pub mod logger;
 pub mod observer;
 pub mod overrides;
@@ -36,6 +38,8 @@ pub enum NodeError {
     Peer(String),
     /// A run file (the summary) could not be written.
     RunFile(flexloop_runfiles::FileError),
+    /// A supervisor's order this process cannot serve.
+    Order(String),
 }
 
 impl fmt::Display for NodeError {
@@ -45,7 +49,7 @@ impl fmt::Display for NodeError {
             NodeError::Scenario(e) => e.fmt(f),
             NodeError::Transport(e) => e.fmt(f),
             NodeError::Io { path, error } => write!(f, "{path}: {error}"),
-            NodeError::Peer(m) => f.write_str(m),
+            NodeError::Peer(m) | NodeError::Order(m) => f.write_str(m),
             NodeError::RunFile(e) => e.fmt(f),
         }
     }
@@ -118,8 +122,8 @@ pub fn main_for(role: Role) -> i32 {
     }
     let result = match role {
         Role::Plant => plant::run(&args),
-        Role::Observer => observer::run(&args),
-        Role::Controller => controller::run(&args),
+        Role::Observer => instance::run::<observer::Observer>(&args),
+        Role::Controller => instance::run::<controller::Controller>(&args),
         Role::Logger => logger::run(&args),
     };
     match result {

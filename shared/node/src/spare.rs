@@ -4,14 +4,11 @@
 //! first; an instance replaced at a boundary comes back here instead of
 //! exiting, so that a swap neither creates nor drops a port.
 
-use crate::startup::StartupClock;
 use crate::{NodeError, ServiceArgs};
 use flexloop_protocol::channels::{SPARE_ORDER, SPARE_STATUS};
-use flexloop_protocol::spare::{JOIN_AS_RESTART, JOIN_AS_STANDBY, RETIRE};
-use flexloop_protocol::{Measurement, SpareOrder, SpareStatus};
+use flexloop_protocol::{Joining, Measurement, SpareOrder, SpareStatus};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::{LoopDesign, Scenario};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 use std::path::PathBuf;
 
@@ -77,7 +74,9 @@ impl SpareDuty {
             while let Some(order) = self.orders.receive()? {
                 // Another spare's, one from before this idle spell, or a
                 // retirement this process is already past.
-                if order.pid != self.pid || order.published_ns < since_ns || order.joining == RETIRE
+                if order.pid != self.pid
+                    || order.published_ns < since_ns
+                    || order.join_as() == Ok(Joining::Spare)
                 {
                     continue;
                 }
@@ -91,8 +90,9 @@ impl SpareDuty {
     pub fn retire_requested(&self, since_ns: u64) -> Result<bool, NodeError> {
         let mut retire = false;
         while let Some(order) = self.orders.receive()? {
-            retire |=
-                order.pid == self.pid && order.joining == RETIRE && order.published_ns >= since_ns;
+            retire |= order.pid == self.pid
+                && order.join_as() == Ok(Joining::Spare)
+                && order.published_ns >= since_ns;
         }
         Ok(retire)
     }
@@ -125,67 +125,33 @@ pub fn leave_the_loop(loop_cpu: Option<usize>, ended: Served, stays: bool) {
     }
 }
 
-/// A process's life over its open ports: it serves the loop as started
-/// (a spare waits for an order first) and, with warm spares, idles after
-/// each replacement until the next order. `loaded` is the started
-/// instance's design (a spare has none); `duty` gives the spare duty and
-/// the measurements it watches, if the process has them.
-pub fn serve_orders<P>(
-    args: &ServiceArgs,
-    loaded: Option<(Scenario, LoopDesign)>,
-    clock: StartupClock,
-    ports: &mut P,
-    duty: impl Fn(&mut P) -> Option<(&mut SpareDuty, &Inlet<Measurement>)>,
-    mut serve: impl FnMut(
-        &ServiceArgs,
-        &Scenario,
-        &LoopDesign,
-        &mut P,
-        &StartupClock,
-    ) -> Result<Served, NodeError>,
-) -> Result<(), NodeError> {
-    let mut next = (!args.spare).then(|| (args.clone(), loaded, clock));
-    let mut served = args.generation;
-    loop {
-        let (serve_args, loaded, clock) = match next.take() {
-            Some(order) => order,
-            None => {
-                let Some((duty, measurements)) = duty(ports) else {
-                    return Ok(());
-                };
-                match duty.idle(args, served, measurements)? {
-                    Some(order) => (order, None, StartupClock::start()),
-                    None => return Ok(()),
-                }
-            }
-        };
-        let (scenario, design) = match loaded {
-            Some(loaded) => loaded,
-            None => serve_args.load()?,
-        };
-        served = serve_args.generation;
-        let ended = serve(&serve_args, &scenario, &design, ports, &clock)?;
-        if ended == Served::Ended || duty(ports).is_none() {
-            return Ok(());
-        }
-    }
-}
-
 /// The arguments of the instance an order asks for.
 fn args_for(base: &ServiceArgs, order: &SpareOrder) -> Result<ServiceArgs, NodeError> {
     let scenario = order.scenario().ok_or_else(|| {
-        NodeError::Usage(format!(
+        NodeError::Order(format!(
             "spare order for generation {}: the scenario path is not UTF-8",
             order.generation
         ))
     })?;
+    let joining = match order.join_as() {
+        Ok(joining @ (Joining::Replacement | Joining::Restart | Joining::Standby)) => joining,
+        Ok(other) => {
+            return Err(NodeError::Order(format!(
+                "spare order for generation {}: a spare cannot join as {other:?}",
+                order.generation
+            )));
+        }
+        Err(e) => {
+            return Err(NodeError::Order(format!(
+                "spare order for generation {}: {e}",
+                order.generation
+            )));
+        }
+    };
     Ok(ServiceArgs {
         scenario: PathBuf::from(scenario),
         generation: order.generation,
-        join: true,
-        spare: false,
-        standby: order.joining == JOIN_AS_STANDBY,
-        restart: order.joining == JOIN_AS_RESTART,
+        joining,
         ..base.clone()
     })
 }
@@ -194,7 +160,6 @@ fn args_for(base: &ServiceArgs, order: &SpareOrder) -> Result<ServiceArgs, NodeE
 mod tests {
     use super::*;
     use crate::Role;
-    use flexloop_protocol::spare::JOIN_AS_REPLACEMENT;
 
     fn base() -> ServiceArgs {
         ServiceArgs::parse(
@@ -217,18 +182,40 @@ mod tests {
     fn an_order_becomes_a_joining_instance_of_its_scenario() {
         let mut order = SpareOrder {
             generation: 7,
-            joining: JOIN_AS_RESTART,
+            joining: Joining::Restart.into(),
             ..SpareOrder::default()
         };
         order.set_scenario("/x/retuned.toml").unwrap();
         let a = args_for(&base(), &order).unwrap();
         assert_eq!(a.scenario, PathBuf::from("/x/retuned.toml"));
         assert_eq!(a.generation, 7);
-        assert!(a.join && a.restart && !a.standby && !a.spare);
+        assert_eq!(a.joining, Joining::Restart);
         assert_eq!(a.prefix, "p_");
-        order.joining = JOIN_AS_REPLACEMENT;
-        let a = args_for(&base(), &order).unwrap();
-        assert!(a.join && !a.restart && !a.standby);
+        for joining in [Joining::Replacement, Joining::Standby] {
+            order.joining = joining.into();
+            assert_eq!(args_for(&base(), &order).unwrap().joining, joining);
+        }
+    }
+
+    #[test]
+    fn an_order_to_join_as_no_replacement_is_refused() {
+        let mut order = SpareOrder {
+            generation: 3,
+            ..SpareOrder::default()
+        };
+        order.set_scenario("/x/s.toml").unwrap();
+        for joining in [Joining::AtStart, Joining::Spare] {
+            order.joining = joining.into();
+            let e = args_for(&base(), &order).unwrap_err();
+            assert!(e.to_string().contains("cannot join as"), "{e}");
+        }
+        order.joining = 42;
+        let e = args_for(&base(), &order).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("unknown way of joining the loop: 42"),
+            "{e}"
+        );
     }
 
     #[test]

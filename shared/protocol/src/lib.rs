@@ -6,6 +6,8 @@
 //! - [`channels`]: every service name and every QoS setting, in one place, so
 //!   that all processes open the services with identical settings.
 //! - [`handover`]: component state and activation for swaps and restarts.
+//! - [`joining`]: how a process enters the loop (start, swap, restart,
+//!   standby, spare).
 //! - [`spare`]: orders to idle warm spares and their reports.
 //! - [`layout`]: every recorded message's fields as data (ROS1 definitions,
 //!   export columns).
@@ -13,6 +15,7 @@
 
 pub mod channels;
 pub mod handover;
+pub mod joining;
 pub mod layout;
 pub mod messages;
 pub mod spare;
@@ -20,6 +23,7 @@ pub mod time;
 
 pub use channels::{Channel, ChannelQos};
 pub use handover::{Activation, Handover, MAX_HANDOVER_STATES};
+pub use joining::{Joining, UnknownJoining};
 pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement, NO_SEQ, Telemetry, flags,

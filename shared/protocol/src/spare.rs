@@ -10,21 +10,19 @@
 //!   or replaced at a boundary: the old active instance becomes the next
 //!   spare instead of exiting).
 
+use crate::joining::{Joining, UnknownJoining};
 use iceoryx2::prelude::*;
 
 /// Longest scenario path an order carries.
 pub const MAX_ORDER_PATH: usize = 1024;
 
-/// [`SpareOrder::joining`]: replace the active instance at a boundary.
-pub const JOIN_AS_REPLACEMENT: u32 = 0;
-/// [`SpareOrder::joining`]: replace an instance that crashed.
-pub const JOIN_AS_RESTART: u32 = 1;
-/// [`SpareOrder::joining`]: follow as the standby controller.
-pub const JOIN_AS_STANDBY: u32 = 2;
-/// [`SpareOrder::joining`]: to a serving standby whose design is no longer
-/// the active one's: stop, and idle as a spare (instead of exiting, which
-/// would drop its ports while the loop runs).
-pub const RETIRE: u32 = 3;
+// The wire values of [`Joining`] under their former names, for the
+// supervisor's conductor until it takes up [`Joining`] (issue 15); the
+// node no longer uses them.
+pub const JOIN_AS_REPLACEMENT: u32 = Joining::Replacement as u32;
+pub const JOIN_AS_RESTART: u32 = Joining::Restart as u32;
+pub const JOIN_AS_STANDBY: u32 = Joining::Standby as u32;
+pub const RETIRE: u32 = Joining::Spare as u32;
 
 /// The supervisor's order to one idle spare.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
@@ -36,7 +34,9 @@ pub struct SpareOrder {
     pub pid: u32,
     /// The generation it serves under.
     pub generation: u32,
-    /// [`JOIN_AS_REPLACEMENT`], [`JOIN_AS_RESTART`] or [`JOIN_AS_STANDBY`].
+    /// [`Joining::wire`]: [`Joining::Replacement`], [`Joining::Restart`],
+    /// [`Joining::Standby`], or [`Joining::Spare`] (to a serving standby:
+    /// retire); read it with [`SpareOrder::join_as`].
     pub joining: u32,
     pub scenario_len: u32,
     /// UTF-8 path of the scenario file, `scenario_len` bytes.
@@ -75,6 +75,11 @@ impl SpareOrder {
         Ok(())
     }
 
+    /// How the order asks the spare to join (an unknown value is an error).
+    pub fn join_as(&self) -> Result<Joining, UnknownJoining> {
+        Joining::from_wire(self.joining)
+    }
+
     /// The scenario path, if the order holds valid UTF-8.
     pub fn scenario(&self) -> Option<&str> {
         let len = (self.scenario_len as usize).min(MAX_ORDER_PATH);
@@ -110,5 +115,16 @@ mod tests {
         );
         // The earlier path stands.
         assert_eq!(order.scenario(), Some("/runs/a b/retuned.toml"));
+    }
+
+    #[test]
+    fn an_order_names_how_to_join_or_is_refused() {
+        let mut order = SpareOrder {
+            joining: Joining::Standby.into(),
+            ..SpareOrder::default()
+        };
+        assert_eq!(order.join_as(), Ok(Joining::Standby));
+        order.joining = 77;
+        assert_eq!(order.join_as(), Err(UnknownJoining(77)));
     }
 }
