@@ -105,7 +105,7 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         }
         let role = swap_roles.next()?;
         if let Err(e) = conductor.swap(running, role, &scenario_file) {
-            swap_error = Some(e);
+            swap_error = Some(format!("{e:#}"));
             next_swap = None;
             return None;
         }

@@ -178,8 +178,7 @@ fn run_to_the_end(
         run_dir.path(),
         &prepared.scenario,
         &prepared.overrides,
-    )
-    .map_err(anyhow::Error::msg)?;
+    )?;
     // The supervisor and every process it starts (they inherit it) work off
     // the loop's CPU: on a kernel without preemption their system calls
     // (fork, exec, mapping memory) would delay the loop there by up to a
@@ -189,7 +188,7 @@ fn run_to_the_end(
     {
         let _ = flexloop_runtime::realtime::avoid_cpu(cpu);
     }
-    let mut running = supervisor::start(prepared.plan).map_err(anyhow::Error::msg)?;
+    let mut running = supervisor::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
     let outcome = running.watch(limit, |running| {
         progress.show(rate_hz);

@@ -105,8 +105,7 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
         [one] => one.clone(),
         _ => bail!("several loops are running: name one with --prefix"),
     };
-    let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)
-        .map_err(anyhow::Error::msg)?;
+    let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)?;
     let answer: flexloop_runfiles::supervision::SwapAnswer =
         serde_json::from_value(answer).context("the supervisor's answer")?;
     let switch = match (answer.ok, answer.switch) {

@@ -5,6 +5,7 @@
 //! others see the end of the run and drain) and die with the supervisor
 //! (PR_SET_PDEATHSIG), so no process is orphaned.
 
+use anyhow::{Context, Result};
 use flexloop_node::Role;
 use flexloop_runtime::shutdown;
 use flexloop_transport::{Domain, cleanup_dead_nodes};
@@ -27,27 +28,23 @@ pub struct LaunchPlan {
     pub warm_spares: bool,
 }
 
-/// [`ChildProcess::generation`] of a spare that has served no generation yet.
-pub const UNSERVED: u32 = u32::MAX;
-
-/// One started process.
-#[derive(Debug)]
+/// One started process, as it was started. What it does now (active,
+/// standby, spare; which generation) is the conductor's bookkeeping
+/// (`conductor::roster`): a spare takes other duties without a new process.
+#[derive(Debug, Clone)]
 pub struct ChildProcess {
     pub role: Role,
     pub pid: i32,
     pub exit: Option<ExitInfo>,
+    pub joining: Joining,
+    /// The generation it was started as (0 for the first ones and spares).
     pub generation: u32,
-    /// The scenario file it runs (a swap may give a component another one).
+    /// The scenario file it was started with.
     pub scenario: PathBuf,
-    /// Replaced, crashed-and-restarted, or otherwise dealt with: its exit is
-    /// not the run's failure.
+    /// Its exit is expected (replaced, restarted, stopped, an idle spare):
+    /// not the run's failure. Set by [`RunningLoop::terminate`] and kept in
+    /// step with the conductor's view by [`RunningLoop::expect_exit`].
     pub settled: bool,
-    /// A standby controller (not the role's current instance until promoted).
-    pub standby: bool,
-    /// A warm spare: not serving (see `flexloop_node::spare`).
-    pub spare: bool,
-    /// A spare that reported itself idle: it takes orders.
-    pub idle: bool,
     /// Its stderr file, in the run directory.
     pub stderr_file: String,
 }
@@ -73,43 +70,47 @@ fn binary(role: Role) -> std::io::Result<PathBuf> {
 }
 
 /// Starts the processes; on any failure, stops those already started.
-pub fn start(plan: LaunchPlan) -> Result<RunningLoop, String> {
+pub fn start(plan: LaunchPlan) -> Result<RunningLoop> {
     let mut running = RunningLoop {
         plan: plan.clone(),
         children: Vec::new(),
         started: Instant::now(),
     };
-    let mut roles = Vec::new();
-    if plan.with_logger {
-        roles.push((Role::Logger, Joining::No));
-    }
-    roles.extend([
-        (Role::Observer, Joining::No),
-        (Role::Controller, Joining::No),
-    ]);
-    if plan.warm_spares {
-        roles.extend([
-            (Role::Observer, Joining::AsSpare),
-            (Role::Controller, Joining::AsSpare),
-        ]);
-    }
-    roles.push((Role::Plant, Joining::No));
-    for (role, joining) in roles {
-        let started = if joining == Joining::AsSpare {
+    for (role, joining) in start_order(plan.with_logger, plan.warm_spares) {
+        let started = if joining == Joining::Spare {
             running.start_spare(role)
         } else {
-            running.launch(role, &plan.scenario, 0, joining, stderr_name(role, 0))
+            running.launch(role, &plan.scenario, 0, joining)
         };
-        match started {
-            Ok(_) => {}
-            Err(e) => {
-                running.stop();
-                running.cleanup();
-                return Err(e);
-            }
+        if let Err(e) = started {
+            running.stop();
+            running.cleanup();
+            return Err(e);
         }
     }
     Ok(running)
+}
+
+/// The order the processes start in: the listeners first (the logger, then
+/// the observer, the controller and their spares), the plant last, since it
+/// waits for each of them before its first sample.
+pub fn start_order(with_logger: bool, warm_spares: bool) -> Vec<(Role, Joining)> {
+    let mut order = Vec::new();
+    if with_logger {
+        order.push((Role::Logger, Joining::AtStart));
+    }
+    order.extend([
+        (Role::Observer, Joining::AtStart),
+        (Role::Controller, Joining::AtStart),
+    ]);
+    if warm_spares {
+        order.extend([
+            (Role::Observer, Joining::Spare),
+            (Role::Controller, Joining::Spare),
+        ]);
+    }
+    order.push((Role::Plant, Joining::AtStart));
+    order
 }
 
 /// The stderr file of a role's instance of `generation`.
@@ -121,19 +122,46 @@ pub fn stderr_name(role: Role, generation: u32) -> String {
     }
 }
 
-/// How a process enters the loop.
+/// How a process enters the loop: started so, or ordered so as a warm spare.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Joining {
+pub enum Joining {
     /// With the others, at start-up.
-    No,
-    /// A running loop, in shadow (a swap or restart).
-    AsReplacement,
-    /// A running loop, as the standby controller.
-    AsStandby,
+    AtStart,
+    /// A running loop, in shadow, to take over at a boundary (a swap).
+    Replacement,
     /// A running loop, in place of an instance that crashed.
-    AsRestart,
+    Restart,
+    /// A running loop, as the standby controller.
+    Standby,
     /// As a warm spare: ports open, idle until ordered.
-    AsSpare,
+    Spare,
+}
+
+impl Joining {
+    /// The command-line flag that says it to a new process.
+    pub fn flag(self) -> Option<&'static str> {
+        match self {
+            Joining::AtStart => None,
+            Joining::Replacement => Some("--join"),
+            Joining::Restart => Some("--restart"),
+            Joining::Standby => Some("--standby"),
+            Joining::Spare => Some("--spare"),
+        }
+    }
+
+    /// The [`SpareOrder::joining`] that says it to a warm spare (a spare
+    /// cannot be ordered to start with the loop or to be a spare).
+    ///
+    /// [`SpareOrder::joining`]: flexloop_protocol::SpareOrder
+    pub fn order_code(self) -> Option<u32> {
+        use flexloop_protocol::spare::{JOIN_AS_REPLACEMENT, JOIN_AS_RESTART, JOIN_AS_STANDBY};
+        match self {
+            Joining::Replacement => Some(JOIN_AS_REPLACEMENT),
+            Joining::Restart => Some(JOIN_AS_RESTART),
+            Joining::Standby => Some(JOIN_AS_STANDBY),
+            Joining::AtStart | Joining::Spare => None,
+        }
+    }
 }
 
 fn spawn(
@@ -149,20 +177,8 @@ fn spawn(
     if generation > 0 {
         cmd.arg("--generation").arg(generation.to_string());
     }
-    match joining {
-        Joining::No => {}
-        Joining::AsReplacement => {
-            cmd.arg("--join");
-        }
-        Joining::AsStandby => {
-            cmd.arg("--standby");
-        }
-        Joining::AsRestart => {
-            cmd.arg("--restart");
-        }
-        Joining::AsSpare => {
-            cmd.arg("--spare");
-        }
+    if let Some(flag) = joining.flag() {
+        cmd.arg(flag);
     }
     cmd.arg("--scenario")
         .arg(scenario)
@@ -199,14 +215,12 @@ impl RunningLoop {
             let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
             let rc = unsafe { libc::wait4(child.pid, &mut status, libc::WNOHANG, &mut usage) };
             if rc == child.pid {
-                let code = if libc::WIFEXITED(status) {
-                    libc::WEXITSTATUS(status)
-                } else {
-                    128 + libc::WTERMSIG(status)
-                };
                 let cpu_ns = flexloop_runtime::usage::timeval_ns(usage.ru_utime)
                     + flexloop_runtime::usage::timeval_ns(usage.ru_stime);
-                child.exit = Some(ExitInfo { code, cpu_ns });
+                child.exit = Some(ExitInfo {
+                    code: exit_code(status),
+                    cpu_ns,
+                });
                 any = true;
             } else if rc < 0 {
                 // Not our child any more (cannot happen): record it as gone.
@@ -224,35 +238,27 @@ impl RunningLoop {
         self.children.iter().filter(|c| c.exit.is_none()).count()
     }
 
-    /// The role's current instance: the one alive, standbys and spares
-    /// aside, or else the newest that ended (a crashed one, to restart).
-    pub fn child(&self, role: Role) -> Option<&ChildProcess> {
-        let serving = |c: &&ChildProcess| c.role == role && !c.standby && !c.spare;
-        let mut newest = self.children.iter().rev().filter(serving);
-        newest
-            .clone()
-            .find(|c| c.exit.is_none())
-            .or_else(|| newest.next())
-    }
-
     /// Starts a warm spare of `role` (observer or controller).
-    pub fn start_spare(&mut self, role: Role) -> Result<i32, String> {
-        let count = self.children.iter().filter(|c| c.role == role).count();
+    pub fn start_spare(&mut self, role: Role) -> Result<i32> {
         let scenario = self.plan.scenario.clone();
-        let stderr_file = format!("{}.spare{count}.stderr", role.name());
-        self.launch(role, &scenario, 0, Joining::AsSpare, stderr_file)
+        self.launch(role, &scenario, 0, Joining::Spare)
     }
 
-    /// Spawns a process and records it (a spare as one that has served no
-    /// generation yet).
-    fn launch(
+    /// Spawns a process of `role` that joins the loop as `joining` with
+    /// `generation`, and records it.
+    pub fn launch(
         &mut self,
         role: Role,
         scenario: &Path,
         generation: u32,
         joining: Joining,
-        stderr_file: String,
-    ) -> Result<i32, String> {
+    ) -> Result<i32> {
+        let stderr_file = if joining == Joining::Spare {
+            let count = self.children.iter().filter(|c| c.role == role).count();
+            format!("{}.spare{count}.stderr", role.name())
+        } else {
+            stderr_name(role, generation)
+        };
         let pid = spawn(
             &self.plan,
             role,
@@ -261,63 +267,19 @@ impl RunningLoop {
             joining,
             &stderr_file,
         )
-        .map_err(|e| format!("cannot start flexloop-{}: {e}", role.name()))?;
-        let spare = joining == Joining::AsSpare;
+        .with_context(|| format!("cannot start flexloop-{}", role.name()))?;
         self.children.push(ChildProcess {
             role,
             pid,
             exit: None,
-            generation: if spare { UNSERVED } else { generation },
+            joining,
+            generation,
             scenario: scenario.to_path_buf(),
-            settled: false,
-            standby: joining == Joining::AsStandby,
-            spare,
-            idle: false,
+            // An idle spare's exit is never the run's failure.
+            settled: joining == Joining::Spare,
             stderr_file,
         });
         Ok(pid)
-    }
-
-    /// Starts another instance of `role` that joins the running loop (swap
-    /// or restart) as generation `generation`.
-    pub fn start_replacement(
-        &mut self,
-        role: Role,
-        scenario: &Path,
-        generation: u32,
-    ) -> Result<i32, String> {
-        self.start_joining(role, scenario, generation, Joining::AsReplacement)
-    }
-
-    /// Starts another instance of `role` in place of one that crashed.
-    pub fn start_restart(
-        &mut self,
-        role: Role,
-        scenario: &Path,
-        generation: u32,
-    ) -> Result<i32, String> {
-        self.start_joining(role, scenario, generation, Joining::AsRestart)
-    }
-
-    /// Starts a standby controller that follows the running loop.
-    pub fn start_standby(&mut self, scenario: &Path, generation: u32) -> Result<i32, String> {
-        self.start_joining(Role::Controller, scenario, generation, Joining::AsStandby)
-    }
-
-    fn start_joining(
-        &mut self,
-        role: Role,
-        scenario: &Path,
-        generation: u32,
-        joining: Joining,
-    ) -> Result<i32, String> {
-        self.launch(
-            role,
-            scenario,
-            generation,
-            joining,
-            stderr_name(role, generation),
-        )
     }
 
     /// Stops one child by pid (one we started and have not reaped).
@@ -331,6 +293,13 @@ impl RunningLoop {
         }
     }
 
+    /// Says whether the exit of `pid` is expected (not the run's failure).
+    pub fn expect_exit(&mut self, pid: i32, expected: bool) {
+        if let Some(c) = self.children.iter_mut().find(|c| c.pid == pid) {
+            c.settled = expected;
+        }
+    }
+
     /// Watches until the run ends by itself, a child fails, `limit` passes or
     /// a termination signal arrives; the caller then stops and cleans up.
     /// `tick` is called every 20 ms, after reaping and before judging exits:
@@ -340,58 +309,36 @@ impl RunningLoop {
         limit: Option<Duration>,
         mut tick: impl FnMut(&mut RunningLoop) -> Option<Outcome>,
     ) -> Outcome {
-        let mut outcome = Outcome::Completed;
         loop {
             self.reap();
             if shutdown::requested() {
-                outcome = Outcome::Interrupted;
-                break;
+                return Outcome::Interrupted;
             }
             if let Some(ended) = tick(self) {
-                outcome = ended;
-                break;
+                return ended;
             }
-            // An idle spare's crash is never the run's failure (the
-            // conductor records it and starts another).
-            if let Some(failed) = self
-                .children
-                .iter()
-                .find(|c| !c.settled && !c.spare && c.exit.is_some_and(|e| e.code != 0))
-            {
-                outcome = Outcome::ChildFailed(failed.role, failed.exit.map_or(-1, |e| e.code));
-                break;
-            }
-            if self.child(Role::Plant).is_some_and(|p| p.exit.is_some()) {
-                break;
-            }
-            if limit.is_some_and(|l| self.started.elapsed() > l) {
-                outcome = Outcome::TimedOut;
-                break;
+            let timed_out = limit.is_some_and(|l| self.started.elapsed() > l);
+            if let Some(ended) = verdict(&self.children, timed_out) {
+                return ended;
             }
             std::thread::sleep(Duration::from_millis(20));
         }
-        outcome
     }
 
     /// Stops the plant, lets the others drain, then terminates stragglers.
     pub fn stop(&mut self) {
-        self.signal_role(Role::Plant, libc::SIGTERM);
-        self.wait_all_for(Duration::from_secs(3));
-        for child in self.children.iter().filter(|c| c.exit.is_none()) {
-            // SAFETY: a pid we started and have not reaped, so not reused.
-            unsafe { libc::kill(child.pid, libc::SIGTERM) };
-        }
-        self.wait_all_for(Duration::from_secs(3));
-        for child in self.children.iter().filter(|c| c.exit.is_none()) {
-            unsafe { libc::kill(child.pid, libc::SIGKILL) };
-        }
-        self.wait_all_for(Duration::from_secs(3));
-    }
-
-    fn signal_role(&self, role: Role, signal: i32) {
-        if let Some(c) = self.child(role).filter(|c| c.exit.is_none()) {
-            // SAFETY: a pid we started and have not reaped.
-            unsafe { libc::kill(c.pid, signal) };
+        for step in STOP_SEQUENCE {
+            let targets: Vec<i32> = self
+                .children
+                .iter()
+                .filter(|c| c.exit.is_none() && step.targets.includes(c.role))
+                .map(|c| c.pid)
+                .collect();
+            for pid in targets {
+                // SAFETY: a pid we started and have not reaped, so not reused.
+                unsafe { libc::kill(pid, step.signal) };
+            }
+            self.wait_all_for(step.wait);
         }
     }
 
@@ -440,10 +387,194 @@ impl RunningLoop {
     }
 }
 
+/// An exit status as a code: the exit code, or `128 + signal` if killed by
+/// a signal (as a shell reports it).
+fn exit_code(status: i32) -> i32 {
+    if libc::WIFEXITED(status) {
+        libc::WEXITSTATUS(status)
+    } else {
+        128 + libc::WTERMSIG(status)
+    }
+}
+
+/// What the exits seen so far mean for the run, after the conductor's tick
+/// had its say: the first unexpected failure ends it, so does the plant's
+/// end (the loop is over), then the time limit.
+pub fn verdict(children: &[ChildProcess], timed_out: bool) -> Option<Outcome> {
+    if let Some(failed) = children
+        .iter()
+        .find(|c| !c.settled && c.exit.is_some_and(|e| e.code != 0))
+    {
+        return Some(Outcome::ChildFailed(
+            failed.role,
+            failed.exit.map_or(-1, |e| e.code),
+        ));
+    }
+    if children
+        .iter()
+        .any(|c| c.role == Role::Plant && c.exit.is_some())
+    {
+        return Some(Outcome::Completed);
+    }
+    timed_out.then_some(Outcome::TimedOut)
+}
+
+/// Whom one step of [`RunningLoop::stop`] signals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StopTargets {
+    Plant,
+    Everyone,
+}
+
+impl StopTargets {
+    fn includes(self, role: Role) -> bool {
+        self == StopTargets::Everyone || role == Role::Plant
+    }
+}
+
+struct StopStep {
+    targets: StopTargets,
+    signal: i32,
+    /// How long the processes get to exit before the next step.
+    wait: Duration,
+}
+
+/// The plant first, so that the others see the end of the run and drain
+/// (the logger finishes its files); then whoever is left, then by force.
+const STOP_SEQUENCE: [StopStep; 3] = [
+    StopStep {
+        targets: StopTargets::Plant,
+        signal: libc::SIGTERM,
+        wait: Duration::from_secs(3),
+    },
+    StopStep {
+        targets: StopTargets::Everyone,
+        signal: libc::SIGTERM,
+        wait: Duration::from_secs(3),
+    },
+    StopStep {
+        targets: StopTargets::Everyone,
+        signal: libc::SIGKILL,
+        wait: Duration::from_secs(3),
+    },
+];
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Outcome {
     Completed,
     Interrupted,
     TimedOut,
     ChildFailed(Role, i32),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn child(role: Role, pid: i32, exit: Option<i32>, settled: bool) -> ChildProcess {
+        ChildProcess {
+            role,
+            pid,
+            exit: exit.map(|code| ExitInfo { code, cpu_ns: 0 }),
+            joining: Joining::AtStart,
+            generation: 0,
+            scenario: PathBuf::from("s.toml"),
+            settled,
+            stderr_file: String::new(),
+        }
+    }
+
+    #[test]
+    fn the_plant_starts_last_and_the_logger_first() {
+        let order = start_order(true, true);
+        assert_eq!(order.first(), Some(&(Role::Logger, Joining::AtStart)));
+        assert_eq!(order.last(), Some(&(Role::Plant, Joining::AtStart)));
+        assert_eq!(
+            order.iter().filter(|(_, j)| *j == Joining::Spare).count(),
+            2
+        );
+        let bare = start_order(false, false);
+        assert_eq!(
+            bare,
+            [
+                (Role::Observer, Joining::AtStart),
+                (Role::Controller, Joining::AtStart),
+                (Role::Plant, Joining::AtStart)
+            ]
+        );
+    }
+
+    #[test]
+    fn the_plant_is_stopped_first_and_force_comes_last() {
+        assert_eq!(STOP_SEQUENCE[0].targets, StopTargets::Plant);
+        assert!(!STOP_SEQUENCE[0].targets.includes(Role::Logger));
+        assert_eq!(STOP_SEQUENCE[1].signal, libc::SIGTERM);
+        assert_eq!(STOP_SEQUENCE[2].signal, libc::SIGKILL);
+        assert!(
+            STOP_SEQUENCE[1..]
+                .iter()
+                .all(|s| s.targets.includes(Role::Logger))
+        );
+    }
+
+    #[test]
+    fn an_unexpected_failure_ends_the_run_an_expected_one_does_not() {
+        let running = [child(Role::Plant, 1, None, false)];
+        assert_eq!(verdict(&running, false), None);
+        let crashed = [
+            child(Role::Plant, 1, None, false),
+            child(Role::Observer, 2, Some(137), false),
+        ];
+        assert_eq!(
+            verdict(&crashed, false),
+            Some(Outcome::ChildFailed(Role::Observer, 137))
+        );
+        let restarted = [
+            child(Role::Plant, 1, None, false),
+            child(Role::Observer, 2, Some(137), true),
+        ];
+        assert_eq!(verdict(&restarted, false), None);
+        // A clean exit is no failure, whoever it is.
+        let clean = [
+            child(Role::Plant, 1, None, false),
+            child(Role::Logger, 3, Some(0), false),
+        ];
+        assert_eq!(verdict(&clean, false), None);
+    }
+
+    #[test]
+    fn the_plant_ending_completes_the_run_unless_someone_failed() {
+        let done = [child(Role::Plant, 1, Some(0), false)];
+        assert_eq!(verdict(&done, false), Some(Outcome::Completed));
+        let failed = [child(Role::Plant, 1, Some(1), false)];
+        assert_eq!(
+            verdict(&failed, false),
+            Some(Outcome::ChildFailed(Role::Plant, 1))
+        );
+        let running = [child(Role::Plant, 1, None, false)];
+        assert_eq!(verdict(&running, true), Some(Outcome::TimedOut));
+        assert_eq!(verdict(&done, true), Some(Outcome::Completed));
+    }
+
+    #[test]
+    fn a_signal_reads_as_128_plus_its_number() {
+        // Wait statuses as the kernel encodes them: exit code in bits 8..16,
+        // a terminating signal in bits 0..7.
+        assert_eq!(exit_code(3 << 8), 3);
+        assert_eq!(exit_code(libc::SIGKILL), 128 + libc::SIGKILL);
+    }
+
+    #[test]
+    fn each_way_of_joining_has_its_flag_and_a_spare_its_order() {
+        assert_eq!(Joining::AtStart.flag(), None);
+        assert_eq!(Joining::Spare.flag(), Some("--spare"));
+        assert_eq!(Joining::Restart.flag(), Some("--restart"));
+        assert_eq!(
+            Joining::Standby.order_code(),
+            Some(flexloop_protocol::spare::JOIN_AS_STANDBY)
+        );
+        assert_eq!(Joining::Spare.order_code(), None);
+        assert_eq!(stderr_name(Role::Observer, 0), "observer.stderr");
+        assert_eq!(stderr_name(Role::Observer, 3), "observer.g3.stderr");
+    }
 }

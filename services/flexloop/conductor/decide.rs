@@ -1,0 +1,709 @@
+//! The conductor's decision core: what to do about what happened, with no
+//! IPC, no process, no file and no clock of its own (time comes in with the
+//! events). The shell (`shell.rs`) feeds it what it sees, carries out the
+//! actions it returns, and asks it at each step of a swap or restart.
+//!
+//! It keeps the bookkeeping: which instance of each role does what
+//! (`roster`), which generation owns which samples (the activation), the
+//! restart budgets and their back-off, the restarts pending, the standbys
+//! told to retire, and what it has seen of the loop (newest sample, pace,
+//! the active instances' last states, shadows following, recent commands).
+
+mod events;
+mod policy;
+mod steps;
+
+pub use events::{Action, Event, Record, Stage};
+pub use policy::{Policy, backoff};
+pub use steps::{DrainStep, Engagement, Failure, Renewal, RestartPlan, Retirement, ShadowStep};
+
+use super::measure::{BEFORE_SWITCH, CommandHistory, Pace};
+use super::per_role::PerRole;
+use super::roster::{Duty, Roster};
+use super::switch::Switch;
+use crate::supervisor::{Joining, Outcome};
+use flexloop_node::Role;
+use flexloop_protocol::handover::ACTIVE;
+use flexloop_protocol::{Activation, Handover};
+use flexloop_scenario::schema::RestartPolicy;
+use serde_json::{Value, json};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long a standby told to retire may take to become a spare.
+const RETIRE_TIMEOUT: Duration = Duration::from_secs(2);
+/// The shortest time ahead a swap's boundary is announced: every process
+/// must see the announcement before the loop reaches it.
+const ANNOUNCE_AHEAD: Duration = Duration::from_millis(50);
+const ANNOUNCE_AHEAD_MIN_SAMPLES: u64 = 50;
+
+struct PendingRestart {
+    role: Role,
+    due: Instant,
+}
+
+pub struct Core {
+    policy: Policy,
+    roster: Roster,
+    /// Which generation of controller and observer owns which samples.
+    activation: Activation,
+    last_seq: Option<u64>,
+    /// The plant published its last sample: no new spare or standby.
+    run_ending: bool,
+    restarts: PerRole<u32>,
+    /// Spares that crashed or failed to start, per role (their own budget:
+    /// an idle spare's trouble must not use up the active role's restarts).
+    spare_failures: PerRole<u32>,
+    pending: Vec<PendingRestart>,
+    /// Standbys told to retire, and since when: stopped if they have not
+    /// become spares within [`RETIRE_TIMEOUT`] (one without spare duty,
+    /// started from a file with `warm_spares = false`, never does).
+    retiring: Vec<(i32, Instant)>,
+    /// The last state each role's active instance published: a restarted
+    /// instance gets it from here, since a dead publisher hands nothing over.
+    last_active: PerRole<Option<Handover>>,
+    /// Shadows seen following, by role and generation.
+    shadows_seen: Vec<(Role, u32)>,
+    pace: Pace,
+    commands: CommandHistory,
+    /// A swap or restart is under way: crashes wait for its end to be
+    /// settled (it may be the one that deals with them).
+    busy: bool,
+}
+
+impl Core {
+    pub fn new(policy: Policy, activation: Activation) -> Self {
+        let commands = CommandHistory::new(policy.n_inputs);
+        Self {
+            policy,
+            roster: Roster::default(),
+            activation,
+            last_seq: None,
+            run_ending: false,
+            restarts: PerRole::default(),
+            spare_failures: PerRole::default(),
+            pending: Vec::new(),
+            retiring: Vec::new(),
+            last_active: PerRole::default(),
+            shadows_seen: Vec::new(),
+            pace: Pace::default(),
+            commands,
+            busy: false,
+        }
+    }
+
+    pub fn roster(&self) -> &Roster {
+        &self.roster
+    }
+
+    #[cfg(test)]
+    pub fn activation(&self) -> Activation {
+        self.activation
+    }
+
+    /// The loop's newest sample, once it ticks.
+    pub fn last_seq(&self) -> Option<u64> {
+        self.last_seq
+    }
+
+    pub fn ticking(&self) -> bool {
+        self.last_seq.is_some()
+    }
+
+    pub fn handle(&mut self, event: Event<'_>) -> Vec<Action> {
+        match event {
+            Event::Launched {
+                pid,
+                role,
+                generation,
+                joining,
+                scenario,
+            } => {
+                self.roster.add(pid, role, generation, joining, scenario);
+                Vec::new()
+            }
+            Event::Exited { pid, code, now } => {
+                if let Some(m) = self.roster.get_mut(pid) {
+                    m.exit = Some(code);
+                }
+                if self.busy {
+                    Vec::new()
+                } else {
+                    self.settle_crashes(now)
+                }
+            }
+            Event::SpareIdle { pid } => {
+                if let Some(m) = self.roster.get_mut(pid).filter(|m| m.alive()) {
+                    m.duty = Duty::Spare { idle: true };
+                    // A spare's crash is its own event, not the end of the run.
+                    m.settled = false;
+                }
+                Vec::new()
+            }
+            Event::Command {
+                seq,
+                generation,
+                standby,
+                u,
+            } => {
+                self.saw_sample(seq);
+                let owner = generation == self.activation.controller_for(seq);
+                if owner || standby {
+                    self.commands.push(seq, owner, u);
+                }
+                Vec::new()
+            }
+            Event::Estimate { seq } => {
+                self.saw_sample(seq.saturating_sub(1));
+                Vec::new()
+            }
+            Event::State { role, state } => {
+                if state.shadow != ACTIVE {
+                    if !self.shadows_seen.contains(&(role, state.generation)) {
+                        self.shadows_seen.push((role, state.generation));
+                    }
+                } else {
+                    let last = self.last_active.get_mut(role);
+                    if last.is_none_or(|l| l.seq <= state.seq) {
+                        *last = Some(*state);
+                    }
+                }
+                Vec::new()
+            }
+            Event::EndOfRun => {
+                self.run_ending = true;
+                Vec::new()
+            }
+            Event::Polled { now } => {
+                if let Some(seq) = self.last_seq {
+                    self.pace.push(now, seq);
+                }
+                Vec::new()
+            }
+            Event::Tick { now, stage } => match stage {
+                Stage::Restarts => self.due_restarts(now),
+                Stage::Retiring => self.check_retiring(now),
+                Stage::Standby => self.keep_standby().into_iter().collect(),
+                Stage::Spares => self.keep_spares(),
+            },
+        }
+    }
+
+    fn saw_sample(&mut self, seq: u64) {
+        self.last_seq = Some(self.last_seq.map_or(seq, |s| s.max(seq)));
+    }
+
+    fn record(
+        &self,
+        kind: &'static str,
+        role: Role,
+        generation: Option<u32>,
+        detail: Value,
+    ) -> Record {
+        Record {
+            kind,
+            role,
+            generation,
+            seq: self.last_seq,
+            detail,
+            clean_dead_nodes: false,
+        }
+    }
+
+    /// A line for the events file, stamped with the loop's newest sample.
+    pub fn note(
+        &self,
+        kind: &'static str,
+        role: Role,
+        generation: Option<u32>,
+        detail: Value,
+    ) -> Action {
+        Action::Record(self.record(kind, role, generation, detail))
+    }
+
+    // ---- crashes and restarts ----
+
+    /// A swap or restart begins: crashes seen meanwhile wait for its end.
+    pub fn begin_operation(&mut self) {
+        self.busy = true;
+    }
+
+    /// It ended: the crashes seen meanwhile are settled now.
+    pub fn end_operation(&mut self, now: Instant) -> Vec<Action> {
+        self.busy = false;
+        self.settle_crashes(now)
+    }
+
+    /// Deals with the crashes not dealt with yet: a spare's or the
+    /// standby's costs its budget and another takes its place (upkeep); a
+    /// serving instance's schedules its restart after the back-off, within
+    /// the restart budget; else the crash is the run's failure (the
+    /// supervisor judges it).
+    fn settle_crashes(&mut self, now: Instant) -> Vec<Action> {
+        let crashed: Vec<i32> = self
+            .roster
+            .iter()
+            .filter(|m| !m.settled && m.exit.is_some_and(|code| code != 0))
+            .map(|m| m.pid)
+            .collect();
+        let mut actions = Vec::new();
+        for pid in crashed {
+            let Some(m) = self.roster.get(pid) else {
+                continue;
+            };
+            let (role, generation, code) = (m.role, m.generation, m.exit.unwrap_or(-1));
+            if m.spare() || m.standby() {
+                let duty = if m.spare() { "spare" } else { "standby" };
+                let budget = if m.spare() {
+                    &mut self.spare_failures
+                } else {
+                    &mut self.restarts
+                };
+                *budget.get_mut(role) += 1;
+                self.settle(pid);
+                actions.push(self.crash_record(
+                    role,
+                    generation,
+                    json!({"exit": code, duty: true}),
+                ));
+                continue;
+            }
+            let restartable = matches!(role, Role::Observer | Role::Controller | Role::Logger);
+            if !restartable
+                || self.policy.restart == RestartPolicy::Never
+                || *self.restarts.get(role) >= self.policy.max_restarts
+            {
+                continue;
+            }
+            self.settle(pid);
+            let wait = self.count_restart(role);
+            actions.push(self.crash_record(
+                role,
+                generation,
+                json!({"exit": code, "restart_in_ms": wait.as_millis() as u64}),
+            ));
+            self.pending.push(PendingRestart {
+                role,
+                due: now + wait,
+            });
+        }
+        actions
+    }
+
+    fn crash_record(&self, role: Role, generation: Option<u32>, detail: Value) -> Action {
+        Action::Record(Record {
+            clean_dead_nodes: true,
+            ..self.record("crash", role, generation, detail)
+        })
+    }
+
+    /// Counts one more restart of `role` and returns its back-off.
+    fn count_restart(&mut self, role: Role) -> Duration {
+        let count = self.restarts.get_mut(role);
+        let wait = backoff(self.policy.restart_backoff_ms, *count);
+        *count += 1;
+        wait
+    }
+
+    fn due_restarts(&mut self, now: Instant) -> Vec<Action> {
+        let (due, later) = std::mem::take(&mut self.pending)
+            .into_iter()
+            .partition(|p| p.due <= now);
+        self.pending = later;
+        due.into_iter()
+            .map(|p| Action::Restart(p.role))
+            .collect::<Vec<_>>()
+    }
+
+    /// A restart failed: another attempt after the back-off, within the
+    /// budget; else (or if the supervisor is stopping) the run ends.
+    pub fn restart_failed(
+        &mut self,
+        role: Role,
+        error: &anyhow::Error,
+        now: Instant,
+        shutting_down: bool,
+    ) -> Vec<Action> {
+        let error = format!("{error:#}");
+        let mut actions = vec![self.note("restart-failed", role, Some(0), json!(error))];
+        if *self.restarts.get(role) >= self.policy.max_restarts || shutting_down {
+            actions.push(Action::EndRun(Outcome::ChildFailed(role, -1)));
+            return actions;
+        }
+        let wait = self.count_restart(role);
+        self.pending.push(PendingRestart {
+            role,
+            due: now + wait,
+        });
+        actions
+    }
+
+    /// How `role` comes back after its crash (the role's serving instance is
+    /// dead). A controller with a standby that follows the loop promotes it.
+    pub fn plan_restart(&mut self, role: Role) -> Result<RestartPlan, Failure> {
+        // The file of the generation that owned the loop (with spares the
+        // order of the members is not the order they served in).
+        let owner = match role {
+            Role::Controller => Some(self.activation.controller_generation),
+            Role::Observer => Some(self.activation.observer_generation),
+            _ => None,
+        };
+        let scenario = owner
+            .and_then(|g| {
+                self.roster
+                    .iter()
+                    .rev()
+                    .find(|m| m.role == role && m.generation == Some(g) && !m.standby())
+            })
+            .or_else(|| self.roster.serving(role))
+            .map(|m| m.scenario.clone())
+            .ok_or(Failure::NoInstanceToRestart)?;
+        if role == Role::Controller
+            && let Some(generation) = self.promote_standby()
+        {
+            return Ok(RestartPlan::Promote { generation });
+        }
+        let generation = self.roster.next_generation(role);
+        if role == Role::Logger {
+            return Ok(RestartPlan::Logger {
+                scenario,
+                generation,
+            });
+        }
+        Ok(RestartPlan::Fresh {
+            scenario,
+            generation,
+            owns_from: self.restart_boundary(role),
+        })
+    }
+
+    /// The standby controller that follows the loop becomes the active one.
+    fn promote_standby(&mut self) -> Option<u32> {
+        let shadows = &self.shadows_seen;
+        let standby = self.roster.iter_mut().find(|m| {
+            m.standby()
+                && m.alive()
+                && m.generation
+                    .is_some_and(|g| shadows.contains(&(Role::Controller, g)))
+        })?;
+        standby.duty = Duty::Active;
+        standby.generation
+    }
+
+    /// A restart's boundary: the dead predecessor's replacement owns at once
+    /// the samples it left unserved, from the first after its last state
+    /// (its last command; the estimate after its last measurement). A
+    /// boundary ahead, as a swap has, would never come in lockstep: the
+    /// loop waits for the dead one's output. None before tick 0 or if the
+    /// predecessor never served.
+    pub fn restart_boundary(&self, role: Role) -> Option<u64> {
+        self.last_seq?;
+        let last = (*self.last_active.get(role))?;
+        match role {
+            Role::Controller => Some(last.seq + 1),
+            Role::Observer => Some(last.seq + 2),
+            _ => None,
+        }
+    }
+
+    // ---- swaps ----
+
+    /// The live instance a swap of `role` replaces, and the new generation.
+    pub fn plan_swap(&self, role: Role) -> Result<(i32, u32), Failure> {
+        let old = self
+            .roster
+            .serving(role)
+            .filter(|m| m.alive())
+            .map(|m| m.pid)
+            .ok_or(Failure::NotRunning(role))?;
+        Ok((old, self.roster.next_generation(role)))
+    }
+
+    /// A swap's boundary: far enough ahead that every process sees the
+    /// announcement first, at the loop's real pace (lockstep runs faster
+    /// than its rate).
+    pub fn boundary_ahead(&self) -> u64 {
+        let now_seq = self.last_seq.unwrap_or(0);
+        let observed = self.pace.observed().unwrap_or(0.0);
+        let margin = ((self.policy.rate_hz.max(observed) * ANNOUNCE_AHEAD.as_secs_f64()) as u64)
+            .max(ANNOUNCE_AHEAD_MIN_SAMPLES);
+        now_seq + margin
+    }
+
+    /// The activation in which `generation` of `role` owns the samples from
+    /// `from_seq` on (the shell publishes it, then calls [`Core::announced`]).
+    pub fn activation_for(&self, role: Role, generation: u32, from_seq: u64) -> Activation {
+        let mut next = self.activation;
+        match role {
+            Role::Controller => {
+                next.previous_controller_generation =
+                    next.controller_for(from_seq.saturating_sub(1));
+                next.controller_generation = generation;
+                next.controller_from_seq = from_seq;
+            }
+            _ => {
+                next.previous_observer_generation = next.observer_for(from_seq.saturating_sub(1));
+                next.observer_generation = generation;
+                next.observer_from_seq = from_seq;
+            }
+        }
+        next
+    }
+
+    pub fn announced(&mut self, activation: Activation) {
+        self.activation = activation;
+    }
+
+    // ---- bringing an instance in ----
+
+    /// How to bring in an instance of `role`: an idle warm spare if there is
+    /// one, else a new process. Not before tick 0: until then the plant
+    /// counts on each spare to be there as a spare. `waited_out`: the wait
+    /// for a spare still starting is over.
+    pub fn engagement(&self, role: Role, waited_out: bool) -> Engagement {
+        if !self.policy.warm_spares || !self.ticking() {
+            return Engagement::Start;
+        }
+        if let Some(pid) = self.roster.idle_spare(role) {
+            return Engagement::Order(pid);
+        }
+        if self.roster.spare_starting(role) && !waited_out {
+            return Engagement::WaitForSpare;
+        }
+        Engagement::Start
+    }
+
+    /// The spare `pid` took the order: it serves `generation` as `joining` says.
+    pub fn ordered(&mut self, pid: i32, generation: u32, joining: Joining, scenario: &Path) {
+        if let Some(m) = self.roster.get_mut(pid) {
+            m.duty = if joining == Joining::Standby {
+                Duty::Standby
+            } else {
+                Duty::Active
+            };
+            m.settled = false;
+            m.generation = Some(generation);
+            m.scenario = scenario.to_path_buf();
+        }
+    }
+
+    /// One look at a new instance on its way in.
+    pub fn shadow_step(&mut self, role: Role, generation: u32, shutting_down: bool) -> ShadowStep {
+        let last = *self.last_active.get(role);
+        if self.shadows_seen.contains(&(role, generation))
+            || last.is_some_and(|l| l.generation == generation)
+        {
+            return ShadowStep::Following;
+        }
+        let plant_ended = self.roster.serving(Role::Plant).is_some_and(|p| !p.alive());
+        if shutting_down || plant_ended {
+            return ShadowStep::Failed(Failure::RunEndedBeforeFollowing);
+        }
+        if let Some(new) = self.roster.of_generation(role, generation)
+            && let Some(code) = new.exit
+        {
+            let pid = new.pid;
+            self.settle(pid);
+            return ShadowStep::Failed(Failure::NewInstanceExited {
+                role,
+                generation,
+                pid,
+                code,
+            });
+        }
+        let hand_over = last
+            .filter(|l| self.roster.generation_gone(role, l.generation))
+            .map(Box::new);
+        ShadowStep::Waiting { hand_over }
+    }
+
+    /// One look at the loop on its way past `from_seq` (and the samples
+    /// measured after it), with `old` the instance it replaces.
+    pub fn drain_step(&self, from_seq: u64, old: Option<i32>, shutting_down: bool) -> DrainStep {
+        let passed = self.last_seq.is_some_and(|s| s > from_seq + BEFORE_SWITCH);
+        let old_gone =
+            old.is_none_or(|pid| self.roster.get(pid).is_none_or(|m| !m.alive() || m.spare()));
+        if passed && old_gone {
+            return DrainStep::Passed;
+        }
+        let plant_ended = self.roster.serving(Role::Plant).is_some_and(|p| !p.alive());
+        if plant_ended || shutting_down {
+            return DrainStep::RunEnded;
+        }
+        DrainStep::Waiting
+    }
+
+    /// What one swap or restart did, measured once the loop passed it.
+    pub fn switch(
+        &self,
+        role: Role,
+        generation: u32,
+        start_seq: u64,
+        from_seq: u64,
+        warm: bool,
+    ) -> Switch {
+        let steps = self.commands.steps_at(from_seq);
+        Switch {
+            role,
+            generation,
+            start_seq,
+            from_seq,
+            du_switch: steps.at_switch,
+            du_before: steps.before,
+            du_after: steps.after,
+            warm,
+        }
+    }
+
+    /// The exit of `pid` is dealt with (replaced, stopped, restarted).
+    pub fn settle(&mut self, pid: i32) {
+        if let Some(m) = self.roster.get_mut(pid) {
+            m.settled = true;
+        }
+    }
+
+    // ---- standby and spares ----
+
+    /// With `safe_action = "standby"`, one standby controller follows the
+    /// running loop: started once the loop ticks, again after a promotion
+    /// or a crash of the standby, within the restart budget.
+    fn keep_standby(&self) -> Option<Action> {
+        if !self.policy.keep_standby
+            || !self.ticking()
+            || self.run_ending
+            || self.pending.iter().any(|p| p.role == Role::Controller)
+            || *self.restarts.get(Role::Controller) > self.policy.max_restarts
+            || self.roster.has_live_standby()
+        {
+            return None;
+        }
+        let scenario = self.roster.serving(Role::Controller)?.scenario.clone();
+        Some(Action::StartStandby {
+            scenario,
+            generation: self.roster.next_generation(Role::Controller),
+        })
+    }
+
+    /// What became of [`Action::StartStandby`]: `Ok((pid, warm))`.
+    pub fn standby_engaged(
+        &mut self,
+        generation: u32,
+        result: &anyhow::Result<(i32, bool)>,
+    ) -> Action {
+        match result {
+            Ok((pid, warm)) => self.note(
+                "standby",
+                Role::Controller,
+                Some(generation),
+                json!({"pid": pid, "warm": warm}),
+            ),
+            Err(e) => {
+                *self.restarts.get_mut(Role::Controller) += 1;
+                self.note(
+                    "standby-failed",
+                    Role::Controller,
+                    Some(generation),
+                    json!(format!("{e:#}")),
+                )
+            }
+        }
+    }
+
+    /// With warm spares, one spare controller and one spare observer, before
+    /// tick 0 too (the plant waits for a spare of each; the first ones start
+    /// with the loop; another after a spare crashed or served), within each
+    /// role's spare budget.
+    fn keep_spares(&self) -> Vec<Action> {
+        let plant_running = self.roster.serving(Role::Plant).is_some_and(|p| p.alive());
+        if !self.policy.warm_spares || self.run_ending || !plant_running {
+            return Vec::new();
+        }
+        [Role::Controller, Role::Observer]
+            .into_iter()
+            .filter(|&role| {
+                !self.pending.iter().any(|p| p.role == role)
+                    && *self.spare_failures.get(role) <= self.policy.max_restarts
+                    && !self.roster.has_live_spare(role)
+            })
+            .map(Action::StartSpare)
+            .collect()
+    }
+
+    /// What became of [`Action::StartSpare`].
+    pub fn spare_started(&mut self, role: Role, result: &anyhow::Result<i32>) -> Action {
+        match result {
+            Ok(pid) => self.note("spare", role, None, json!({"pid": pid})),
+            Err(e) => {
+                *self.spare_failures.get_mut(role) += 1;
+                self.note("spare-failed", role, None, json!(format!("{e:#}")))
+            }
+        }
+    }
+
+    /// After a swap to another controller design the standby must follow
+    /// the new one: with the old design it can neither copy the active
+    /// state nor compute the command the active one would have sent, and a
+    /// promotion would step. A standby of the new design starts; once it
+    /// follows the loop, the old ones retire (until then they cover).
+    pub fn standby_renewal(&self) -> Option<Renewal> {
+        if !self.policy.keep_standby {
+            return None;
+        }
+        let active = self.roster.serving(Role::Controller)?.scenario.clone();
+        let old: Vec<(i32, u32)> = self
+            .roster
+            .iter()
+            .filter(|m| m.standby() && m.alive() && m.scenario != active)
+            .map(|m| (m.pid, m.generation.unwrap_or(0)))
+            .collect();
+        if old.is_empty() {
+            return None;
+        }
+        Some(Renewal {
+            scenario: active,
+            generation: self.roster.next_generation(Role::Controller),
+            old,
+        })
+    }
+
+    /// A serving standby no longer needed: told to become a spare (it
+    /// reports itself idle then) with warm spares, else stopped.
+    pub fn retirement(&self) -> Retirement {
+        if self.policy.warm_spares {
+            Retirement::Order
+        } else {
+            Retirement::Stop
+        }
+    }
+
+    /// The order to retire went out to `pid`.
+    pub fn retiring(&mut self, pid: i32, now: Instant) {
+        self.retiring.push((pid, now));
+    }
+
+    /// Stops a standby told to retire that did not become a spare in time.
+    fn check_retiring(&mut self, now: Instant) -> Vec<Action> {
+        let mut late = Vec::new();
+        let roster = &self.roster;
+        self.retiring.retain(|&(pid, since)| {
+            let Some(m) = roster.get(pid) else {
+                return false;
+            };
+            if m.spare() || !m.alive() {
+                return false;
+            }
+            if now.duration_since(since) > RETIRE_TIMEOUT {
+                late.push(pid);
+                return false;
+            }
+            true
+        });
+        for &pid in &late {
+            self.settle(pid);
+        }
+        late.into_iter().map(Action::Stop).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,103 @@
+//! What goes into the decision core (events) and what comes out (actions).
+
+use crate::supervisor::{Joining, Outcome};
+use flexloop_node::Role;
+use flexloop_protocol::{Handover, MAX_INPUTS};
+use serde_json::Value;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// What happened, as the shell saw it (a state by reference: it is large,
+/// and kept only if it is an active instance's newest).
+#[derive(Debug, Clone)]
+pub enum Event<'a> {
+    /// A process was started (by the supervisor at start-up, or on an
+    /// action of this core).
+    Launched {
+        pid: i32,
+        role: Role,
+        generation: u32,
+        joining: Joining,
+        scenario: PathBuf,
+    },
+    /// A process ended with `code` (`128 + signal` if killed).
+    Exited { pid: i32, code: i32, now: Instant },
+    /// A process reported itself an idle spare (a new spare, or an instance
+    /// replaced at a boundary).
+    SpareIdle { pid: i32 },
+    /// A command on the loop's command channel.
+    Command {
+        seq: u64,
+        generation: u32,
+        /// Sent by the standby controller.
+        standby: bool,
+        u: [f64; MAX_INPUTS],
+    },
+    /// The observer's estimate for `seq` (it follows the measurement of `seq - 1`).
+    Estimate { seq: u64 },
+    /// A state published by an instance of `role` (active or in shadow).
+    State { role: Role, state: &'a Handover },
+    /// The plant published its last sample.
+    EndOfRun,
+    /// The shell finished one look at the channels.
+    Polled { now: Instant },
+    /// One stage of the supervisor's tick (every 20 ms).
+    Tick { now: Instant, stage: Stage },
+}
+
+/// The supervisor's tick comes in stages, each decided once the previous
+/// one's actions are carried out: a restart may take the spare, a standby may
+/// be a spare, and the next stage must see that.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// The restarts whose back-off is over.
+    Restarts,
+    /// Standbys told to retire that did not become spares in time.
+    Retiring,
+    /// The standby controller, if one is to be kept.
+    Standby,
+    /// A warm spare of each role, if they are kept.
+    Spares,
+}
+
+impl Stage {
+    pub const IN_ORDER: [Stage; 4] = [
+        Stage::Restarts,
+        Stage::Retiring,
+        Stage::Standby,
+        Stage::Spares,
+    ];
+}
+
+/// What the shell is to do.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    /// Restart `role` now (its back-off is over): the shell runs the
+    /// restart, asking [`Core::plan_restart`] and the steps after it.
+    Restart(Role),
+    /// Start a warm spare of `role`; report with [`Core::spare_started`].
+    StartSpare(Role),
+    /// Bring up a standby controller; report with [`Core::standby_engaged`].
+    StartStandby { scenario: PathBuf, generation: u32 },
+    /// Stop the process (its exit is dealt with already).
+    Stop(i32),
+    /// Append a line to the run's events file.
+    Record(Record),
+    /// The run cannot go on.
+    EndRun(Outcome),
+}
+
+/// One line of the run's events file, less its time stamp (the shell's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Record {
+    pub kind: &'static str,
+    pub role: Role,
+    pub generation: Option<u32>,
+    /// The loop's newest sample when it was decided.
+    pub seq: Option<u64>,
+    pub detail: Value,
+    /// Clean the dead nodes' shared memory first (now that no live process
+    /// uses it; never from inside the loop) and put their count in
+    /// `detail.cleaned_nodes`.
+    pub clean_dead_nodes: bool,
+}

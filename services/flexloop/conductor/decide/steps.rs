@@ -1,0 +1,119 @@
+//! The core's answers at each step of bringing an instance in: how to
+//! engage it, how a crashed role comes back, whether a new instance follows,
+//! whether the loop passed a boundary, and why it all failed if it did.
+
+use flexloop_node::Role;
+use flexloop_protocol::Handover;
+use std::path::PathBuf;
+
+/// How a component is brought into the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Engagement {
+    /// Order this idle warm spare.
+    Order(i32),
+    /// A spare of the role is still starting: worth waiting for (a new
+    /// process would open ports while the loop runs).
+    WaitForSpare,
+    /// Start a new process.
+    Start,
+}
+
+/// How a crashed component comes back.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RestartPlan {
+    /// The standby controller `generation`, following the loop, takes over
+    /// at a boundary ahead.
+    Promote { generation: u32 },
+    /// A new instance (or a spare) as `generation`; it owns the samples from
+    /// `owns_from` at once, if the dead one served any.
+    Fresh {
+        scenario: PathBuf,
+        generation: u32,
+        owns_from: Option<u64>,
+    },
+    /// A new logger: it only listens, nothing to hand over.
+    Logger { scenario: PathBuf, generation: u32 },
+}
+
+/// Where a new instance stands on its way into the loop.
+#[derive(Debug, Clone)]
+pub enum ShadowStep {
+    /// It follows the loop (in shadow, or already serving: a restart).
+    Following,
+    /// Not yet; `hand_over`: the dead predecessor's last state, which the
+    /// shell publishes for it (a dead publisher hands nothing over itself).
+    Waiting {
+        hand_over: Option<Box<Handover>>,
+    },
+    Failed(Failure),
+}
+
+/// Where the loop stands on its way past a boundary.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DrainStep {
+    /// Past the boundary and the samples measured after it, the replaced
+    /// instance gone (exited, or a spare again).
+    Passed,
+    Waiting,
+    RunEnded,
+}
+
+/// How a standby told to retire is dealt with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Retirement {
+    /// Order it to become a spare (it keeps its ports).
+    Order,
+    /// Stop it (no warm spares).
+    Stop,
+}
+
+/// A standby of the new controller design to start, and the old ones it
+/// replaces once it follows.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Renewal {
+    pub scenario: PathBuf,
+    pub generation: u32,
+    /// (pid, generation) of the standbys of another design.
+    pub old: Vec<(i32, u32)>,
+}
+
+/// Why a swap or restart did not happen.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Failure {
+    NoInstanceToRestart,
+    NotRunning(Role),
+    RunEndedBeforeFollowing,
+    RunEndedBeforeSwitch,
+    /// The new instance exited before it followed the loop.
+    NewInstanceExited {
+        role: Role,
+        generation: u32,
+        pid: i32,
+        code: i32,
+    },
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Failure::NoInstanceToRestart => write!(f, "no instance to restart"),
+            Failure::NotRunning(role) => write!(f, "no running flexloop-{}", role.name()),
+            Failure::RunEndedBeforeFollowing => {
+                write!(f, "the run ended before the replacement followed it")
+            }
+            Failure::RunEndedBeforeSwitch => write!(f, "the run ended before the switch"),
+            Failure::NewInstanceExited {
+                role,
+                generation,
+                code,
+                ..
+            } => write!(
+                f,
+                "the new flexloop-{} (generation {generation}) exited with {code} before it followed the loop",
+                role.name()
+            ),
+        }
+    }
+}
+
+impl std::error::Error for Failure {}

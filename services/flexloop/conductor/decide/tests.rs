@@ -1,0 +1,872 @@
+//! The decision core, branch by branch, without a process or a channel:
+//! each test feeds events and checks the actions and the bookkeeping.
+
+use super::*;
+use flexloop_protocol::handover::FOLLOWING;
+use flexloop_protocol::{Handover, MAX_INPUTS};
+use serde_json::Value;
+use std::path::PathBuf;
+
+const OBSERVER: i32 = 10;
+const CONTROLLER: i32 = 20;
+const PLANT: i32 = 30;
+const LOGGER: i32 = 40;
+const SPARE_OBSERVER: i32 = 11;
+const SPARE_CONTROLLER: i32 = 21;
+
+fn policy() -> Policy {
+    Policy {
+        restart: RestartPolicy::OnCrash,
+        max_restarts: 3,
+        restart_backoff_ms: 100,
+        warm_spares: false,
+        keep_standby: false,
+        rate_hz: 10_000.0,
+        n_inputs: 1,
+    }
+}
+
+/// A core with a loop started as `flexloop up` starts it, and the time 0.
+struct Fixture {
+    core: Core,
+    t0: Instant,
+}
+
+impl Fixture {
+    fn new(policy: Policy) -> Self {
+        let warm_spares = policy.warm_spares;
+        let mut f = Fixture {
+            core: Core::new(policy, Activation::INITIAL),
+            t0: Instant::now(),
+        };
+        f.launch(LOGGER, Role::Logger, 0, Joining::AtStart);
+        f.launch(OBSERVER, Role::Observer, 0, Joining::AtStart);
+        f.launch(CONTROLLER, Role::Controller, 0, Joining::AtStart);
+        if warm_spares {
+            f.launch(SPARE_OBSERVER, Role::Observer, 0, Joining::Spare);
+            f.launch(SPARE_CONTROLLER, Role::Controller, 0, Joining::Spare);
+        }
+        f.launch(PLANT, Role::Plant, 0, Joining::AtStart);
+        f
+    }
+
+    fn at(&self, ms: u64) -> Instant {
+        self.t0 + Duration::from_millis(ms)
+    }
+
+    fn launch(&mut self, pid: i32, role: Role, generation: u32, joining: Joining) {
+        let scenario = PathBuf::from("loop.toml");
+        self.launch_with(pid, role, generation, joining, scenario);
+    }
+
+    fn launch_with(
+        &mut self,
+        pid: i32,
+        role: Role,
+        generation: u32,
+        joining: Joining,
+        scenario: PathBuf,
+    ) {
+        let actions = self.core.handle(Event::Launched {
+            pid,
+            role,
+            generation,
+            joining,
+            scenario,
+        });
+        assert!(actions.is_empty());
+    }
+
+    fn exit(&mut self, pid: i32, code: i32, ms: u64) -> Vec<Action> {
+        let now = self.at(ms);
+        self.core.handle(Event::Exited { pid, code, now })
+    }
+
+    /// The loop ticks: sample `seq` seen.
+    fn sample(&mut self, seq: u64) {
+        self.core.handle(Event::Estimate { seq: seq + 1 });
+    }
+
+    fn state(&mut self, role: Role, generation: u32, seq: u64, shadow: u32) {
+        let state = Handover {
+            generation,
+            seq,
+            shadow,
+            ..Handover::default()
+        };
+        self.core.handle(Event::State {
+            role,
+            state: &state,
+        });
+    }
+
+    fn tick(&mut self, ms: u64) -> Vec<Action> {
+        let now = self.at(ms);
+        self.core.handle(Event::Tick {
+            now,
+            stage: Stage::Restarts,
+        })
+    }
+
+    fn upkeep(&mut self, ms: u64) -> Vec<Action> {
+        let now = self.at(ms);
+        Stage::IN_ORDER[1..]
+            .iter()
+            .flat_map(|&stage| self.core.handle(Event::Tick { now, stage }))
+            .collect()
+    }
+
+    fn member(&self, pid: i32) -> &super::super::roster::Member {
+        self.core.roster().get(pid).unwrap()
+    }
+}
+
+/// The records among `actions`, by kind.
+fn kinds(actions: &[Action]) -> Vec<&'static str> {
+    actions
+        .iter()
+        .filter_map(|a| match a {
+            Action::Record(r) => Some(r.kind),
+            _ => None,
+        })
+        .collect()
+}
+
+fn record<'a>(actions: &'a [Action], kind: &str) -> &'a Record {
+    actions
+        .iter()
+        .find_map(|a| match a {
+            Action::Record(r) if r.kind == kind => Some(r),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no {kind} record in {actions:?}"))
+}
+
+// ---- restart budget and back-off ----
+
+#[test]
+fn a_crash_is_settled_and_its_restart_is_due_after_the_back_off() {
+    let mut f = Fixture::new(policy());
+    let actions = f.exit(OBSERVER, 137, 0);
+    let crash = record(&actions, "crash");
+    assert_eq!(crash.role, Role::Observer);
+    assert_eq!(crash.generation, Some(0));
+    assert_eq!(crash.detail["exit"], 137);
+    assert_eq!(crash.detail["restart_in_ms"], 100);
+    assert!(crash.clean_dead_nodes, "the dead node's memory is cleaned");
+    assert!(f.member(OBSERVER).exit_expected());
+    assert!(f.tick(99).is_empty());
+    assert_eq!(f.tick(100), [Action::Restart(Role::Observer)]);
+    // Taken once.
+    assert!(f.tick(200).is_empty());
+}
+
+#[test]
+fn each_restart_of_a_role_doubles_its_next_wait_and_not_another_roles() {
+    let mut f = Fixture::new(policy());
+    assert_eq!(
+        record(&f.exit(OBSERVER, 1, 0), "crash").detail["restart_in_ms"],
+        100
+    );
+    f.launch(12, Role::Observer, 1, Joining::Restart);
+    assert_eq!(
+        record(&f.exit(12, 1, 500), "crash").detail["restart_in_ms"],
+        200
+    );
+    assert_eq!(
+        record(&f.exit(CONTROLLER, 1, 500), "crash").detail["restart_in_ms"],
+        100
+    );
+}
+
+#[test]
+fn past_its_restart_budget_a_crash_is_left_to_the_supervisor() {
+    let mut f = Fixture::new(Policy {
+        max_restarts: 1,
+        ..policy()
+    });
+    assert_eq!(kinds(&f.exit(OBSERVER, 1, 0)), ["crash"]);
+    f.launch(12, Role::Observer, 1, Joining::Restart);
+    assert!(f.exit(12, 1, 500).is_empty());
+    assert!(
+        !f.member(12).exit_expected(),
+        "unsettled: the supervisor ends the run"
+    );
+}
+
+#[test]
+fn with_restarts_off_or_for_the_plant_a_crash_is_never_restarted() {
+    let mut never = Fixture::new(Policy {
+        restart: RestartPolicy::Never,
+        ..policy()
+    });
+    assert!(never.exit(CONTROLLER, 1, 0).is_empty());
+    assert!(!never.member(CONTROLLER).exit_expected());
+    let mut f = Fixture::new(policy());
+    assert!(f.exit(PLANT, 1, 0).is_empty());
+    assert!(!f.member(PLANT).exit_expected());
+}
+
+#[test]
+fn a_clean_exit_is_no_crash() {
+    let mut f = Fixture::new(policy());
+    assert!(f.exit(LOGGER, 0, 0).is_empty());
+    assert!(f.tick(10_000).is_empty());
+}
+
+#[test]
+fn a_failed_restart_is_tried_again_after_a_longer_back_off() {
+    let mut f = Fixture::new(policy());
+    f.exit(CONTROLLER, 1, 0);
+    assert_eq!(f.tick(100), [Action::Restart(Role::Controller)]);
+    let actions = f.core.restart_failed(
+        Role::Controller,
+        &anyhow::anyhow!("no luck"),
+        f.at(100),
+        false,
+    );
+    assert_eq!(kinds(&actions), ["restart-failed"]);
+    assert_eq!(record(&actions, "restart-failed").detail, json!("no luck"));
+    assert!(!actions.iter().any(|a| matches!(a, Action::EndRun(_))));
+    assert!(f.tick(299).is_empty());
+    assert_eq!(f.tick(300), [Action::Restart(Role::Controller)]);
+}
+
+#[test]
+fn a_failed_restart_past_the_budget_or_at_shutdown_ends_the_run() {
+    let mut f = Fixture::new(Policy {
+        max_restarts: 1,
+        ..policy()
+    });
+    f.exit(CONTROLLER, 1, 0);
+    let actions = f
+        .core
+        .restart_failed(Role::Controller, &anyhow::anyhow!("no"), f.at(100), false);
+    assert!(actions.contains(&Action::EndRun(Outcome::ChildFailed(Role::Controller, -1))));
+    let mut g = Fixture::new(policy());
+    g.exit(OBSERVER, 1, 0);
+    let actions = g
+        .core
+        .restart_failed(Role::Observer, &anyhow::anyhow!("no"), g.at(100), true);
+    assert!(actions.contains(&Action::EndRun(Outcome::ChildFailed(Role::Observer, -1))));
+}
+
+// ---- spares ----
+
+fn warm() -> Policy {
+    Policy {
+        warm_spares: true,
+        ..policy()
+    }
+}
+
+#[test]
+fn a_spare_is_ordered_only_once_it_reported_idle_and_the_loop_ticks() {
+    let mut f = Fixture::new(warm());
+    // Before tick 0 the plant counts on each spare to stay a spare.
+    assert_eq!(f.core.engagement(Role::Observer, false), Engagement::Start);
+    f.sample(0);
+    // Still starting: worth waiting for, until the wait is over.
+    assert_eq!(
+        f.core.engagement(Role::Observer, false),
+        Engagement::WaitForSpare
+    );
+    assert_eq!(f.core.engagement(Role::Observer, true), Engagement::Start);
+    f.core.handle(Event::SpareIdle {
+        pid: SPARE_OBSERVER,
+    });
+    assert_eq!(
+        f.core.engagement(Role::Observer, false),
+        Engagement::Order(SPARE_OBSERVER)
+    );
+    // Without warm spares, always a new process.
+    let mut cold = Fixture::new(policy());
+    cold.sample(0);
+    assert_eq!(
+        cold.core.engagement(Role::Observer, false),
+        Engagement::Start
+    );
+}
+
+#[test]
+fn an_ordered_spare_serves_its_generation_and_its_crash_is_a_serving_crash() {
+    let mut f = Fixture::new(warm());
+    f.sample(0);
+    f.core.handle(Event::SpareIdle {
+        pid: SPARE_CONTROLLER,
+    });
+    let (old, generation) = f.core.plan_swap(Role::Controller).unwrap();
+    assert_eq!((old, generation), (CONTROLLER, 1));
+    f.core.ordered(
+        SPARE_CONTROLLER,
+        generation,
+        Joining::Replacement,
+        Path::new("new.toml"),
+    );
+    let m = f.member(SPARE_CONTROLLER);
+    assert_eq!((m.duty, m.generation), (Duty::Active, Some(1)));
+    assert_eq!(m.scenario, PathBuf::from("new.toml"));
+    assert!(!m.exit_expected());
+    assert_eq!(f.core.roster().next_generation(Role::Controller), 2);
+    // The replaced one becomes a spare again: it reports itself idle.
+    f.core.handle(Event::SpareIdle { pid: CONTROLLER });
+    assert_eq!(
+        f.core.roster().serving(Role::Controller).unwrap().pid,
+        SPARE_CONTROLLER
+    );
+    let actions = f.exit(SPARE_CONTROLLER, 137, 10);
+    assert_eq!(record(&actions, "crash").detail["restart_in_ms"], 100);
+}
+
+#[test]
+fn a_spare_crash_costs_the_spare_budget_and_another_spare_starts() {
+    let mut f = Fixture::new(Policy {
+        max_restarts: 1,
+        ..warm()
+    });
+    f.core.handle(Event::SpareIdle {
+        pid: SPARE_CONTROLLER,
+    });
+    let actions = f.exit(SPARE_CONTROLLER, 137, 0);
+    let crash = record(&actions, "crash");
+    assert_eq!(crash.detail["spare"], true);
+    assert_eq!(crash.generation, None, "a spare serves no generation yet");
+    assert!(crash.detail.get("restart_in_ms").is_none());
+    assert!(f.member(SPARE_CONTROLLER).exit_expected());
+    // Not a restart: nothing due, and the active role's budget is intact.
+    assert!(f.tick(10_000).is_empty());
+    assert_eq!(f.upkeep(0), [Action::StartSpare(Role::Controller)]);
+    // A second failure (to start, this time) exhausts the spare budget of 1.
+    let failed = f
+        .core
+        .spare_started(Role::Controller, &Err(anyhow::anyhow!("no")));
+    assert_eq!(kinds(&[failed]), ["spare-failed"]);
+    assert!(f.upkeep(0).is_empty());
+    // The controller's own restarts are untouched.
+    assert_eq!(kinds(&f.exit(CONTROLLER, 1, 0)), ["crash"]);
+}
+
+#[test]
+fn spares_are_kept_one_per_role_while_the_plant_runs() {
+    let mut f = Fixture::new(warm());
+    assert!(f.upkeep(0).is_empty(), "both spares live");
+    f.exit(SPARE_OBSERVER, 1, 0);
+    assert_eq!(f.upkeep(0), [Action::StartSpare(Role::Observer)]);
+    let started = f.core.spare_started(Role::Observer, &Ok(12));
+    assert_eq!(kinds(&[started]), ["spare"]);
+    f.launch(12, Role::Observer, 0, Joining::Spare);
+    assert!(f.upkeep(0).is_empty());
+    // Not while the role's restart is pending, nor at the run's end.
+    f.exit(12, 1, 0);
+    f.exit(OBSERVER, 1, 0);
+    assert!(f.upkeep(0).is_empty());
+    let mut ending = Fixture::new(warm());
+    ending.exit(SPARE_OBSERVER, 1, 0);
+    ending.core.handle(Event::EndOfRun);
+    assert!(ending.upkeep(0).is_empty());
+    let mut no_plant = Fixture::new(warm());
+    no_plant.exit(SPARE_OBSERVER, 1, 0);
+    no_plant.exit(PLANT, 0, 0);
+    assert!(no_plant.upkeep(0).is_empty());
+}
+
+// ---- boundaries ----
+
+#[test]
+fn a_swaps_boundary_is_50_ms_ahead_at_the_faster_of_rate_and_pace() {
+    let mut f = Fixture::new(policy());
+    f.sample(1000);
+    assert_eq!(f.core.boundary_ahead(), 1000 + 500);
+    // Lockstep runs faster than its rate: 20 000 samples in 200 ms.
+    f.core.handle(Event::Polled { now: f.at(0) });
+    f.sample(21_000);
+    f.core.handle(Event::Polled { now: f.at(200) });
+    assert_eq!(f.core.boundary_ahead(), 21_000 + 5000);
+    // And never fewer than 50 samples ahead.
+    let mut slow = Fixture::new(Policy {
+        rate_hz: 100.0,
+        ..policy()
+    });
+    slow.sample(7);
+    assert_eq!(slow.core.boundary_ahead(), 57);
+}
+
+#[test]
+fn a_restarts_boundary_is_right_after_the_dead_instances_last_state() {
+    let mut f = Fixture::new(policy());
+    assert_eq!(
+        f.core.restart_boundary(Role::Controller),
+        None,
+        "before tick 0"
+    );
+    f.sample(100);
+    assert_eq!(
+        f.core.restart_boundary(Role::Controller),
+        None,
+        "never served"
+    );
+    f.state(Role::Controller, 0, 90, ACTIVE);
+    f.state(Role::Observer, 0, 91, ACTIVE);
+    // An older state arriving late changes nothing.
+    f.state(Role::Controller, 0, 80, ACTIVE);
+    // Its last command was for 90; the estimate after measurement 91 is 92's.
+    assert_eq!(f.core.restart_boundary(Role::Controller), Some(91));
+    assert_eq!(f.core.restart_boundary(Role::Observer), Some(93));
+    assert_eq!(f.core.restart_boundary(Role::Logger), None);
+    f.exit(CONTROLLER, 1, 0);
+    f.tick(100);
+    assert_eq!(
+        f.core.plan_restart(Role::Controller),
+        Ok(RestartPlan::Fresh {
+            scenario: PathBuf::from("loop.toml"),
+            generation: 1,
+            owns_from: Some(91),
+        })
+    );
+}
+
+#[test]
+fn an_announced_boundary_keeps_the_owner_of_the_sample_before() {
+    let mut f = Fixture::new(policy());
+    let first = f.core.activation_for(Role::Controller, 1, 500);
+    f.core.announced(first);
+    let second = f.core.activation_for(Role::Controller, 2, 900);
+    assert_eq!(second.previous_controller_generation, 1);
+    assert_eq!(second.controller_generation, 2);
+    assert_eq!(second.controller_from_seq, 900);
+    // One announced before the first boundary passed keeps generation 0.
+    let early = f.core.activation_for(Role::Controller, 2, 400);
+    assert_eq!(early.previous_controller_generation, 0);
+    let observer = f.core.activation_for(Role::Observer, 1, 300);
+    assert_eq!(
+        (
+            observer.observer_generation,
+            observer.previous_observer_generation
+        ),
+        (1, 0)
+    );
+    assert_eq!(f.core.activation().controller_generation, 1);
+}
+
+// ---- bringing an instance in, and out ----
+
+#[test]
+fn a_new_instance_follows_in_shadow_or_by_serving_at_once() {
+    let mut f = Fixture::new(policy());
+    f.sample(10);
+    f.launch(22, Role::Controller, 1, Joining::Replacement);
+    assert!(matches!(
+        f.core.shadow_step(Role::Controller, 1, false),
+        ShadowStep::Waiting { hand_over: None }
+    ));
+    f.state(Role::Controller, 1, 10, FOLLOWING);
+    assert!(matches!(
+        f.core.shadow_step(Role::Controller, 1, false),
+        ShadowStep::Following
+    ));
+    // A restart owns samples at once: it is seen active.
+    f.launch(12, Role::Observer, 1, Joining::Restart);
+    f.state(Role::Observer, 1, 11, ACTIVE);
+    assert!(matches!(
+        f.core.shadow_step(Role::Observer, 1, false),
+        ShadowStep::Following
+    ));
+}
+
+#[test]
+fn a_dead_predecessors_last_state_is_handed_to_its_replacement() {
+    let mut f = Fixture::new(policy());
+    f.sample(10);
+    f.state(Role::Observer, 0, 9, ACTIVE);
+    f.launch(12, Role::Observer, 1, Joining::Restart);
+    // Alive, it hands over itself.
+    assert!(matches!(
+        f.core.shadow_step(Role::Observer, 1, false),
+        ShadowStep::Waiting { hand_over: None }
+    ));
+    f.exit(OBSERVER, 137, 0);
+    match f.core.shadow_step(Role::Observer, 1, false) {
+        ShadowStep::Waiting {
+            hand_over: Some(last),
+        } => assert_eq!((last.generation, last.seq), (0, 9)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_new_instance_that_exits_or_a_run_that_ends_fails_the_wait() {
+    let mut f = Fixture::new(policy());
+    f.sample(10);
+    f.launch(22, Role::Controller, 1, Joining::Replacement);
+    f.core.begin_operation();
+    f.exit(22, 3, 0);
+    match f.core.shadow_step(Role::Controller, 1, false) {
+        ShadowStep::Failed(failure) => assert_eq!(
+            failure,
+            Failure::NewInstanceExited {
+                role: Role::Controller,
+                generation: 1,
+                pid: 22,
+                code: 3
+            }
+        ),
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        f.member(22).exit_expected(),
+        "its exit is the swap's failure, not the run's"
+    );
+    assert!(f.core.end_operation(f.at(0)).is_empty());
+    assert!(matches!(
+        f.core.shadow_step(Role::Observer, 1, true),
+        ShadowStep::Failed(Failure::RunEndedBeforeFollowing)
+    ));
+    f.exit(PLANT, 0, 0);
+    assert!(matches!(
+        f.core.shadow_step(Role::Observer, 1, false),
+        ShadowStep::Failed(Failure::RunEndedBeforeFollowing)
+    ));
+}
+
+#[test]
+fn the_loop_passes_a_boundary_once_measured_past_it_and_the_old_one_left() {
+    let mut f = Fixture::new(warm());
+    f.sample(1000);
+    assert_eq!(
+        f.core.drain_step(1000, Some(CONTROLLER), false),
+        DrainStep::Waiting
+    );
+    f.sample(1101);
+    assert_eq!(
+        f.core.drain_step(1000, Some(CONTROLLER), false),
+        DrainStep::Waiting,
+        "the old one still serves"
+    );
+    // With warm spares it becomes a spare instead of exiting.
+    f.core.handle(Event::SpareIdle { pid: CONTROLLER });
+    assert_eq!(
+        f.core.drain_step(1000, Some(CONTROLLER), false),
+        DrainStep::Passed
+    );
+    assert_eq!(f.core.drain_step(1000, None, false), DrainStep::Passed);
+    assert_eq!(f.core.drain_step(2000, None, true), DrainStep::RunEnded);
+}
+
+#[test]
+fn a_swap_needs_a_live_instance_to_replace() {
+    let mut f = Fixture::new(policy());
+    assert_eq!(f.core.plan_swap(Role::Observer), Ok((OBSERVER, 1)));
+    f.core.begin_operation();
+    f.exit(OBSERVER, 1, 0);
+    assert_eq!(
+        f.core.plan_swap(Role::Observer),
+        Err(Failure::NotRunning(Role::Observer))
+    );
+}
+
+// ---- crashes during a swap ----
+
+#[test]
+fn a_crash_during_a_swap_is_settled_when_the_swap_ends() {
+    let mut f = Fixture::new(policy());
+    f.core.begin_operation();
+    assert!(f.exit(OBSERVER, 137, 0).is_empty());
+    assert!(!f.member(OBSERVER).exit_expected(), "not settled yet");
+    assert!(f.tick(1000).is_empty(), "no restart scheduled yet");
+    let actions = f.core.end_operation(f.at(1000));
+    assert_eq!(kinds(&actions), ["crash"]);
+    assert!(f.member(OBSERVER).exit_expected());
+    assert_eq!(f.tick(1100), [Action::Restart(Role::Observer)]);
+}
+
+#[test]
+fn the_instance_a_swap_replaces_exits_as_planned() {
+    let mut f = Fixture::new(policy());
+    f.core.begin_operation();
+    f.core.settle(CONTROLLER);
+    // Killed at the drain's timeout: no crash, no restart.
+    f.exit(CONTROLLER, 143, 0);
+    assert!(f.core.end_operation(f.at(0)).is_empty());
+    assert!(f.tick(10_000).is_empty());
+}
+
+// ---- standby ----
+
+fn standby() -> Policy {
+    Policy {
+        keep_standby: true,
+        ..policy()
+    }
+}
+
+#[test]
+fn a_standby_is_kept_once_the_loop_ticks() {
+    let mut f = Fixture::new(standby());
+    assert!(f.upkeep(0).is_empty(), "not before tick 0");
+    f.sample(0);
+    assert_eq!(
+        f.upkeep(0),
+        [Action::StartStandby {
+            scenario: PathBuf::from("loop.toml"),
+            generation: 1
+        }]
+    );
+    f.launch(23, Role::Controller, 1, Joining::Standby);
+    assert_eq!(
+        kinds(&[f.core.standby_engaged(1, &Ok((23, false)))]),
+        ["standby"]
+    );
+    assert!(f.upkeep(0).is_empty(), "one is enough");
+    assert_eq!(
+        f.core.roster().serving(Role::Controller).unwrap().pid,
+        CONTROLLER,
+        "a standby is not the role's instance"
+    );
+}
+
+#[test]
+fn a_standby_that_fails_to_start_costs_the_restart_budget() {
+    let mut f = Fixture::new(Policy {
+        max_restarts: 0,
+        ..standby()
+    });
+    f.sample(0);
+    assert_eq!(f.upkeep(0).len(), 1);
+    let failed = f.core.standby_engaged(1, &Err(anyhow::anyhow!("no")));
+    assert_eq!(kinds(&[failed]), ["standby-failed"]);
+    assert!(f.upkeep(0).is_empty(), "past the budget");
+}
+
+#[test]
+fn a_standby_crash_costs_the_restart_budget_and_another_standby_starts() {
+    let mut f = Fixture::new(standby());
+    f.sample(0);
+    f.launch(23, Role::Controller, 1, Joining::Standby);
+    let actions = f.exit(23, 137, 0);
+    assert_eq!(record(&actions, "crash").detail["standby"], true);
+    assert!(f.member(23).exit_expected());
+    assert!(f.tick(10_000).is_empty(), "not restarted as such");
+    assert!(matches!(
+        f.upkeep(0)[..],
+        [Action::StartStandby { generation: 2, .. }]
+    ));
+}
+
+#[test]
+fn a_crashed_controller_promotes_the_standby_that_follows() {
+    let mut f = Fixture::new(standby());
+    f.sample(100);
+    f.launch(23, Role::Controller, 1, Joining::Standby);
+    f.exit(CONTROLLER, 137, 0);
+    f.tick(100);
+    // Not following yet: a new controller instead.
+    assert!(matches!(
+        f.core.plan_restart(Role::Controller),
+        Ok(RestartPlan::Fresh { generation: 2, .. })
+    ));
+    f.state(Role::Controller, 1, 100, FOLLOWING);
+    assert_eq!(
+        f.core.plan_restart(Role::Controller),
+        Ok(RestartPlan::Promote { generation: 1 })
+    );
+    assert_eq!(f.member(23).duty, Duty::Active);
+    assert_eq!(f.core.roster().serving(Role::Controller).unwrap().pid, 23);
+    // Then another standby follows the promoted one.
+    assert!(matches!(
+        f.upkeep(200)[..],
+        [Action::StartStandby { generation: 2, .. }]
+    ));
+}
+
+#[test]
+fn no_standby_starts_while_the_controllers_restart_is_pending() {
+    let mut f = Fixture::new(standby());
+    f.sample(0);
+    f.exit(CONTROLLER, 1, 0);
+    assert!(f.upkeep(0).is_empty());
+}
+
+#[test]
+fn a_swap_to_another_design_renews_the_standby() {
+    let mut f = Fixture::new(Policy {
+        warm_spares: true,
+        ..standby()
+    });
+    f.sample(0);
+    f.launch(23, Role::Controller, 1, Joining::Standby);
+    assert_eq!(f.core.standby_renewal(), None, "same design");
+    // The swap: a spare now serves another design.
+    f.core.handle(Event::SpareIdle {
+        pid: SPARE_CONTROLLER,
+    });
+    f.core.ordered(
+        SPARE_CONTROLLER,
+        2,
+        Joining::Replacement,
+        Path::new("retuned.toml"),
+    );
+    f.core.handle(Event::SpareIdle { pid: CONTROLLER });
+    assert_eq!(
+        f.core.standby_renewal(),
+        Some(Renewal {
+            scenario: PathBuf::from("retuned.toml"),
+            generation: 3,
+            old: vec![(23, 1)],
+        })
+    );
+}
+
+#[test]
+fn a_retiring_standby_becomes_a_spare_or_is_stopped_when_late() {
+    let mut f = Fixture::new(Policy {
+        warm_spares: true,
+        ..standby()
+    });
+    assert_eq!(f.core.retirement(), Retirement::Order);
+    f.launch(23, Role::Controller, 1, Joining::Standby);
+    f.launch(24, Role::Controller, 2, Joining::Standby);
+    f.core.retiring(23, f.at(0));
+    f.core.retiring(24, f.at(0));
+    assert!(f.upkeep(2000).iter().all(|a| !matches!(a, Action::Stop(_))));
+    // 23 became a spare in time; 24 did not.
+    f.core.handle(Event::SpareIdle { pid: 23 });
+    let actions = f.upkeep(2001);
+    assert!(actions.contains(&Action::Stop(24)));
+    assert!(!actions.contains(&Action::Stop(23)));
+    assert!(f.member(24).exit_expected());
+    // Dealt with once.
+    assert!(!f.upkeep(5000).contains(&Action::Stop(24)));
+    let cold = Fixture::new(standby());
+    assert_eq!(cold.core.retirement(), Retirement::Stop);
+}
+
+// ---- what a restart brings back ----
+
+#[test]
+fn a_restart_runs_the_file_of_the_generation_that_owned_the_loop() {
+    let mut f = Fixture::new(policy());
+    f.sample(10);
+    // Generation 1 (another design) took over from generation 0.
+    f.launch_with(
+        22,
+        Role::Controller,
+        1,
+        Joining::Replacement,
+        "retuned.toml".into(),
+    );
+    let owner = f.core.activation_for(Role::Controller, 1, 50);
+    f.core.announced(owner);
+    f.exit(CONTROLLER, 0, 0);
+    f.exit(22, 137, 0);
+    match f.core.plan_restart(Role::Controller) {
+        Ok(RestartPlan::Fresh {
+            scenario,
+            generation,
+            ..
+        }) => assert_eq!((scenario, generation), (PathBuf::from("retuned.toml"), 2)),
+        other => panic!("{other:?}"),
+    }
+    f.exit(LOGGER, 1, 0);
+    assert_eq!(
+        f.core.plan_restart(Role::Logger),
+        Ok(RestartPlan::Logger {
+            scenario: PathBuf::from("loop.toml"),
+            generation: 1
+        })
+    );
+}
+
+// ---- what the core sees ----
+
+#[test]
+fn only_the_owners_and_the_standbys_commands_count_for_the_step() {
+    let mut f = Fixture::new(policy());
+    let command = |seq: u64, generation: u32, standby: bool, u0: f64| {
+        let mut u = [0.0; MAX_INPUTS];
+        u[0] = u0;
+        Event::Command {
+            seq,
+            generation,
+            standby,
+            u,
+        }
+    };
+    for seq in 0..10 {
+        f.core.handle(command(seq, 0, false, 1.0));
+        // A shadow's command (generation 1, not the owner yet) is ignored.
+        f.core.handle(command(seq, 1, false, 50.0));
+    }
+    f.core.handle(command(10, 1, true, 3.0));
+    assert_eq!(f.core.last_seq(), Some(10));
+    let switch = f.core.switch(Role::Controller, 1, 5, 10, true);
+    assert_eq!((switch.du_switch, switch.du_before), (2.0, 0.0));
+}
+
+#[test]
+fn the_process_list_shows_live_processes_and_their_duties() {
+    let mut f = Fixture::new(warm());
+    f.exit(LOGGER, 0, 0);
+    let list = f.core.roster().processes();
+    let duties: Vec<(String, String, Value)> = list["processes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (
+                p["role"].as_str().unwrap().to_string(),
+                p["duty"].as_str().unwrap().to_string(),
+                p["generation"].clone(),
+            )
+        })
+        .collect();
+    let d = |r: &str, duty: &str, g: Value| (r.to_string(), duty.to_string(), g);
+    assert_eq!(
+        duties,
+        [
+            d("observer", "active", json!(0)),
+            d("controller", "active", json!(0)),
+            d("observer", "spare", Value::Null),
+            d("controller", "spare", Value::Null),
+            d("plant", "active", json!(0)),
+        ]
+    );
+}
+
+#[test]
+fn a_spare_taken_as_the_standby_is_replaced_at_the_next_stage_of_the_same_tick() {
+    let mut f = Fixture::new(Policy {
+        warm_spares: true,
+        ..standby()
+    });
+    f.sample(0);
+    f.core.handle(Event::SpareIdle {
+        pid: SPARE_CONTROLLER,
+    });
+    let now = f.at(0);
+    let standby = f.core.handle(Event::Tick {
+        now,
+        stage: Stage::Standby,
+    });
+    assert!(matches!(
+        standby[..],
+        [Action::StartStandby { generation: 1, .. }]
+    ));
+    // The shell orders the spare to stand by...
+    assert_eq!(
+        f.core.engagement(Role::Controller, false),
+        Engagement::Order(SPARE_CONTROLLER)
+    );
+    f.core.ordered(
+        SPARE_CONTROLLER,
+        1,
+        Joining::Standby,
+        Path::new("loop.toml"),
+    );
+    assert_eq!(f.member(SPARE_CONTROLLER).duty, Duty::Standby);
+    // ...and the spares' stage, decided after that, starts another spare.
+    let spares = f.core.handle(Event::Tick {
+        now,
+        stage: Stage::Spares,
+    });
+    assert_eq!(spares, [Action::StartSpare(Role::Controller)]);
+}

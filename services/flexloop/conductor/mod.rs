@@ -1,0 +1,29 @@
+//! The supervisor's side of hand-overs: it owns the activation (which
+//! generation of controller and observer owns which samples), swaps a
+//! component on request (shadow start, boundary, drain), restarts a crashed
+//! one with back-off, keeps warm spares and a standby controller, and writes
+//! every event to the run's `events.jsonl`.
+//!
+//! - [`decide`]: the decision core, events in and actions out, no I/O.
+//! - [`roster`]: its view of the processes and their duties.
+//! - [`measure`]: the loop's pace and the command's step at a switch.
+//! - [`shell`]: carries out the core's actions: processes, waits, files.
+//! - [`ports`]: the channels it reads and publishes.
+//! - [`replay`]: the measurements replayed to a restarted observer.
+//! - [`record`]: the events file and the list of live processes.
+//! - [`requests`]: `flexloop swap`'s request/answer files.
+
+mod decide;
+mod measure;
+mod per_role;
+mod ports;
+mod record;
+mod replay;
+mod requests;
+mod roster;
+mod shell;
+mod switch;
+
+pub use requests::request_swap;
+pub use shell::Conductor;
+pub use switch::Switch;

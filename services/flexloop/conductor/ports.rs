@@ -1,0 +1,170 @@
+//! The conductor's channels: what it reads of the loop (commands, estimates,
+//! states, idle spares, measurements) and what it publishes (the activation,
+//! a dead instance's last state, orders to spares, replayed measurements).
+
+use super::decide::{Core, Event};
+use super::replay::Replay;
+use anyhow::Result;
+use flexloop_node::Role;
+use flexloop_protocol::channels::{
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY,
+    OBSERVER_STATE, SPARE_ORDER, SPARE_STATUS,
+};
+use flexloop_protocol::handover::CATCHING_UP;
+use flexloop_protocol::{
+    Activation, Command, Estimate, Handover, Measurement, SpareOrder, SpareStatus, flags,
+};
+use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
+use std::time::Instant;
+
+pub struct Ports {
+    // Ports before the node: they must drop first.
+    activation_out: Outlet<Activation>,
+    controller_states: Inlet<Handover>,
+    observer_states: Inlet<Handover>,
+    controller_state_out: Outlet<Handover>,
+    observer_state_out: Outlet<Handover>,
+    commands: Inlet<Command>,
+    /// Opened once the loop runs: the observer counts its readers at start-up.
+    estimates: Option<Inlet<Estimate>>,
+    /// Opened once the loop runs too (the plant counts its readers): fills
+    /// the replay's ring.
+    measurements: Option<Inlet<Measurement>>,
+    replay_out: Outlet<Measurement>,
+    spare_orders: Outlet<SpareOrder>,
+    spare_status: Inlet<SpareStatus>,
+    node: LoopNode,
+    domain: Domain,
+}
+
+impl Ports {
+    pub fn open(prefix: &str) -> Result<Self> {
+        let domain = Domain::new(prefix)?;
+        let node = domain.node("supervisor")?;
+        Ok(Self {
+            activation_out: Outlet::open(&node, &ACTIVATION)?,
+            controller_states: Inlet::open_polling(&node, &CONTROLLER_STATE, 8)?,
+            observer_states: Inlet::open_polling(&node, &OBSERVER_STATE, 8)?,
+            controller_state_out: Outlet::open(&node, &CONTROLLER_STATE)?,
+            observer_state_out: Outlet::open(&node, &OBSERVER_STATE)?,
+            commands: Inlet::open_polling(&node, &COMMAND, COMMAND.qos.logger_buffer_size)?,
+            estimates: None,
+            measurements: None,
+            replay_out: Outlet::open(&node, &MEASUREMENT_REPLAY)?,
+            spare_orders: Outlet::open(&node, &SPARE_ORDER)?,
+            spare_status: Inlet::open_polling(
+                &node,
+                &SPARE_STATUS,
+                SPARE_STATUS.qos.loop_buffer_size,
+            )?,
+            node,
+            domain,
+        })
+    }
+
+    /// Hands the core what the channels carry since the last look: the
+    /// commands and with them the loop's newest sample number (not from the
+    /// measurements: the plant counts their readers to know when the chain
+    /// is ready), states, idle spares; and the replay its measurements.
+    /// Observations: the core answers them with no action.
+    pub fn poll(&mut self, core: &mut Core, replay: &mut Replay) {
+        // A publisher hands its history to a new subscriber only when it
+        // updates its connections: a replacement must learn the activation.
+        let _ = self.activation_out.connect();
+        // Estimates too: when the controller is dead they still show the pace.
+        if self.estimates.is_none() && core.ticking() {
+            self.estimates = Inlet::open_polling(&self.node, &ESTIMATE, 16).ok();
+        }
+        if self.measurements.is_none() && core.ticking() {
+            self.measurements =
+                Inlet::open_polling(&self.node, &MEASUREMENT, MEASUREMENT.qos.logger_buffer_size)
+                    .ok();
+        }
+        if let Some(measurements) = &self.measurements {
+            while let Ok(Some(m)) = measurements.receive() {
+                replay.keep(*m);
+                if m.flags & flags::END_OF_RUN != 0 {
+                    core.handle(Event::EndOfRun);
+                }
+            }
+        }
+        if let Some(estimates) = &self.estimates {
+            while let Ok(Some(e)) = estimates.receive() {
+                core.handle(Event::Estimate { seq: e.seq });
+            }
+        }
+        for (role, inlet) in [
+            (Role::Controller, &self.controller_states),
+            (Role::Observer, &self.observer_states),
+        ] {
+            while let Ok(Some(h)) = inlet.receive() {
+                if h.shadow == CATCHING_UP {
+                    replay.progress(h.generation, h.seq);
+                } else {
+                    core.handle(Event::State { role, state: &h });
+                }
+            }
+        }
+        while let Ok(Some(status)) = self.spare_status.receive() {
+            core.handle(Event::SpareIdle {
+                pid: status.pid as i32,
+            });
+        }
+        while let Ok(Some(c)) = self.commands.receive() {
+            core.handle(Event::Command {
+                seq: c.seq,
+                generation: c.generation,
+                standby: c.flags & flags::STANDBY != 0,
+                u: c.u,
+            });
+        }
+        core.handle(Event::Polled {
+            now: Instant::now(),
+        });
+    }
+
+    /// Publishes the activation, stamped now.
+    pub fn publish_activation(&self, mut activation: Activation) -> Result<Activation> {
+        activation.published_ns = flexloop_runtime::monotonic_ns();
+        self.activation_out.publish(|a| *a = activation)?;
+        Ok(activation)
+    }
+
+    /// Publishes a dead instance's last state for its replacement (best
+    /// effort: it is published again at the next look).
+    pub fn hand_over(&self, role: Role, last: &Handover) {
+        let out = match role {
+            Role::Controller => &self.controller_state_out,
+            _ => &self.observer_state_out,
+        };
+        let _ = out.publish(|h| *h = *last);
+    }
+
+    /// Publishes `order`, stamped now. Published, it counts: without the
+    /// wake-up the spare finds it at its next look (100 ms).
+    pub fn send_order(&self, order: SpareOrder) -> Result<()> {
+        self.spare_orders.publish(|o| {
+            *o = order;
+            o.published_ns = flexloop_runtime::monotonic_ns();
+        })?;
+        let _ = self.spare_orders.notify();
+        Ok(())
+    }
+
+    /// Replays to the restarted observer `generation` the measurements after
+    /// its dead predecessor's last state (see [`Replay::feed`]).
+    pub fn feed_replay(&self, replay: &mut Replay, generation: u32, state_seq: u64) {
+        // Nothing before the observer listens: the channel keeps no history.
+        if self.replay_out.subscribers() == 0 {
+            return;
+        }
+        let out = &self.replay_out;
+        replay.feed(generation, state_seq, |m| out.publish(|r| *r = *m).is_ok());
+    }
+
+    /// Removes dead nodes' shared memory (now that no live process uses it;
+    /// never from inside the loop); returns how many.
+    pub fn clean_dead_nodes(&self) -> usize {
+        cleanup_dead_nodes(&self.domain).unwrap_or(0)
+    }
+}

@@ -1,0 +1,682 @@
+//! The conductor's shell: it watches the loop over IPC and feeds what it
+//! sees to the decision core (`decide.rs`), carries out the core's actions
+//! (orders, announcements, processes started and stopped, the run's files),
+//! and waits where a swap or restart must wait, asking the core at each step.
+
+use super::decide::{
+    Action, Core, DrainStep, Engagement, Event, Failure, Policy, Record, RestartPlan, Retirement,
+    ShadowStep, Stage,
+};
+use super::ports::Ports;
+use super::record::RunFiles;
+use super::replay::Replay;
+use super::requests;
+use super::switch::Switch;
+use crate::supervisor::{Joining, Outcome, RunningLoop};
+use anyhow::{Context, Result, anyhow, bail};
+use flexloop_node::Role;
+use flexloop_protocol::channels::MEASUREMENT_REPLAY;
+use flexloop_protocol::spare::RETIRE;
+use flexloop_protocol::{Activation, SpareOrder};
+use flexloop_runtime::shutdown;
+use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use serde_json::json;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long a replacement may take to start and follow the loop in shadow.
+pub(super) const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long the replaced instance may take to hand over and exit.
+pub(super) const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a swap or restart waits for a spare that is still starting.
+const SPARE_START_WAIT: Duration = Duration::from_secs(5);
+/// How far back the supervisor keeps measurements for a restarted observer:
+/// the crash noticed (20 ms), the back-off (100 ms, doubled per restart), the
+/// replacement's start-up (tens of ms), with room to spare.
+const REPLAY_SPAN: Duration = Duration::from_secs(2);
+const MAX_REPLAY_SAMPLES: usize = 1 << 16;
+
+/// A new instance on its way in.
+struct Incoming {
+    role: Role,
+    generation: u32,
+    /// The loop's sample when it was started or ordered.
+    start_seq: u64,
+    /// A warm spare (or a running standby), not a new process.
+    warm: bool,
+    /// The instance it replaces, alive (a swap).
+    old: Option<i32>,
+    /// The boundary, if already announced (a restart owns samples at once).
+    announced: Option<u64>,
+}
+
+pub struct Conductor {
+    ports: Ports,
+    core: Core,
+    replay: Replay,
+    files: RunFiles,
+    scenario: Scenario,
+    overrides: Overrides,
+    pub switches: Vec<Switch>,
+}
+
+impl Conductor {
+    pub fn open(
+        prefix: &str,
+        run_dir: &Path,
+        scenario: &Scenario,
+        overrides: &Overrides,
+    ) -> Result<Self> {
+        let ports = Ports::open(prefix)?;
+        let replay_capacity = ((scenario.timing.rate_hz * REPLAY_SPAN.as_secs_f64()) as usize)
+            .clamp(1024, MAX_REPLAY_SAMPLES);
+        let activation = ports.publish_activation(Activation::INITIAL)?;
+        let n_inputs = LoopDesign::from_scenario(scenario)
+            .map(|d| d.n_inputs)
+            .unwrap_or(1);
+        Ok(Self {
+            ports,
+            core: Core::new(Policy::of(scenario, n_inputs), activation),
+            // Replayed measurements in flight at most: the replay queue's depth.
+            replay: Replay::new(
+                replay_capacity,
+                MEASUREMENT_REPLAY.qos.loop_buffer_size as u64,
+            ),
+            files: RunFiles::new(run_dir),
+            scenario: scenario.clone(),
+            overrides: overrides.clone(),
+            switches: Vec::new(),
+        })
+    }
+
+    fn poll(&mut self) {
+        self.ports.poll(&mut self.core, &mut self.replay);
+    }
+
+    /// Tells the core of processes started and ended since the last look,
+    /// and the supervisor which exits are expected. Crash records go out.
+    fn track(&mut self, running: &mut RunningLoop) {
+        let now = Instant::now();
+        let mut events = Vec::new();
+        for c in &running.children {
+            if !self.core.roster().knows(c.pid) {
+                events.push(Event::Launched {
+                    pid: c.pid,
+                    role: c.role,
+                    generation: c.generation,
+                    joining: c.joining,
+                    scenario: c.scenario.clone(),
+                });
+            }
+            if let Some(exit) = c.exit
+                && self.core.roster().get(c.pid).is_none_or(|m| m.alive())
+            {
+                events.push(Event::Exited {
+                    pid: c.pid,
+                    code: exit.code,
+                    now,
+                });
+            }
+        }
+        for event in events {
+            let actions = self.core.handle(event);
+            self.record_all(actions);
+        }
+        for m in self.core.roster().iter() {
+            running.expect_exit(m.pid, m.exit_expected());
+        }
+    }
+
+    /// One look at everything: processes first, so that the channels' news
+    /// (a spare's idle report) finds the process it is about.
+    fn observe(&mut self, running: &mut RunningLoop) {
+        running.reap();
+        self.track(running);
+        self.poll();
+    }
+
+    /// Writes the records among `actions` (those an exit or an observation
+    /// brings: nothing else).
+    fn record_all(&mut self, actions: Vec<Action>) {
+        for action in actions {
+            match action {
+                Action::Record(record) => self.record(record),
+                other => unreachable!("an exit or observation asked for {other:?}"),
+            }
+        }
+    }
+
+    fn record(&mut self, mut record: Record) {
+        if record.clean_dead_nodes {
+            // The dead node's shared memory, now that no live process uses
+            // it; never from inside the loop.
+            record.detail["cleaned_nodes"] = json!(self.ports.clean_dead_nodes());
+        }
+        self.files.append(&record);
+    }
+
+    /// Carries out the core's actions; returns the run's end if one says so.
+    fn execute(&mut self, running: &mut RunningLoop, actions: Vec<Action>) -> Option<Outcome> {
+        for action in actions {
+            match action {
+                Action::Record(record) => self.record(record),
+                Action::Stop(pid) => self.stop(running, pid),
+                Action::EndRun(outcome) => return Some(outcome),
+                Action::Restart(role) => {
+                    let result = self.operation(running, |c, running| c.restart(running, role));
+                    if let Err(e) = result {
+                        eprintln!(
+                            "flexloop: restart of flexloop-{} failed: {e:#}",
+                            role.name()
+                        );
+                        let then = self.core.restart_failed(
+                            role,
+                            &e,
+                            Instant::now(),
+                            shutdown::requested(),
+                        );
+                        if let Some(outcome) = self.execute(running, then) {
+                            return Some(outcome);
+                        }
+                    }
+                }
+                Action::StartSpare(role) => {
+                    let started = running.start_spare(role);
+                    self.track(running);
+                    let record = self.core.spare_started(role, &started);
+                    self.record_action(record);
+                }
+                Action::StartStandby {
+                    scenario,
+                    generation,
+                } => {
+                    let engaged = self.operation(running, |c, running| {
+                        c.engage(
+                            running,
+                            Role::Controller,
+                            &scenario,
+                            generation,
+                            Joining::Standby,
+                        )
+                    });
+                    let record = self.core.standby_engaged(generation, &engaged);
+                    self.record_action(record);
+                }
+            }
+        }
+        None
+    }
+
+    /// Runs a swap, restart or standby's start (one at a time, never one
+    /// inside another): crashes seen meanwhile are settled once it is over
+    /// (it may be the one that deals with them).
+    fn operation<T>(
+        &mut self,
+        running: &mut RunningLoop,
+        work: impl FnOnce(&mut Self, &mut RunningLoop) -> T,
+    ) -> T {
+        self.core.begin_operation();
+        let result = work(self, running);
+        let settled = self.core.end_operation(Instant::now());
+        self.record_all(settled);
+        self.track(running);
+        result
+    }
+
+    /// Stops one process whose exit is dealt with.
+    fn stop(&mut self, running: &mut RunningLoop, pid: i32) {
+        self.core.settle(pid);
+        running.terminate(pid);
+    }
+
+    /// Called by the supervisor every 20 ms: crashes, restarts, spares,
+    /// the standby, requests. The run's files are up to date after it.
+    pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
+        let outcome = self.tick_stages(running);
+        self.track(running);
+        self.publish_files();
+        outcome
+    }
+
+    fn tick_stages(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
+        // The supervisor reaped just now.
+        self.track(running);
+        self.poll();
+        for stage in Stage::IN_ORDER {
+            let actions = self.core.handle(Event::Tick {
+                now: Instant::now(),
+                stage,
+            });
+            if let Some(outcome) = self.execute(running, actions) {
+                return Some(outcome);
+            }
+        }
+        for request in requests::pending(self.files.run_dir()) {
+            let answer = match requests::read(&request)
+                .and_then(|r| self.swap(running, r.role, &r.scenario))
+            {
+                Ok(switch) => json!({"ok": true, "switch": switch.json()}),
+                Err(e) => json!({"ok": false, "error": format!("{e:#}")}),
+            };
+            // The files first: who asked may look there next.
+            self.publish_files();
+            requests::answer(&request, &answer);
+        }
+        None
+    }
+
+    fn publish_files(&mut self) {
+        let list = self.core.roster().processes();
+        self.files.publish(list);
+    }
+
+    /// Replaces the active `role` by an instance running `scenario_path`.
+    pub fn swap(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario_path: &Path,
+    ) -> Result<Switch> {
+        let switch = self.operation(running, |c, running| {
+            c.swap_to(running, role, scenario_path)
+        });
+        self.publish_files();
+        switch
+    }
+
+    fn swap_to(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario_path: &Path,
+    ) -> Result<Switch> {
+        self.check_compatible(scenario_path)?;
+        let (old, generation) = self.core.plan_swap(role)?;
+        // A replacement follows a ticking loop (and a spare serves only then).
+        let since = Instant::now();
+        self.poll();
+        while !self.core.ticking() {
+            if since.elapsed() > SHADOW_TIMEOUT || shutdown::requested() {
+                bail!("the loop did not start within {SHADOW_TIMEOUT:?}: nothing to swap into");
+            }
+            std::thread::sleep(Duration::from_millis(5));
+            self.poll();
+        }
+        let start_seq = self.core.last_seq().unwrap_or(0);
+        let (pid, warm) = self.engage(
+            running,
+            role,
+            scenario_path,
+            generation,
+            Joining::Replacement,
+        )?;
+        if let Err(e) = self.await_shadow(running, role, generation) {
+            self.stop(running, pid);
+            return Err(e);
+        }
+        let switch = self.activate(
+            running,
+            Incoming {
+                role,
+                generation,
+                start_seq,
+                warm,
+                old: Some(old),
+                announced: None,
+            },
+        )?;
+        self.record_action(self.core.note(
+            "swap",
+            role,
+            Some(generation),
+            json!({"scenario": scenario_path.display().to_string(), "switch": switch.json()}),
+        ));
+        self.switches.push(switch.clone());
+        if role == Role::Controller {
+            self.renew_standby(running);
+        }
+        Ok(switch)
+    }
+
+    fn record_action(&mut self, action: Action) {
+        self.record_all(vec![action]);
+    }
+
+    /// The replacement must fit the running loop: same rate, mode and plant,
+    /// same loop delay, and a design that passes its own checks.
+    fn check_compatible(&self, path: &Path) -> Result<()> {
+        let new = Scenario::load(path, &self.overrides)?;
+        let run = &self.scenario;
+        let differs = |name: &str| {
+            anyhow!(
+                "{}: field {name} differs from the running loop's ({}); a swap replaces only [controller] or [observer]",
+                path.display(),
+                run.source.display()
+            )
+        };
+        if new.timing != run.timing {
+            return Err(differs("loop"));
+        }
+        if new.plant != run.plant {
+            return Err(differs("plant"));
+        }
+        if new.controller.extra_delay_samples != run.controller.extra_delay_samples {
+            return Err(differs("controller.extra_delay_samples"));
+        }
+        LoopDesign::from_scenario(&new)?;
+        Ok(())
+    }
+
+    /// Brings up `role` as `generation` running `scenario`, as the core
+    /// chooses: an idle warm spare, or a new process. Returns its pid and
+    /// whether it was a spare.
+    fn engage(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        scenario: &Path,
+        generation: u32,
+        joining: Joining,
+    ) -> Result<(i32, bool)> {
+        let since = Instant::now();
+        loop {
+            self.observe(running);
+            match self
+                .core
+                .engagement(role, since.elapsed() > SPARE_START_WAIT)
+            {
+                Engagement::WaitForSpare => std::thread::sleep(Duration::from_millis(5)),
+                Engagement::Order(pid) => {
+                    self.order(pid, generation, joining, scenario)?;
+                    self.core.ordered(pid, generation, joining, scenario);
+                    self.track(running);
+                    return Ok((pid, true));
+                }
+                Engagement::Start => {
+                    let pid = running.launch(role, scenario, generation, joining)?;
+                    self.track(running);
+                    return Ok((pid, false));
+                }
+            }
+        }
+    }
+
+    /// Orders the idle spare `pid` to join as `generation` running `scenario`.
+    fn order(&self, pid: i32, generation: u32, joining: Joining, scenario: &Path) -> Result<()> {
+        let path = scenario
+            .to_str()
+            .ok_or_else(|| anyhow!("{}: the path is not UTF-8", scenario.display()))?;
+        let mut order = SpareOrder {
+            pid: pid as u32,
+            generation,
+            joining: joining
+                .order_code()
+                .context("a spare is ordered to replace, restart or stand by")?,
+            ..SpareOrder::default()
+        };
+        order
+            .set_scenario(path)
+            .map_err(|e| anyhow!("{}: {e}", scenario.display()))?;
+        self.ports.send_order(order)
+    }
+
+    /// Waits until the new instance follows the loop in shadow, handing it
+    /// meanwhile its dead predecessor's last state (and, to an observer, the
+    /// measurements since).
+    fn await_shadow(
+        &mut self,
+        running: &mut RunningLoop,
+        role: Role,
+        generation: u32,
+    ) -> Result<()> {
+        let since = Instant::now();
+        loop {
+            self.observe(running);
+            match self
+                .core
+                .shadow_step(role, generation, shutdown::requested())
+            {
+                ShadowStep::Following => return Ok(()),
+                ShadowStep::Failed(failure @ Failure::NewInstanceExited { pid, .. }) => {
+                    self.track(running);
+                    let stderr = running
+                        .children
+                        .iter()
+                        .find(|c| c.pid == pid)
+                        .map(|c| self.files.run_dir().join(&c.stderr_file));
+                    let stderr = stderr.unwrap_or_default();
+                    bail!("{failure}; see {}", stderr.display());
+                }
+                ShadowStep::Failed(failure) => return Err(failure.into()),
+                ShadowStep::Waiting { hand_over } => {
+                    if let Some(last) = hand_over {
+                        self.ports.hand_over(role, &last);
+                        if role == Role::Observer {
+                            self.ports
+                                .feed_replay(&mut self.replay, generation, last.seq);
+                        }
+                    }
+                }
+            }
+            if since.elapsed() > SHADOW_TIMEOUT {
+                bail!(
+                    "the new flexloop-{} did not follow the loop within {SHADOW_TIMEOUT:?}",
+                    role.name()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// Announces the boundary (a swap's, ahead) unless announced already,
+    /// waits until the loop passed it (and the old instance, if any, left),
+    /// and measures the command's step there.
+    fn activate(&mut self, running: &mut RunningLoop, incoming: Incoming) -> Result<Switch> {
+        let Incoming {
+            role,
+            generation,
+            start_seq,
+            warm,
+            old,
+            announced,
+        } = incoming;
+        self.poll();
+        let from_seq = match announced {
+            Some(from_seq) => from_seq,
+            None => {
+                let from_seq = self.core.boundary_ahead();
+                self.announce(role, generation, from_seq)?;
+                from_seq
+            }
+        };
+        if let Some(pid) = old {
+            // Its exit (or, with warm spares, its retirement to a spare)
+            // after the boundary is the plan, not a crash.
+            self.core.settle(pid);
+        }
+        let since = Instant::now();
+        loop {
+            self.observe(running);
+            match self.core.drain_step(from_seq, old, shutdown::requested()) {
+                DrainStep::Passed => break,
+                DrainStep::RunEnded => return Err(Failure::RunEndedBeforeSwitch.into()),
+                DrainStep::Waiting => {}
+            }
+            if since.elapsed() > DRAIN_TIMEOUT {
+                if let Some(pid) = old {
+                    self.stop(running, pid);
+                }
+                bail!(
+                    "the loop did not pass the switch at sample {from_seq} within {DRAIN_TIMEOUT:?}"
+                );
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        Ok(self
+            .core
+            .switch(role, generation, start_seq, from_seq, warm))
+    }
+
+    /// Publishes that `generation` of `role` owns the samples from `from_seq` on.
+    fn announce(&mut self, role: Role, generation: u32, from_seq: u64) -> Result<()> {
+        let next = self.core.activation_for(role, generation, from_seq);
+        let published = self.ports.publish_activation(next)?;
+        self.core.announced(published);
+        Ok(())
+    }
+
+    /// Brings `role` back after its crash, as the core plans it.
+    fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<()> {
+        let start_seq = self.core.last_seq().unwrap_or(0);
+        let (scenario, generation, owns_from) = match self.core.plan_restart(role)? {
+            RestartPlan::Promote { generation } => {
+                let incoming = Incoming {
+                    role: Role::Controller,
+                    generation,
+                    start_seq,
+                    warm: true,
+                    old: None,
+                    announced: None,
+                };
+                let switch = self.activate(running, incoming)?;
+                self.record_action(self.core.note(
+                    "promote-standby",
+                    Role::Controller,
+                    Some(generation),
+                    switch.json(),
+                ));
+                self.switches.push(switch);
+                return Ok(());
+            }
+            RestartPlan::Logger {
+                scenario,
+                generation,
+            } => {
+                // It only listens: nothing to hand over, no boundary to announce.
+                running.launch(role, &scenario, generation, Joining::Restart)?;
+                self.track(running);
+                self.record_action(self.core.note(
+                    "restart",
+                    role,
+                    Some(generation),
+                    json!({"files": flexloop_runfiles::run_dir::logger_files(generation)}),
+                ));
+                return Ok(());
+            }
+            RestartPlan::Fresh {
+                scenario,
+                generation,
+                owns_from,
+            } => (scenario, generation, owns_from),
+        };
+        if let Some(from_seq) = owns_from {
+            self.announce(role, generation, from_seq)?;
+        }
+        let (pid, warm) = self.engage(running, role, &scenario, generation, Joining::Restart)?;
+        if !self.core.ticking() {
+            // Before tick 0 there is nothing to take over: the replacement
+            // owns every sample and starts the loop as the first one would.
+            if let Err(e) = self.announce(role, generation, 0) {
+                self.stop(running, pid);
+                return Err(e);
+            }
+            self.record_action(self.core.note(
+                "restart",
+                role,
+                Some(generation),
+                json!({"before_tick_0": true}),
+            ));
+            return Ok(());
+        }
+        // A failed attempt leaves nothing behind: the next one starts afresh.
+        let switch = self.await_shadow(running, role, generation).and_then(|_| {
+            let incoming = Incoming {
+                role,
+                generation,
+                start_seq,
+                warm,
+                old: None,
+                announced: owns_from,
+            };
+            self.activate(running, incoming)
+        });
+        let switch = match switch {
+            Ok(switch) => switch,
+            Err(e) => {
+                self.stop(running, pid);
+                return Err(e);
+            }
+        };
+        self.record_action(
+            self.core
+                .note("restart", role, Some(generation), switch.json()),
+        );
+        self.switches.push(switch);
+        Ok(())
+    }
+
+    /// After a swap of the controller: a standby of the new design, if the
+    /// core asks for one; once it follows the loop, the old ones retire.
+    fn renew_standby(&mut self, running: &mut RunningLoop) {
+        let Some(renewal) = self.core.standby_renewal() else {
+            return;
+        };
+        let generation = renewal.generation;
+        let started = self
+            .engage(
+                running,
+                Role::Controller,
+                &renewal.scenario,
+                generation,
+                Joining::Standby,
+            )
+            .and_then(
+                |(pid, _)| match self.await_shadow(running, Role::Controller, generation) {
+                    Ok(()) => Ok(pid),
+                    Err(e) => {
+                        self.stop(running, pid);
+                        Err(e)
+                    }
+                },
+            );
+        let record = match started {
+            Ok(pid) => {
+                for &(old, _) in &renewal.old {
+                    self.retire(running, old);
+                }
+                let replaced: Vec<u32> = renewal.old.iter().map(|(_, g)| *g).collect();
+                self.core.note(
+                    "standby",
+                    Role::Controller,
+                    Some(generation),
+                    json!({"pid": pid, "scenario": renewal.scenario.display().to_string(), "replaces": replaced}),
+                )
+            }
+            // The old standby stays: better one of the old design than none.
+            Err(e) => self.core.note(
+                "standby-failed",
+                Role::Controller,
+                Some(generation),
+                json!(format!("{e:#}")),
+            ),
+        };
+        self.record_action(record);
+    }
+
+    /// Tells a serving standby to become a spare, or stops it (as the core
+    /// says; also if the order cannot go out).
+    fn retire(&mut self, running: &mut RunningLoop, pid: i32) {
+        if self.core.retirement() == Retirement::Order {
+            let order = SpareOrder {
+                pid: pid as u32,
+                joining: RETIRE,
+                ..SpareOrder::default()
+            };
+            if self.ports.send_order(order).is_ok() {
+                self.core.retiring(pid, Instant::now());
+                return;
+            }
+        }
+        self.stop(running, pid);
+    }
+}
