@@ -7,6 +7,7 @@
 
 use anyhow::{Context, Result};
 use flexloop_node::Role;
+use flexloop_protocol::Joining;
 use flexloop_runtime::shutdown;
 use flexloop_transport::{Domain, cleanup_dead_nodes};
 use std::os::unix::process::CommandExt;
@@ -122,45 +123,14 @@ pub fn stderr_name(role: Role, generation: u32) -> String {
     }
 }
 
-/// How a process enters the loop: started so, or ordered so as a warm spare.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Joining {
-    /// With the others, at start-up.
-    AtStart,
-    /// A running loop, in shadow, to take over at a boundary (a swap).
-    Replacement,
-    /// A running loop, in place of an instance that crashed.
-    Restart,
-    /// A running loop, as the standby controller.
-    Standby,
-    /// As a warm spare: ports open, idle until ordered.
-    Spare,
-}
-
-impl Joining {
-    /// The command-line flag that says it to a new process.
-    pub fn flag(self) -> Option<&'static str> {
-        match self {
-            Joining::AtStart => None,
-            Joining::Replacement => Some("--join"),
-            Joining::Restart => Some("--restart"),
-            Joining::Standby => Some("--standby"),
-            Joining::Spare => Some("--spare"),
-        }
-    }
-
-    /// The [`SpareOrder::joining`] that says it to a warm spare (a spare
-    /// cannot be ordered to start with the loop or to be a spare).
-    ///
-    /// [`SpareOrder::joining`]: flexloop_protocol::SpareOrder
-    pub fn order_code(self) -> Option<u32> {
-        use flexloop_protocol::spare::{JOIN_AS_REPLACEMENT, JOIN_AS_RESTART, JOIN_AS_STANDBY};
-        match self {
-            Joining::Replacement => Some(JOIN_AS_REPLACEMENT),
-            Joining::Restart => Some(JOIN_AS_RESTART),
-            Joining::Standby => Some(JOIN_AS_STANDBY),
-            Joining::AtStart | Joining::Spare => None,
-        }
+/// The command-line flag that tells a new process how it joins the loop.
+fn join_flag(joining: Joining) -> Option<&'static str> {
+    match joining {
+        Joining::AtStart => None,
+        Joining::Replacement => Some("--join"),
+        Joining::Restart => Some("--restart"),
+        Joining::Standby => Some("--standby"),
+        Joining::Spare => Some("--spare"),
     }
 }
 
@@ -177,7 +147,7 @@ fn spawn(
     if generation > 0 {
         cmd.arg("--generation").arg(generation.to_string());
     }
-    if let Some(flag) = joining.flag() {
+    if let Some(flag) = join_flag(joining) {
         cmd.arg(flag);
     }
     cmd.arg("--scenario")
@@ -565,15 +535,15 @@ mod tests {
     }
 
     #[test]
-    fn each_way_of_joining_has_its_flag_and_a_spare_its_order() {
-        assert_eq!(Joining::AtStart.flag(), None);
-        assert_eq!(Joining::Spare.flag(), Some("--spare"));
-        assert_eq!(Joining::Restart.flag(), Some("--restart"));
-        assert_eq!(
-            Joining::Standby.order_code(),
-            Some(flexloop_protocol::spare::JOIN_AS_STANDBY)
+    fn each_late_way_of_joining_has_its_flag() {
+        assert_eq!(join_flag(Joining::AtStart), None);
+        assert!(
+            Joining::ALL
+                .into_iter()
+                .all(|j| join_flag(j).is_some() == j.is_late())
         );
-        assert_eq!(Joining::Spare.order_code(), None);
+        assert_eq!(join_flag(Joining::Spare), Some("--spare"));
+        assert_eq!(join_flag(Joining::Restart), Some("--restart"));
         assert_eq!(stderr_name(Role::Observer, 0), "observer.stderr");
         assert_eq!(stderr_name(Role::Observer, 3), "observer.g3.stderr");
     }

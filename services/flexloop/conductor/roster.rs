@@ -3,8 +3,8 @@
 //! The supervisor's list holds how each was started; this one what each
 //! does now (a warm spare takes other duties without a new process).
 
-use crate::supervisor::Joining;
 use flexloop_node::Role;
+use flexloop_protocol::Joining;
 use serde_json::{Value, json};
 use std::path::PathBuf;
 

@@ -12,11 +12,11 @@ use super::record::RunFiles;
 use super::replay::Replay;
 use super::requests;
 use super::switch::Switch;
-use crate::supervisor::{Joining, Outcome, RunningLoop};
-use anyhow::{Context, Result, anyhow, bail};
+use crate::supervisor::{Outcome, RunningLoop};
+use anyhow::{Result, anyhow, bail};
 use flexloop_node::Role;
+use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
-use flexloop_protocol::spare::RETIRE;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{LoopDesign, Overrides, Scenario};
@@ -409,9 +409,7 @@ impl Conductor {
         let mut order = SpareOrder {
             pid: pid as u32,
             generation,
-            joining: joining
-                .order_code()
-                .context("a spare is ordered to replace, restart or stand by")?,
+            joining: ordered_joining(joining)?.wire(),
             ..SpareOrder::default()
         };
         order
@@ -669,7 +667,8 @@ impl Conductor {
         if self.core.retirement() == Retirement::Order {
             let order = SpareOrder {
                 pid: pid as u32,
-                joining: RETIRE,
+                // To a serving standby: stop, and idle as a spare.
+                joining: Joining::Spare.wire(),
                 ..SpareOrder::default()
             };
             if self.ports.send_order(order).is_ok() {
@@ -678,5 +677,16 @@ impl Conductor {
             }
         }
         self.stop(running, pid);
+    }
+}
+
+/// A spare is ordered to replace, restart or stand by (retiring is an order
+/// of its own, to a standby).
+fn ordered_joining(joining: Joining) -> Result<Joining> {
+    match joining {
+        Joining::Replacement | Joining::Restart | Joining::Standby => Ok(joining),
+        Joining::AtStart | Joining::Spare => {
+            bail!("a spare cannot be ordered to join as {joining:?}")
+        }
     }
 }

@@ -16,14 +16,6 @@ use iceoryx2::prelude::*;
 /// Longest scenario path an order carries.
 pub const MAX_ORDER_PATH: usize = 1024;
 
-// The wire values of [`Joining`] under their former names, for the
-// supervisor's conductor until it takes up [`Joining`] (issue 15); the
-// node no longer uses them.
-pub const JOIN_AS_REPLACEMENT: u32 = Joining::Replacement as u32;
-pub const JOIN_AS_RESTART: u32 = Joining::Restart as u32;
-pub const JOIN_AS_STANDBY: u32 = Joining::Standby as u32;
-pub const RETIRE: u32 = Joining::Spare as u32;
-
 /// The supervisor's order to one idle spare.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]

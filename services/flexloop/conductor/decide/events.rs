@@ -1,7 +1,8 @@
 //! What goes into the decision core (events) and what comes out (actions).
 
-use crate::supervisor::{Joining, Outcome};
+use crate::supervisor::Outcome;
 use flexloop_node::Role;
+use flexloop_protocol::Joining;
 use flexloop_protocol::{Handover, MAX_INPUTS};
 use serde_json::Value;
 use std::path::PathBuf;
