@@ -12,8 +12,9 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use flexloop_components::{InProcessLoop, LogReader, Recorder, SampleWriter};
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Command, Estimate, Measurement};
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

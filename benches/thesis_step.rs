@@ -12,8 +12,9 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use flexloop_components::InProcessLoop;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Command, Estimate, Measurement};
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Duration;

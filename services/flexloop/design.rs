@@ -13,8 +13,9 @@
 
 use anyhow::{Context, bail};
 use flexloop_analysis::loop_report::loop_report;
-use flexloop_control::report::{ThesisDesignSpec, thesis_design_report};
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_analysis::thesis_design::{ThesisDesignSpec, thesis_design_report};
+use flexloop_design::LoopDesign;
+use flexloop_scenario::{Overrides, Scenario};
 use std::path::PathBuf;
 
 /// `design [SCENARIO] [--continuous] [--json]`.

@@ -8,9 +8,10 @@ use crate::conductor::{Conductor, Switch};
 use crate::supervisor::{LaunchPlan, Outcome, RunningLoop};
 use crate::{progress, registry, supervisor};
 use anyhow::{Context, anyhow, bail};
+use flexloop_design::LoopDesign;
 use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::RunDir;
-use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

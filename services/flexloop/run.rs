@@ -9,12 +9,13 @@ use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::LogReader;
+use flexloop_design::LoopDesign;
+use flexloop_design::reference::Reference;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::summary::Counters;
 use flexloop_runfiles::{Histogram, RunDir, RunSummary};
 use flexloop_runtime::latency::Metric;
-use flexloop_scenario::reference::Reference;
-use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use flexloop_scenario::{Mode, Overrides, Scenario};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 

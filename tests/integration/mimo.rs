@@ -8,7 +8,8 @@
 use crate::util::*;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::{InProcessLoop, LogReader};
-use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use flexloop_design::LoopDesign;
+use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::time::Duration;
 
 /// One scenario run twice: through the processes and in process.

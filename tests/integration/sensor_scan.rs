@@ -8,7 +8,8 @@ use crate::mimo::{assert_scan_tracks, run_file};
 use crate::util::*;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::{InProcessLoop, ObserverCore};
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_design::LoopDesign;
+use flexloop_scenario::{Overrides, Scenario};
 
 #[test]
 fn a_scanned_sensor_schedules_the_observer_across_the_processes() {

@@ -3,9 +3,10 @@
 
 use crate::util::*;
 use flexloop_components::{InProcessLoop, LogReader, ObserverCore};
+use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
 use flexloop_protocol::{Command, Estimate, Measurement, flags};
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, Outlet};
 use serde_json::Value;
 use std::collections::HashMap;

@@ -20,11 +20,12 @@ use crate::launch::{LoopArgs, named_scenario, prepare, resolve_scenario, supervi
 use crate::probes;
 use anyhow::{Context, bail};
 use cpu::CpuWindow;
+use flexloop_design::LoopDesign;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::bench::{Floors, SweepFile, SweepMeasurement, SweepPoint, SweepResult};
 use flexloop_runtime::latency::Metric;
 use flexloop_runtime::shutdown;
-use flexloop_scenario::{LoopDesign, Mode, Overrides, Scenario};
+use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -14,7 +14,7 @@ use crate::metrics::SignalStats;
 use crate::trace::RunTrace;
 use flexloop_control::feedforward::{FeedforwardGains, FitError, fit_gains};
 use flexloop_control::lti::LtiRunner;
-use flexloop_scenario::LoopDesign;
+use flexloop_design::LoopDesign;
 use serde::Serialize;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

@@ -20,7 +20,7 @@
 //! the motion of the modes it leaves out).
 
 use crate::trace::RunTrace;
-use flexloop_scenario::LoopDesign;
+use flexloop_design::LoopDesign;
 use nalgebra::DVector;
 
 /// Estimated and true flexible output per tick, from tick 0.

@@ -17,6 +17,8 @@
 //!   the chain (min / mean / max rms of e_true).
 //! - [`scheduling_comparison`]: time-varying Kalman filter against
 //!   interpolated steady-state gains on a sensor the chain scans past.
+//! - [`thesis_design`]: the thesis' design study, the largest PID bandwidth
+//!   of every observer case under the 6 dB rule (control.md §9, §10.1).
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
 
@@ -28,6 +30,7 @@ pub mod metrics;
 pub mod modal_damping;
 pub mod positions;
 pub mod scheduling_comparison;
+pub mod thesis_design;
 pub mod trace;
 
 pub use metrics::{ControlMetrics, MetricsOptions};

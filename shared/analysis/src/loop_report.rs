@@ -6,18 +6,19 @@
 //! value are reported beside the per-axis (diagonal) ones.
 //!
 //! The thesis chain's own report (every case, the largest f_bw per case) is
-//! `flexloop_control::report`; this one describes the single design a
+//! [`crate::thesis_design`]; this one describes the single design a
 //! scenario runs, whatever the model.
 
 use flexloop_control::closed_loop::closed_loop_modes;
 use flexloop_control::freq::{freq_response_discrete, log_grid_hz};
-use flexloop_control::linalg::spectral_radius;
-use flexloop_control::lti::DiscreteStateSpace;
-use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_control::linalg::{LinalgError, spectral_radius};
+use flexloop_control::lti::{DiscreteStateSpace, StateSpaceError};
+use flexloop_design::LoopDesign;
+use flexloop_scenario::Scenario;
 use nalgebra::{Complex, DMatrix};
 use serde::Serialize;
 use std::f64::consts::PI;
-use std::fmt::Write;
+use std::fmt::{self, Write};
 
 /// The limit of the 6 dB rule on |S^I| and |S^O| (control.md §9).
 pub const PEAK_LIMIT_DB: f64 = 6.0;
@@ -77,11 +78,39 @@ pub struct LoopReport {
     pub meets_6db_rule: bool,
 }
 
+/// Why a loop's report could not be computed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LoopReportError {
+    /// The closed loop's eigenvalues.
+    Eigenvalues(LinalgError),
+    /// The sensitivities' state space (r → e_meas, n → y_meas).
+    Sensitivities(StateSpaceError),
+    /// The frequency response at `hz`.
+    Response { hz: f64, error: LinalgError },
+}
+
+impl fmt::Display for LoopReportError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Eigenvalues(e) => write!(f, "closed-loop eigenvalues: {e}"),
+            Self::Sensitivities(e) => write!(f, "{e}"),
+            Self::Response { hz, error } => {
+                write!(f, "frequency response at {hz:.3} Hz: {error}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for LoopReportError {}
+
 /// The report of the loop `design` (built from `scenario`).
-pub fn loop_report(scenario: &Scenario, design: &LoopDesign) -> Result<LoopReport, String> {
+pub fn loop_report(
+    scenario: &Scenario,
+    design: &LoopDesign,
+) -> Result<LoopReport, LoopReportError> {
     let cl = &design.closed_loop;
     let ny = design.n_outputs;
-    let radius = spectral_radius(&cl.a).map_err(|e| format!("closed-loop eigenvalues: {e}"))?;
+    let radius = spectral_radius(&cl.a).map_err(LoopReportError::Eigenvalues)?;
     // Only r → e_meas and n → y_meas are needed: the first 2 n_y inputs and outputs.
     let sens = DiscreteStateSpace::new(
         cl.a.clone(),
@@ -90,7 +119,7 @@ pub fn loop_report(scenario: &Scenario, design: &LoopDesign) -> Result<LoopRepor
         cl.d.view((0, 0), (2 * ny, 2 * ny)).into_owned(),
         cl.ts,
     )
-    .map_err(|e| e.to_string())?;
+    .map_err(LoopReportError::Sensitivities)?;
     let nyquist = 0.5 / design.ts;
     let grid = log_grid_hz(0.1, 0.999 * nyquist, GRID_POINTS);
     let mut axes: Vec<AxisLoop> = design
@@ -110,7 +139,7 @@ pub fn loop_report(scenario: &Scenario, design: &LoopDesign) -> Result<LoopRepor
     let db = |v: f64| 20.0 * v.log10();
     for &f in &grid {
         let g = freq_response_discrete(&sens, 2.0 * PI * f)
-            .map_err(|e| format!("frequency response at {f:.3} Hz: {e}"))?;
+            .map_err(|error| LoopReportError::Response { hz: f, error })?;
         for (i, axis) in axes.iter_mut().enumerate() {
             let si = db(g[(i, i)].norm());
             let so = db(g[(ny + i, ny + i)].norm());

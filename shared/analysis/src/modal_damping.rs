@@ -11,10 +11,10 @@
 //!   not used: it carries the observer's own error dynamics, which ring near
 //!   the same frequencies.
 
+use crate::thesis_design::least_damped_near;
 use crate::trace::RunTrace;
 use flexloop_control::closed_loop::closed_loop_modes;
-use flexloop_control::report::least_damped_near;
-use flexloop_scenario::LoopDesign;
+use flexloop_design::LoopDesign;
 use serde::Serialize;
 use std::f64::consts::PI;
 

@@ -39,8 +39,9 @@ use crate::trace::RunTrace;
 use flexloop_components::InProcessLoop;
 use flexloop_control::modal::ModelError;
 use flexloop_control::models;
+use flexloop_design::LoopDesign;
 use flexloop_scenario::schema::{FeedforwardSection, SENSOR_POSITION_MAX};
-use flexloop_scenario::{LoopDesign, Scenario, ScenarioError};
+use flexloop_scenario::{Scenario, ScenarioError};
 use serde::Serialize;
 use std::fmt;
 

@@ -28,8 +28,9 @@ use flexloop_control::scheduling::{
     InterpolatedKalman, KalmanSchedule, ModelSchedule, PositionGrid, ScheduleError,
     TimeVaryingKalman,
 };
+use flexloop_design::LoopDesign;
 use flexloop_scenario::schema::SENSOR_POSITION_MAX;
-use flexloop_scenario::{LoopDesign, Scenario, ScenarioError};
+use flexloop_scenario::{Scenario, ScenarioError};
 use nalgebra::DVector;
 use serde::Serialize;
 use std::fmt;

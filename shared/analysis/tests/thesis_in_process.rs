@@ -6,8 +6,9 @@ use flexloop_analysis::feedforward_fit::fit_from_run;
 use flexloop_analysis::modal_damping::modal_damping;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::InProcessLoop;
+use flexloop_design::LoopDesign;
 use flexloop_scenario::schema::FeedforwardSection;
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use std::path::PathBuf;
 
 fn scenario(name: &str) -> Scenario {

@@ -10,12 +10,12 @@
 
 use crate::handover::{Fingerprint, bumpless_shift};
 use flexloop_control::lti::LtiRunner;
+use flexloop_design::LoopDesign;
+use flexloop_design::reference::{Derivatives, Reference};
 use flexloop_protocol::{
     Command, Estimate, Handover, MAX_HANDOVER_STATES, MAX_INPUTS, MAX_OBSERVER_INPUTS,
     MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags,
 };
-use flexloop_scenario::LoopDesign;
-use flexloop_scenario::reference::{Derivatives, Reference};
 use nalgebra::DMatrix;
 
 pub struct ControllerCore {

@@ -6,8 +6,8 @@
 
 use crate::observer::ObserverSizeError;
 use crate::{ControllerCore, ObserverCore, PlantCore};
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Command, Estimate, Measurement};
-use flexloop_scenario::LoopDesign;
 
 pub struct InProcessLoop {
     pub plant: PlantCore,

@@ -16,6 +16,8 @@
 //!   every message into the sample file.
 //! - [`sample_file`]: the run's MCAP sample file, written and read back.
 //! - [`mcap_repair`]: closes a sample file its writer left unfinished.
+//! - [`storage`]: where a sample file lives (a file, or memory), as the
+//!   writer and the repair both use it.
 //! - [`loop_events`]: conditions of the loop (misses, stalls, fallbacks, ...)
 //!   read off the samples.
 //! - [`noise`]: the seeded disturbance generator.
@@ -30,6 +32,7 @@ pub mod observer;
 pub mod plant;
 pub mod recorder;
 pub mod sample_file;
+pub mod storage;
 
 pub use controller::ControllerCore;
 pub use in_process::InProcessLoop;

@@ -10,7 +10,7 @@
 //! may not have written): the work is a few reads per chunk, not a copy of
 //! the file, and it needs no free space beyond the summary.
 
-use crate::sample_file::Storage;
+use crate::storage::Storage;
 use binrw::BinWrite;
 use mcap::records::{self, op};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};

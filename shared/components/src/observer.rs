@@ -8,14 +8,14 @@
 use crate::handover::Fingerprint;
 use flexloop_control::lti::LtiRunner;
 use flexloop_control::scheduled_observer::ScheduledObserver;
+use flexloop_design::LoopDesign;
+use flexloop_design::reference::Reference;
+use flexloop_design::sensor_scan::SensorScan;
+use flexloop_design::{ObserverBlock, OutputPrediction};
 use flexloop_protocol::{
     Estimate, Handover, MAX_HANDOVER_STATES, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_STATES,
     Measurement,
 };
-use flexloop_scenario::LoopDesign;
-use flexloop_scenario::design::{ObserverBlock, OutputPrediction};
-use flexloop_scenario::reference::Reference;
-use flexloop_scenario::sensor_scan::SensorScan;
 use nalgebra::{DMatrix, DVector, DVectorView};
 
 /// The observer of a sensor the structure scans past: its gain follows the

@@ -11,12 +11,12 @@
 
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
+use flexloop_design::LoopDesign;
+use flexloop_design::reference::Reference;
+use flexloop_design::sensor_scan::SensorScan;
 use flexloop_protocol::{Activation, Command, MAX_INPUTS, MAX_OUTPUTS, Measurement, NO_SEQ, flags};
 use flexloop_runtime::latency::PlantLatencies;
-use flexloop_scenario::LoopDesign;
-use flexloop_scenario::reference::Reference;
 use flexloop_scenario::schema::SafeAction;
-use flexloop_scenario::sensor_scan::SensorScan;
 
 /// What the plant did with one command it received.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -3,7 +3,8 @@
 //! message and event goes on to a [`RecordSink`] (the sample file).
 
 use crate::loop_events::LoopEvents;
-use crate::sample_file::{SampleWriter, Storage};
+use crate::sample_file::SampleWriter;
+use crate::storage::Storage;
 use flexloop_protocol::{Command, Estimate, Measurement};
 use flexloop_runtime::latency::LoopLatencies;
 

@@ -3,8 +3,9 @@
 //! wind up the PID's integrator; in the linear range nothing changes.
 
 use flexloop_components::ControllerCore;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Command, Estimate, Measurement, NO_SEQ};
-use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_scenario::Scenario;
 use std::path::Path;
 
 /// The two-inertia PID (5 Hz) holding θ1 at 0, without MC or AD: u = u_fb.

@@ -5,8 +5,9 @@
 //! C_fb (thesis App. A).
 
 use flexloop_components::ControllerCore;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::Handover;
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use std::path::PathBuf;
 
 fn default_scenario() -> Scenario {

@@ -8,7 +8,8 @@
 
 use assert_no_alloc::{AllocDisabler, assert_no_alloc};
 use flexloop_components::InProcessLoop;
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_design::LoopDesign;
+use flexloop_scenario::{Overrides, Scenario};
 use std::path::PathBuf;
 use std::process::Command;
 

@@ -2,9 +2,10 @@
 //! the scenario's safe action; a standby controller's commands count only then.
 
 use flexloop_components::{CommandVerdict, PlantCore};
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Activation, Command, Measurement, flags};
+use flexloop_scenario::Scenario;
 use flexloop_scenario::schema::SafeAction;
-use flexloop_scenario::{LoopDesign, Scenario};
 use std::path::Path;
 
 const LECTURE: &str = r#"

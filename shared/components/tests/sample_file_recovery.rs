@@ -4,7 +4,7 @@
 //! writing, leaves a finished file and the counting goes on.
 
 use flexloop_components::mcap_repair;
-use flexloop_components::sample_file::Storage;
+use flexloop_components::storage::Storage;
 use flexloop_components::{LogReader, Recorder, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
 use std::cell::RefCell;

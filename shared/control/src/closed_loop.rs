@@ -20,6 +20,7 @@ use crate::continuous::ContinuousStateSpace;
 use crate::design_error::DesignError;
 use crate::linalg::{LinalgError, solve};
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::observer_block::ObserverBlock;
 use nalgebra::DMatrix;
 
@@ -104,11 +105,11 @@ pub fn assemble_loop(spec: &LoopSpec) -> Result<DiscreteStateSpace, DesignError>
     let (ny, nu) = (p.outputs(), p.inputs());
     let ts = p.ts;
     if c.inputs() != ny || c.outputs() != nu {
-        return Err(DesignError::DimensionMismatch {
+        return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
             what: "controller (outputs x inputs)",
             expected: (nu, ny),
             found: (c.outputs(), c.inputs()),
-        });
+        }));
     }
     let same_ts = |t: f64| (t - ts).abs() <= 1e-12 * ts;
     if !same_ts(c.ts) {
@@ -118,11 +119,11 @@ pub fn assemble_loop(spec: &LoopSpec) -> Result<DiscreteStateSpace, DesignError>
     }
     if let Some(b) = spec.observer {
         if b.n_y != ny || b.n_u != nu || !same_ts(b.system.ts) {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "observer block (n_y, n_u)",
                 expected: (ny, nu),
                 found: (b.n_y, b.n_u),
-            });
+            }));
         }
         if b.extra_delay_samples > 0 && spec.loop_delay < 2 {
             return Err(DesignError::InvalidParameter(
@@ -255,11 +256,11 @@ pub fn assemble_continuous_loop(
         Some(o) => {
             let (ny, nu) = (plant.outputs(), plant.inputs());
             if o.inputs() != ny + nu || o.outputs() != ny + nu {
-                return Err(DesignError::DimensionMismatch {
+                return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                     what: "continuous observer (outputs x inputs)",
                     expected: (ny + nu, ny + nu),
                     found: (o.outputs(), o.inputs()),
-                });
+                }));
             }
             Some(ObserverBlock {
                 system: unit(o)?,

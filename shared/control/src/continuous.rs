@@ -6,6 +6,7 @@
 
 use crate::linalg::block_diag;
 use crate::lti::StateSpaceError;
+use crate::matrix_error::MatrixError;
 use nalgebra::DMatrix;
 
 /// ẋ = A x + B u, y = C x + D u.
@@ -59,11 +60,11 @@ impl ContinuousStateSpace {
     /// `second` after `self`: y = second(self(u)).
     pub fn series(&self, second: &Self) -> Result<Self, StateSpaceError> {
         if second.inputs() != self.outputs() {
-            return Err(StateSpaceError::DimensionMismatch {
-                matrix: "series input",
+            return Err(StateSpaceError::Matrix(MatrixError::DimensionMismatch {
+                what: "series input",
                 expected: (self.outputs(), 1),
                 found: (second.inputs(), 1),
-            });
+            }));
         }
         let (n1, n2) = (self.states(), second.states());
         let mut a = block_diag(&[&self.a, &second.a]);
@@ -95,10 +96,12 @@ impl ContinuousStateSpace {
 type Abcd = (DMatrix<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>);
 
 pub(crate) fn tf_to_ss(num: &[f64], den: &[f64]) -> Result<Abcd, StateSpaceError> {
-    let bad = |what| StateSpaceError::DimensionMismatch {
-        matrix: what,
-        expected: (den.len().max(1), 1),
-        found: (num.len(), 1),
+    let bad = |what| {
+        StateSpaceError::Matrix(MatrixError::DimensionMismatch {
+            what,
+            expected: (den.len().max(1), 1),
+            found: (num.len(), 1),
+        })
     };
     // Strip leading zeros so that the degree is the true degree.
     let den: Vec<f64> = den.iter().copied().skip_while(|v| *v == 0.0).collect();
@@ -110,9 +113,9 @@ pub(crate) fn tf_to_ss(num: &[f64], den: &[f64]) -> Result<Abcd, StateSpaceError
         return Err(bad("transfer function numerator (improper)"));
     }
     if num.iter().chain(den.iter()).any(|v| !v.is_finite()) {
-        return Err(StateSpaceError::NonFinite {
-            matrix: "transfer function",
-        });
+        return Err(StateSpaceError::Matrix(MatrixError::NonFinite(
+            "transfer function",
+        )));
     }
     let n = den.len() - 1;
     let a0 = den[0];

@@ -12,6 +12,7 @@ use crate::design_error::DesignError;
 use crate::discretise::tustin;
 use crate::linalg::{block_diag, pinv};
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::modal::ModalModel;
 use nalgebra::DMatrix;
 
@@ -49,11 +50,11 @@ impl ActiveDamping {
         let n = model.modes();
         let nr = model.n_rigid;
         if increase.len() != n - nr {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "damping increase per flexible mode",
                 expected: (n - nr, 1),
                 found: (increase.len(), 1),
-            });
+            }));
         }
         if increase.iter().any(|z| !z.is_finite() || *z < 0.0) {
             return Err(DesignError::InvalidParameter(
@@ -119,11 +120,11 @@ impl ActiveDamping {
     fn check_observer_states(&self, n_obs: usize) -> Result<(), DesignError> {
         let n = self.gains.ncols();
         if n_obs < 2 * n {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "observer states for the damping gain",
                 expected: (2 * n, 1),
                 found: (n_obs, 1),
-            });
+            }));
         }
         Ok(())
     }

@@ -13,20 +13,15 @@
 //! original coordinates and that A − B K is Schur stable.
 
 use crate::linalg::{LinalgError, balance, spectral_radius};
+use crate::matrix_error::{MatrixError, check_matrix};
 use nalgebra::DMatrix;
 use std::fmt;
 
 /// Why the DARE was not solved.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DareError {
-    /// Matrix shapes do not fit together.
-    DimensionMismatch {
-        what: &'static str,
-        expected: (usize, usize),
-        found: (usize, usize),
-    },
-    /// An input holds NaN or infinity.
-    NonFinite(&'static str),
+    /// An input does not fit or is not finite.
+    Matrix(MatrixError),
     /// R is not symmetric positive definite.
     RNotPositiveDefinite,
     /// Q is not symmetric positive semi-definite.
@@ -46,16 +41,7 @@ pub enum DareError {
 impl fmt::Display for DareError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::DimensionMismatch {
-                what,
-                expected,
-                found,
-            } => write!(
-                f,
-                "DARE: {what} is {}x{} but must be {}x{}",
-                found.0, found.1, expected.0, expected.1
-            ),
-            Self::NonFinite(w) => write!(f, "DARE: {w} holds a non-finite number"),
+            Self::Matrix(e) => write!(f, "DARE: {e}"),
             Self::RNotPositiveDefinite => write!(f, "DARE: R is not positive definite"),
             Self::QNotPositiveSemiDefinite => {
                 write!(f, "DARE: Q is not symmetric positive semi-definite")
@@ -102,17 +88,7 @@ pub const MAX_RESIDUAL: f64 = 1e-8;
 const MAX_ITERATIONS: usize = 200;
 
 fn check(m: &DMatrix<f64>, what: &'static str, rows: usize, cols: usize) -> Result<(), DareError> {
-    if m.shape() != (rows, cols) {
-        return Err(DareError::DimensionMismatch {
-            what,
-            expected: (rows, cols),
-            found: m.shape(),
-        });
-    }
-    if m.iter().any(|v| !v.is_finite()) {
-        return Err(DareError::NonFinite(what));
-    }
-    Ok(())
+    check_matrix(m, what, rows, cols).map_err(DareError::Matrix)
 }
 
 /// Relative residual of the DARE in the given coordinates.
@@ -283,7 +259,7 @@ mod tests {
         );
         assert!(matches!(
             solve_dare(&a, &b, &DMatrix::identity(3, 3), &r),
-            Err(DareError::DimensionMismatch { .. })
+            Err(DareError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
     }
 }

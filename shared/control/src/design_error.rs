@@ -5,20 +5,15 @@ use crate::dare::DareError;
 use crate::discretise::DiscretiseError;
 use crate::linalg::LinalgError;
 use crate::lti::StateSpaceError;
+use crate::matrix_error::MatrixError;
 use crate::modal::ModelError;
 use std::fmt;
 
 /// Why a design was refused.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DesignError {
-    /// Matrix shapes do not fit together.
-    DimensionMismatch {
-        what: &'static str,
-        expected: (usize, usize),
-        found: (usize, usize),
-    },
-    /// A parameter or matrix holds NaN or infinity.
-    NonFinite(&'static str),
+    /// A matrix or parameter does not fit or is not finite.
+    Matrix(MatrixError),
     /// A parameter is outside its valid range.
     InvalidParameter(String),
     /// The pair (A, B) is not reachable (rank of W_c given).
@@ -43,16 +38,7 @@ pub enum DesignError {
 impl fmt::Display for DesignError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::DimensionMismatch {
-                what,
-                expected,
-                found,
-            } => write!(
-                f,
-                "{what} is {}x{} but must be {}x{}",
-                found.0, found.1, expected.0, expected.1
-            ),
-            Self::NonFinite(w) => write!(f, "{w} holds a non-finite number"),
+            Self::Matrix(e) => write!(f, "{e}"),
             Self::InvalidParameter(s) => write!(f, "invalid parameter: {s}"),
             Self::NotReachable { rank, states } => {
                 write!(f, "not reachable: rank W_c = {rank} < {states}")
@@ -81,6 +67,7 @@ macro_rules! from_err {
         }
     };
 }
+from_err!(MatrixError, Matrix);
 from_err!(DareError, Dare);
 from_err!(ModelError, Model);
 from_err!(DiscretiseError, Discretise);
@@ -94,15 +81,5 @@ pub(crate) fn check_matrix(
     rows: usize,
     cols: usize,
 ) -> Result<(), DesignError> {
-    if m.shape() != (rows, cols) {
-        return Err(DesignError::DimensionMismatch {
-            what,
-            expected: (rows, cols),
-            found: m.shape(),
-        });
-    }
-    if m.iter().any(|v| !v.is_finite()) {
-        return Err(DesignError::NonFinite(what));
-    }
-    Ok(())
+    Ok(crate::matrix_error::check_matrix(m, what, rows, cols)?)
 }

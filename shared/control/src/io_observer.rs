@@ -25,6 +25,7 @@
 use crate::design_error::{DesignError, check_matrix};
 use crate::linalg::{eigenvalues, spectral_radius};
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::step_error::{StepError, check_slice};
 use nalgebra::{Complex, DMatrix, DVector, DVectorView};
 
@@ -48,11 +49,11 @@ impl IoObserver {
     ) -> Result<Self, DesignError> {
         let (n, p) = (model.states(), model.outputs());
         if filter.inputs() != p {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "correction filter K(z) (outputs x inputs): its input is the innovation",
                 expected: (filter.outputs(), p),
                 found: (filter.outputs(), filter.inputs()),
-            });
+            }));
         }
         check_matrix(
             &correction_input,
@@ -450,7 +451,7 @@ mod tests {
         let bad = DiscreteStateSpace::gain(DMatrix::zeros(8, 3), model.ts).unwrap();
         assert!(matches!(
             IoObserver::state_correction(model.clone(), bad),
-            Err(DesignError::DimensionMismatch { .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
         // No correction at all: the rigid modes make the error dynamics
         // marginally stable, which is refused.

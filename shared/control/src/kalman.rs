@@ -486,6 +486,7 @@ mod tests {
     use crate::dare::dare_residual;
     use crate::discretise::zoh;
     use crate::linalg::{discrete_pole_to_continuous, eigenvalues};
+    use crate::matrix_error::MatrixError;
     use crate::models::{TS_10KHZ, thesis_reduced};
 
     fn thesis_model() -> DiscreteStateSpace {
@@ -548,7 +549,7 @@ mod tests {
         };
         assert!(matches!(
             steady_state_kalman(&model, &bad),
-            Err(DesignError::DimensionMismatch { .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
     }
 

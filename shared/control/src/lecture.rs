@@ -7,6 +7,7 @@ use crate::design_error::{DesignError, check_matrix};
 use crate::discretise::zoh;
 use crate::linalg::rank;
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::models::double_integrator;
 use nalgebra::{Complex, DMatrix};
 
@@ -34,7 +35,7 @@ pub fn poly_from_roots(roots: &[Complex<f64>]) -> Result<Vec<f64>, DesignError> 
     let mut c = vec![Complex::new(1.0, 0.0)];
     for r in roots {
         if !(r.re.is_finite() && r.im.is_finite()) {
-            return Err(DesignError::NonFinite("pole"));
+            return Err(DesignError::Matrix(MatrixError::NonFinite("pole")));
         }
         let mut next = vec![Complex::new(0.0, 0.0); c.len() + 1];
         for (i, ci) in c.iter().enumerate() {

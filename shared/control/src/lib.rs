@@ -13,6 +13,7 @@
 
 pub mod lti;
 
+pub mod bandwidth;
 pub mod closed_loop;
 pub mod continuous;
 pub mod damping;
@@ -27,13 +28,13 @@ pub mod kalman;
 pub mod lecture;
 pub mod linalg;
 pub mod lqr;
+pub mod matrix_error;
 pub mod modal;
 pub mod models;
 pub mod modified_feedforward;
 pub mod observer_block;
 pub mod pid;
 pub mod placement;
-pub mod report;
 pub mod scheduled_observer;
 pub mod scheduling;
 pub mod setpoint;

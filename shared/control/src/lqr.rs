@@ -184,6 +184,7 @@ mod tests {
     use crate::discretise::zoh;
     use crate::linalg::{solve, spectral_radius};
     use crate::lti::LtiRunner;
+    use crate::matrix_error::MatrixError;
     use crate::models::double_integrator;
 
     #[test]
@@ -297,7 +298,10 @@ mod tests {
         );
         assert!(matches!(
             bad,
-            Err(DesignError::DimensionMismatch { what: "Γ", .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch {
+                what: "Γ",
+                ..
+            }))
         ));
     }
 }

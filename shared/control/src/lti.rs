@@ -6,6 +6,7 @@
 //! the hot path to two matrix-vector products per block, with no branching on
 //! the kind of block.
 
+use crate::matrix_error::{MatrixError, check_matrix};
 use nalgebra::{DMatrix, DVector, DVectorView};
 use std::fmt;
 
@@ -23,14 +24,8 @@ pub struct DiscreteStateSpace {
 /// Why a state-space model was refused.
 #[derive(Debug, Clone, PartialEq)]
 pub enum StateSpaceError {
-    /// A matrix has the wrong shape for the others.
-    DimensionMismatch {
-        matrix: &'static str,
-        expected: (usize, usize),
-        found: (usize, usize),
-    },
-    /// A matrix holds NaN or infinity.
-    NonFinite { matrix: &'static str },
+    /// A matrix has the wrong shape for the others, or holds NaN or infinity.
+    Matrix(MatrixError),
     /// The sample period is not a positive finite number.
     InvalidSamplePeriod(f64),
 }
@@ -38,16 +33,8 @@ pub enum StateSpaceError {
 impl fmt::Display for StateSpaceError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::DimensionMismatch {
-                matrix,
-                expected,
-                found,
-            } => write!(
-                f,
-                "matrix {matrix} is {}x{} but must be {}x{}",
-                found.0, found.1, expected.0, expected.1
-            ),
-            Self::NonFinite { matrix } => write!(f, "matrix {matrix} holds a non-finite number"),
+            // "matrix B is 2x3 but must be 2x2", as the message always read.
+            Self::Matrix(e) => write!(f, "matrix {e}"),
             Self::InvalidSamplePeriod(ts) => {
                 write!(f, "sample period {ts} s is not a positive finite number")
             }
@@ -69,18 +56,8 @@ impl DiscreteStateSpace {
         let n = a.nrows();
         let m = b.ncols();
         let p = c.nrows();
-        let check = |name: &'static str, mat: &DMatrix<f64>, rows: usize, cols: usize| {
-            if mat.shape() != (rows, cols) {
-                return Err(StateSpaceError::DimensionMismatch {
-                    matrix: name,
-                    expected: (rows, cols),
-                    found: mat.shape(),
-                });
-            }
-            if mat.iter().any(|v| !v.is_finite()) {
-                return Err(StateSpaceError::NonFinite { matrix: name });
-            }
-            Ok(())
+        let check = |name, mat: &DMatrix<f64>, rows, cols| {
+            check_matrix(mat, name, rows, cols).map_err(StateSpaceError::Matrix)
         };
         check("A", &a, n, n)?;
         check("B", &b, n, m)?;
@@ -237,7 +214,7 @@ mod tests {
         .unwrap_err();
         assert!(matches!(
             err,
-            StateSpaceError::DimensionMismatch { matrix: "B", .. }
+            StateSpaceError::Matrix(MatrixError::DimensionMismatch { what: "B", .. })
         ));
         let err = DiscreteStateSpace::new(
             DMatrix::from_element(1, 1, f64::NAN),
@@ -247,7 +224,7 @@ mod tests {
             1e-4,
         )
         .unwrap_err();
-        assert_eq!(err, StateSpaceError::NonFinite { matrix: "A" });
+        assert_eq!(err, StateSpaceError::Matrix(MatrixError::NonFinite("A")));
         assert!(DiscreteStateSpace::gain(DMatrix::zeros(1, 1), 0.0).is_err());
     }
 }

@@ -13,20 +13,15 @@
 
 use crate::continuous::ContinuousStateSpace;
 use crate::linalg::block_diag;
+use crate::matrix_error::MatrixError;
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use std::fmt;
 
 /// Why a model could not be built.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ModelError {
-    /// Matrix shapes do not fit together.
-    DimensionMismatch {
-        what: &'static str,
-        expected: (usize, usize),
-        found: (usize, usize),
-    },
-    /// A matrix or parameter holds NaN or infinity.
-    NonFinite(&'static str),
+    /// A matrix or parameter does not fit or is not finite.
+    Matrix(MatrixError),
     /// The mass matrix is not symmetric positive definite (singular or
     /// indefinite), so the modes are not defined.
     MassNotPositiveDefinite,
@@ -47,16 +42,7 @@ pub enum ModelError {
 impl fmt::Display for ModelError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::DimensionMismatch {
-                what,
-                expected,
-                found,
-            } => write!(
-                f,
-                "{what} is {}x{} but must be {}x{}",
-                found.0, found.1, expected.0, expected.1
-            ),
-            Self::NonFinite(what) => write!(f, "{what} holds a non-finite number"),
+            Self::Matrix(e) => write!(f, "{e}"),
             Self::MassNotPositiveDefinite => {
                 write!(f, "mass matrix is not symmetric positive definite")
             }
@@ -131,7 +117,7 @@ fn check_finite(m: &DMatrix<f64>, what: &'static str) -> Result<(), ModelError> 
     if m.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(ModelError::NonFinite(what))
+        Err(ModelError::Matrix(MatrixError::NonFinite(what)))
     }
 }
 
@@ -161,23 +147,23 @@ impl ModalModel {
             )));
         }
         if phi_a.nrows() != n {
-            return Err(ModelError::DimensionMismatch {
+            return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                 what: "phi_a",
                 expected: (n, phi_a.ncols()),
                 found: phi_a.shape(),
-            });
+            }));
         }
         if phi_s.ncols() != n {
-            return Err(ModelError::DimensionMismatch {
+            return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                 what: "phi_s",
                 expected: (phi_s.nrows(), n),
                 found: phi_s.shape(),
-            });
+            }));
         }
         check_finite(&phi_a, "phi_a")?;
         check_finite(&phi_s, "phi_s")?;
         if omega.iter().chain(zeta.iter()).any(|v| !v.is_finite()) {
-            return Err(ModelError::NonFinite("omega/zeta"));
+            return Err(ModelError::Matrix(MatrixError::NonFinite("omega/zeta")));
         }
         if omega.iter().any(|w| *w < 0.0) || omega.windows(2).any(|w| w[1] < w[0]) {
             return Err(ModelError::OutOfRange(
@@ -204,11 +190,11 @@ impl ModalModel {
         let n = nodal.mass.nrows();
         let sq = |m: &DMatrix<f64>, what| {
             if m.shape() != (n, n) {
-                Err(ModelError::DimensionMismatch {
+                Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                     what,
                     expected: (n, n),
                     found: m.shape(),
-                })
+                }))
             } else {
                 Ok(())
             }
@@ -216,18 +202,18 @@ impl ModalModel {
         sq(&nodal.mass, "mass")?;
         sq(&nodal.stiffness, "stiffness")?;
         if nodal.actuators.nrows() != n {
-            return Err(ModelError::DimensionMismatch {
+            return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                 what: "actuator selection S_a",
                 expected: (n, nodal.actuators.ncols()),
                 found: nodal.actuators.shape(),
-            });
+            }));
         }
         if nodal.sensors.ncols() != n {
-            return Err(ModelError::DimensionMismatch {
+            return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                 what: "sensor selection S_s",
                 expected: (nodal.sensors.nrows(), n),
                 found: nodal.sensors.shape(),
-            });
+            }));
         }
         check_finite(&nodal.mass, "mass")?;
         check_finite(&nodal.stiffness, "stiffness")?;
@@ -460,11 +446,11 @@ impl ModalModel {
     pub fn rigid_body_decoupled(&self) -> Result<(Self, DMatrix<f64>, DMatrix<f64>), ModelError> {
         let r = self.n_rigid;
         if r == 0 || self.inputs() != r || self.outputs() != r {
-            return Err(ModelError::DimensionMismatch {
+            return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
                 what: "rigid-body decoupling (actuators x sensors)",
                 expected: (r, r),
                 found: (self.inputs(), self.outputs()),
-            });
+            }));
         }
         let pa = self.phi_a.rows(0, r).into_owned();
         let ps = self.phi_s.columns(0, r).into_owned();
@@ -549,13 +535,13 @@ mod tests {
         n.stiffness[(0, 1)] = f64::NAN;
         assert!(matches!(
             ModalModel::from_nodal(&n),
-            Err(ModelError::NonFinite(_))
+            Err(ModelError::Matrix(MatrixError::NonFinite(_)))
         ));
         let mut n = two_mass();
         n.sensors = DMatrix::identity(3, 3);
         assert!(matches!(
             ModalModel::from_nodal(&n),
-            Err(ModelError::DimensionMismatch { .. })
+            Err(ModelError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
         let m = ModalModel::from_nodal(&two_mass()).unwrap();
         assert!(m.truncate(1, &[0]).is_err());

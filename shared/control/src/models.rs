@@ -7,6 +7,7 @@
 //! tuned to make a test pass.
 
 use crate::continuous::ContinuousStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::modal::{ModalDamping, ModalModel, ModelError, NodalModel, ReducedModel};
 use nalgebra::{DMatrix, DVector};
 use std::f64::consts::PI;
@@ -42,11 +43,11 @@ pub fn chain(
 ) -> Result<NodalModel, ModelError> {
     let n = masses.len();
     if n == 0 || springs.len() + 1 != n {
-        return Err(ModelError::DimensionMismatch {
+        return Err(ModelError::Matrix(MatrixError::DimensionMismatch {
             what: "chain springs",
             expected: (n.saturating_sub(1), 1),
             found: (springs.len(), 1),
-        });
+        }));
     }
     if let Some(&i) = actuator_nodes
         .iter()

@@ -26,6 +26,7 @@
 
 use crate::design_error::DesignError;
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::observer_block::ObserverBlock;
 use nalgebra::DMatrix;
 
@@ -49,18 +50,18 @@ pub fn modified_feedforward(
         )));
     }
     if o.inputs() != ny + nu || o.outputs() != ny + nu {
-        return Err(DesignError::DimensionMismatch {
+        return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
             what: "observer block (outputs x inputs) for n_y, n_u",
             expected: (ny + nu, ny + nu),
             found: (o.outputs(), o.inputs()),
-        });
+        }));
     }
     if controller.inputs() != ny || controller.outputs() != nu {
-        return Err(DesignError::DimensionMismatch {
+        return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
             what: "controller C_fb (outputs x inputs)",
             expected: (nu, ny),
             found: (controller.outputs(), controller.inputs()),
-        });
+        }));
     }
     if (controller.ts - o.ts).abs() > 1e-12 * o.ts {
         return Err(DesignError::InvalidParameter(format!(
@@ -303,7 +304,7 @@ mod tests {
         let two = DiscreteStateSpace::gain(DMatrix::zeros(2, 1), TS_10KHZ).unwrap();
         assert!(matches!(
             modified_feedforward(&obs.block, &two, 1),
-            Err(DesignError::DimensionMismatch { .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
         let extra = thesis_observer_block(5, TS_10KHZ, false, true, None, 1).unwrap();
         let pid = thesis_pid(35.5, TS_10KHZ).unwrap();

@@ -30,7 +30,7 @@
 //! continuous time (CARE Kalman gain, static or band-passed K(s)), as one
 //! [`ContinuousStateSpace`] with inputs [y; u] and outputs [ŷ_flex; u_d]:
 //! the thesis's own setting, used by the continuous bandwidth checks of
-//! control.md §9 ([`crate::freq::ContinuousBandwidthProblem`]).
+//! control.md §9 ([`crate::bandwidth::ContinuousBandwidthProblem`]).
 //!
 //! # Q_ν
 //! `q_nu` is always the thesis value (a continuous intensity, 0.03 or 10³);
@@ -46,6 +46,7 @@ use crate::kalman::{
     steady_state_kalman_continuous, with_noise_model, with_noise_model_continuous,
 };
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::modal::ReducedModel;
 use nalgebra::DMatrix;
 
@@ -98,11 +99,11 @@ pub fn compile_observer_block(
     let fb = match &design.feedback {
         Some(k) => {
             if k.inputs() != n || k.outputs() != nu {
-                return Err(DesignError::DimensionMismatch {
+                return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                     what: "K(z) (outputs x inputs)",
                     expected: (nu, n),
                     found: (k.outputs(), k.inputs()),
-                });
+                }));
             }
             if (k.ts - m.ts).abs() > 1e-12 * m.ts {
                 return Err(DesignError::InvalidParameter(

@@ -25,6 +25,7 @@
 
 use crate::design_error::{DesignError, check_matrix};
 use crate::linalg::{eigenvalues, pinv, rank};
+use crate::matrix_error::MatrixError;
 use nalgebra::{Complex, DMatrix, SymmetricEigen};
 
 type C64 = Complex<f64>;
@@ -65,11 +66,11 @@ pub fn robust_place(
         )));
     }
     if poles.len() != n {
-        return Err(DesignError::DimensionMismatch {
+        return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
             what: "pole list (one pole per state)",
             expected: (n, 1),
             found: (poles.len(), 1),
-        });
+        }));
     }
     let poles = order_poles(poles)?;
     let rb = rank(b)?;
@@ -256,7 +257,9 @@ fn order_poles(poles: &[C64]) -> Result<Vec<C64>, DesignError> {
         .iter()
         .any(|p| !(p.re.is_finite() && p.im.is_finite()))
     {
-        return Err(DesignError::NonFinite("requested pole"));
+        return Err(DesignError::Matrix(MatrixError::NonFinite(
+            "requested pole",
+        )));
     }
     let tol = |p: C64| 1e-10 * p.norm().max(1.0);
     let mut real = Vec::new();
@@ -462,7 +465,9 @@ fn top_eigenvector_hermitian(h: &DMatrix<C64>) -> Result<nalgebra::DVector<C64>,
 /// κ₂ of X (columns are unit vectors).
 fn condition(x: &DMatrix<C64>) -> Result<f64, DesignError> {
     if x.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())) {
-        return Err(DesignError::NonFinite("eigenvector matrix"));
+        return Err(DesignError::Matrix(MatrixError::NonFinite(
+            "eigenvector matrix",
+        )));
     }
     let sv = x
         .clone()
@@ -638,7 +643,7 @@ mod tests {
         // Wrong count.
         assert!(matches!(
             robust_place(&p.a, &p.b, &ok[..9]),
-            Err(DesignError::DimensionMismatch { .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
         // Lonely complex pole.
         let mut lonely = ok.clone();
@@ -652,13 +657,15 @@ mod tests {
         nan[3] = C64::new(f64::NAN, 0.0);
         assert_eq!(
             robust_place(&p.a, &p.b, &nan),
-            Err(DesignError::NonFinite("requested pole"))
+            Err(DesignError::Matrix(MatrixError::NonFinite(
+                "requested pole"
+            )))
         );
         let mut a = p.a.clone();
         a[(0, 0)] = f64::INFINITY;
         assert_eq!(
             robust_place(&a, &p.b, &ok),
-            Err(DesignError::NonFinite("A"))
+            Err(DesignError::Matrix(MatrixError::NonFinite("A")))
         );
         // An actuator pair that cannot move the second rigid mode.
         let mut b = p.b.clone();

@@ -30,6 +30,7 @@ use crate::design_error::{DesignError, check_matrix};
 use crate::in_place::{cholesky_solve_in_place, mul_into, propagate_covariance};
 use crate::kalman::steady_state_kalman;
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::scheduling::{KalmanSchedule, ScheduledMatrices};
 use crate::step_error::{StepError, check_slice};
 use nalgebra::{DMatrix, DVector, DVectorView};
@@ -94,11 +95,11 @@ impl ScheduledObserverDesign {
         }
         if let Some(k) = &self.feedback {
             if k.inputs() != n || k.outputs() != nu {
-                return Err(DesignError::DimensionMismatch {
+                return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                     what: "K(z) (outputs x inputs)",
                     expected: (nu, n),
                     found: (k.outputs(), k.inputs()),
-                });
+                }));
             }
             check_matrix(&k.d, "K(z) D", nu, n)?;
         }

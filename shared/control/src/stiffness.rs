@@ -26,6 +26,7 @@
 use crate::design_error::DesignError;
 use crate::linalg::pinv;
 use crate::lti::DiscreteStateSpace;
+use crate::matrix_error::MatrixError;
 use crate::modal::ModalModel;
 use nalgebra::{DMatrix, DVector};
 
@@ -112,18 +113,18 @@ impl ActiveStiffness {
         let n = model.modes();
         let nr = model.n_rigid;
         if ratio.len() != n - nr {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "frequency ratio per flexible mode",
                 expected: (n - nr, 1),
                 found: (ratio.len(), 1),
-            });
+            }));
         }
         if let Some(r) = ratio.iter().find(|r| !r.is_finite()) {
-            return Err(DesignError::NonFinite(if r.is_nan() {
+            return Err(DesignError::Matrix(MatrixError::NonFinite(if r.is_nan() {
                 "frequency ratio (NaN)"
             } else {
                 "frequency ratio (infinite)"
-            }));
+            })));
         }
         if let Some(r) = ratio.iter().find(|r| **r < 1.0) {
             return Err(DesignError::InvalidParameter(format!(
@@ -180,11 +181,11 @@ impl ActiveStiffness {
     /// ω_new,i = √(ω_i² − φ_a,iᵀ K_s,i) [rad/s].
     pub fn predicted_frequencies(&self, model: &ModalModel) -> Result<Vec<f64>, DesignError> {
         if model.modes() != self.gains.ncols() || model.inputs() != self.gains.nrows() {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "model for the stiffness gains (inputs x modes)",
                 expected: self.gains.shape(),
                 found: (model.inputs(), model.modes()),
-            });
+            }));
         }
         Ok((0..model.modes())
             .map(|i| {
@@ -201,11 +202,11 @@ impl ActiveStiffness {
     pub fn to_discrete(&self, n_obs: usize, ts: f64) -> Result<DiscreteStateSpace, DesignError> {
         let (nu, n) = self.gains.shape();
         if n_obs < 2 * n {
-            return Err(DesignError::DimensionMismatch {
+            return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
                 what: "observer states for the stiffness gain",
                 expected: (2 * n, 1),
                 found: (n_obs, 1),
-            });
+            }));
         }
         let mut k = DMatrix::zeros(nu, n_obs);
         k.view_mut((0, 0), (nu, 2 * n))
@@ -323,11 +324,11 @@ mod tests {
         ));
         assert!(matches!(
             ActiveStiffness::design(&red, &[1.5, 1.0], StiffnessMethod::Automated),
-            Err(DesignError::DimensionMismatch { .. })
+            Err(DesignError::Matrix(MatrixError::DimensionMismatch { .. }))
         ));
         assert!(matches!(
             ActiveStiffness::design(&red, &[f64::NAN, 1.0, 1.0], StiffnessMethod::Automated),
-            Err(DesignError::NonFinite(_))
+            Err(DesignError::Matrix(MatrixError::NonFinite(_)))
         ));
         let st =
             ActiveStiffness::design(&red, &[1.5, 1.0, 1.0], StiffnessMethod::MinimalInteraction)

@@ -10,6 +10,7 @@ use flexloop_control::kalman::{KalmanWeights, steady_state_kalman};
 use flexloop_control::lecture::place_observer;
 use flexloop_control::lqr::{lqr, lqr_with_integral_action};
 use flexloop_control::lti::{DiscreteStateSpace, StateSpaceError};
+use flexloop_control::matrix_error::MatrixError;
 use flexloop_control::modal::{ModalDamping, ModalModel, ModelError};
 use flexloop_control::models::{
     TS_10KHZ, chain, flexible_joint, mimo_example, thesis_chain_modal, thesis_reduced,
@@ -217,25 +218,31 @@ fn non_finite_numbers() {
         1e-4,
     )
     .unwrap_err();
-    assert_eq!(err, StateSpaceError::NonFinite { matrix: "A" });
+    assert_eq!(err, StateSpaceError::Matrix(MatrixError::NonFinite("A")));
     says(&err, &["matrix A", "non-finite"]);
     let mut nodal = flexible_joint();
     nodal.stiffness[(0, 1)] = f64::INFINITY;
     let err = ModalModel::from_nodal(&nodal).unwrap_err();
-    assert_eq!(err, ModelError::NonFinite("stiffness"));
+    assert_eq!(err, ModelError::Matrix(MatrixError::NonFinite("stiffness")));
     says(&err, &["stiffness", "non-finite"]);
     // LQ weight with a NaN.
     let model = thesis_model();
     let mut q = DMatrix::identity(8, 8);
     q[(2, 2)] = f64::NAN;
     let err = lqr(&model.a, &model.b, &q, &DMatrix::identity(1, 1)).unwrap_err();
-    assert_eq!(err, DesignError::NonFinite("LQ state weight Q"));
+    assert_eq!(
+        err,
+        DesignError::Matrix(MatrixError::NonFinite("LQ state weight Q"))
+    );
     says(&err, &["LQ state weight Q", "non-finite"]);
     // A requested pole.
     let mut poles = real_poles(8);
     poles[1] = Complex::new(0.2, f64::NAN);
     let err = robust_place(&model.a, &model.b, &poles).unwrap_err();
-    assert_eq!(err, DesignError::NonFinite("requested pole"));
+    assert_eq!(
+        err,
+        DesignError::Matrix(MatrixError::NonFinite("requested pole"))
+    );
     // A stiffness ratio.
     let red = thesis_reduced(5).unwrap().modal;
     let err = ActiveStiffness::design(&red, &[f64::NAN, 1.0, 1.0], StiffnessMethod::Automated)
@@ -285,12 +292,15 @@ fn mismatched_dimensions() {
     .unwrap_err();
     assert!(matches!(
         err,
-        DesignError::DimensionMismatch { what: "Γ", .. }
+        DesignError::Matrix(MatrixError::DimensionMismatch { what: "Γ", .. })
     ));
     says(&err, &["Γ is 7x1 but must be 8x1"]);
     // Pole count.
     let err = robust_place(&model.a, &model.b, &real_poles(7)).unwrap_err();
-    assert!(matches!(err, DesignError::DimensionMismatch { .. }));
+    assert!(matches!(
+        err,
+        DesignError::Matrix(MatrixError::DimensionMismatch { .. })
+    ));
     says(&err, &["pole list", "7x1 but must be 8x1"]);
     // Correction filter with 3 inputs for 1 output.
     let err = IoObserver::state_correction(
@@ -298,7 +308,10 @@ fn mismatched_dimensions() {
         DiscreteStateSpace::gain(DMatrix::zeros(8, 3), model.ts).unwrap(),
     )
     .unwrap_err();
-    assert!(matches!(err, DesignError::DimensionMismatch { .. }));
+    assert!(matches!(
+        err,
+        DesignError::Matrix(MatrixError::DimensionMismatch { .. })
+    ));
     says(&err, &["correction filter", "innovation"]);
     // Stiffness ratios for 2 of 3 flexible modes.
     let red = thesis_reduced(5).unwrap().modal;
@@ -377,7 +390,10 @@ fn a_mimo_observer_on_a_siso_plant_is_refused() {
     })
     .unwrap_err();
     assert!(
-        matches!(err, DesignError::DimensionMismatch { .. }),
+        matches!(
+            err,
+            DesignError::Matrix(MatrixError::DimensionMismatch { .. })
+        ),
         "{err:?}"
     );
     says(&err, &["observer block (n_y, n_u)", "2x2 but must be 1x1"]);

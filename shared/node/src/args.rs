@@ -2,9 +2,10 @@
 
 use crate::NodeError;
 use crate::overrides::OverrideFlags;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::Joining;
 use flexloop_runtime::realtime::RealtimeSettings;
-use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+use flexloop_scenario::{Overrides, Scenario};
 use std::ffi::OsString;
 use std::path::PathBuf;
 

@@ -7,13 +7,14 @@ use crate::handover::{ActivationView, HandoverRing};
 use crate::instance::{Component, Instance, Ports};
 use crate::{NodeError, await_peers};
 use flexloop_components::ControllerCore;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
 use flexloop_protocol::{
     Activation, Channel, Command, Estimate, Handover, Joining, MAX_INPUTS, Measurement, flags,
 };
 use flexloop_runtime::wait::{wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_scenario::Scenario;
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 
 /// In lockstep, how long a new instance waits for its predecessor's last

@@ -10,11 +10,12 @@ use crate::duty::{Duty, SampleOwnership, Standing, Step};
 use crate::handover::{ActivationView, HandoverRing, publish_state, raise_priority};
 use crate::spare::{Served, SpareDuty, leave_the_loop};
 use crate::startup::StartupClock;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::{Activation, Channel, Handover, Joining, Measurement, flags};
 use flexloop_runtime::realtime::{self, RealtimeSettings};
 use flexloop_runtime::wait::{WaitMode, wait_for_input};
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::{LoopDesign, Mode, Scenario};
+use flexloop_scenario::{Mode, Scenario};
 use flexloop_transport::{Domain, Inlet, LoopNode, Outlet};
 
 /// What a role brings to the life [`run`] gives it: its ports, its core,

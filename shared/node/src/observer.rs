@@ -10,13 +10,14 @@ use crate::replay::{CatchUp, Replayed};
 use crate::{NodeError, await_peers};
 use flexloop_components::ObserverCore;
 use flexloop_components::observer::ObserverSizeError;
+use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{
     ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP,
 };
 use flexloop_protocol::{Activation, Channel, Estimate, Handover, Joining, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::{LoopDesign, Scenario};
+use flexloop_scenario::Scenario;
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 use std::time::{Duration, Instant};
 

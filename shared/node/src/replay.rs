@@ -119,8 +119,9 @@ impl CatchUp {
 mod tests {
     use super::*;
     use flexloop_components::ObserverCore;
+    use flexloop_design::LoopDesign;
     use flexloop_protocol::{Estimate, Handover};
-    use flexloop_scenario::{LoopDesign, Overrides, Scenario};
+    use flexloop_scenario::{Overrides, Scenario};
     use std::path::Path;
 
     fn m(seq: u64) -> Measurement {

@@ -5,8 +5,9 @@
 //! with the rest. The returned [`RealtimeGuard`] holds `/dev/cpu_dma_latency`
 //! open for as long as the loop runs: closing it restores the idle states.
 
+use std::fmt;
 use std::fs::File;
-use std::io::Write;
+use std::io::{self, Write};
 use thread_priority::{
     RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
 };
@@ -76,8 +77,59 @@ impl RealtimeSettings {
 pub struct Applied {
     pub setting: &'static str,
     /// `Err` holds the reason the kernel gave.
-    pub outcome: Result<String, String>,
+    pub outcome: Result<String, RealtimeError>,
 }
+
+/// Why the kernel (or the request itself) refused a real-time setting.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RealtimeError {
+    /// The system call failed with this `errno`.
+    Os(i32),
+    /// An I/O failure without an OS error number.
+    Io(io::ErrorKind),
+    /// The CPU is beyond what an affinity mask can name.
+    CpuOutOfRange(usize),
+    /// No online CPU is left once this one is avoided.
+    NoOtherCpu(usize),
+    /// A SCHED_FIFO priority outside the scheduler's range.
+    PriorityOutOfRange(u8),
+    /// The scheduler refused the policy or priority.
+    Scheduler(thread_priority::Error),
+}
+
+impl RealtimeError {
+    /// The `errno` of the system call that just failed.
+    fn last_os_error() -> Self {
+        io::Error::last_os_error().into()
+    }
+}
+
+impl From<io::Error> for RealtimeError {
+    fn from(e: io::Error) -> Self {
+        match e.raw_os_error() {
+            Some(code) => Self::Os(code),
+            None => Self::Io(e.kind()),
+        }
+    }
+}
+
+impl fmt::Display for RealtimeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Os(code) => write!(f, "{}", io::Error::from_raw_os_error(*code)),
+            Self::Io(kind) => write!(f, "{kind}"),
+            Self::CpuOutOfRange(cpu) => write!(f, "cpu {cpu} out of range"),
+            Self::NoOtherCpu(cpu) => write!(f, "no CPU besides {cpu}"),
+            Self::PriorityOutOfRange(p) => {
+                write!(f, "priority {p} is not in the range of [0; 99]")
+            }
+            // The crate's Debug names the variant, which its Display drops.
+            Self::Scheduler(e) => write!(f, "{e:?}"),
+        }
+    }
+}
+
+impl std::error::Error for RealtimeError {}
 
 /// Keeps `/dev/cpu_dma_latency` open; dropping it releases the request.
 #[derive(Debug, Default)]
@@ -110,7 +162,7 @@ impl RealtimeGuard {
 /// `role` names the process in the one-line warnings.
 pub fn apply(role: &str, settings: &RealtimeSettings) -> RealtimeGuard {
     let mut guard = RealtimeGuard::default();
-    let mut note = |setting: &'static str, outcome: Result<String, String>| {
+    let mut note = |setting: &'static str, outcome: Result<String, RealtimeError>| {
         if let Err(reason) = &outcome {
             eprintln!("flexloop-{role}: {setting} refused ({reason}); running without it");
         }
@@ -164,9 +216,9 @@ const STACK_RESERVE: usize = 256 * 1024;
 
 /// Populates and locks every private mapping (code, data, heap, stack) and
 /// a stack reserve; returns the KiB locked. Shared mappings are left alone.
-fn prefault_private_memory() -> Result<usize, String> {
+fn prefault_private_memory() -> Result<usize, RealtimeError> {
     touch_stack_reserve();
-    let maps = std::fs::read_to_string("/proc/self/maps").map_err(|e| e.to_string())?;
+    let maps = std::fs::read_to_string("/proc/self/maps")?;
     let mut locked = 0usize;
     for region in maps.lines().filter_map(PrivateRegion::parse) {
         // SAFETY: the range is a mapping of this process, read from its own
@@ -211,25 +263,25 @@ impl PrivateRegion {
     }
 }
 
-fn os_result(ok: bool, value: String) -> Result<String, String> {
+fn os_result(ok: bool, value: String) -> Result<String, RealtimeError> {
     if ok {
         Ok(value)
     } else {
-        Err(std::io::Error::last_os_error().to_string())
+        Err(RealtimeError::last_os_error())
     }
 }
 
 /// Pins the calling thread to `cpu`.
-pub fn pin_to_cpu(cpu: usize) -> Result<(), String> {
+pub fn pin_to_cpu(cpu: usize) -> Result<(), RealtimeError> {
     // SAFETY: cpu_set_t is plain data; CPU_SET bounds-checks against its size.
     unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();
         if cpu >= libc::CPU_SETSIZE as usize {
-            return Err(format!("cpu {cpu} out of range"));
+            return Err(RealtimeError::CpuOutOfRange(cpu));
         }
         libc::CPU_SET(cpu, &mut set);
         if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
-            return Err(std::io::Error::last_os_error().to_string());
+            return Err(RealtimeError::last_os_error());
         }
     }
     Ok(())
@@ -265,22 +317,23 @@ pub fn step_aside(loop_cpu: Option<usize>) {
 }
 
 /// SCHED_FIFO at `priority` for the calling thread.
-pub fn set_fifo_priority(priority: u8) -> Result<(), String> {
-    let value = ThreadPriorityValue::try_from(priority).map_err(|e| e.to_string())?;
+pub fn set_fifo_priority(priority: u8) -> Result<(), RealtimeError> {
+    let value = ThreadPriorityValue::try_from(priority)
+        .map_err(|_| RealtimeError::PriorityOutOfRange(priority))?;
     thread_priority::set_thread_priority_and_policy(
         thread_priority::thread_native_id(),
         ThreadPriority::Crossplatform(value),
         ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
     )
-    .map_err(|e| format!("{e:?}"))
+    .map_err(RealtimeError::Scheduler)
 }
 
 /// Lets the calling thread run on every online CPU but `cpu` (refused if
 /// that leaves none).
-pub fn avoid_cpu(cpu: usize) -> Result<(), String> {
+pub fn avoid_cpu(cpu: usize) -> Result<(), RealtimeError> {
     let online = online_cpus().min(libc::CPU_SETSIZE as usize);
     if online < 2 || cpu >= online {
-        return Err(format!("no CPU besides {cpu}"));
+        return Err(RealtimeError::NoOtherCpu(cpu));
     }
     // SAFETY: cpu_set_t is plain data; CPU_SET bounds-checks against its size.
     unsafe {
@@ -289,7 +342,7 @@ pub fn avoid_cpu(cpu: usize) -> Result<(), String> {
             libc::CPU_SET(other, &mut set);
         }
         if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
-            return Err(std::io::Error::last_os_error().to_string());
+            return Err(RealtimeError::last_os_error());
         }
     }
     Ok(())
@@ -308,14 +361,12 @@ pub fn available_cpus() -> usize {
         .unwrap_or(1)
 }
 
-fn open_dma_latency() -> Result<File, String> {
+fn open_dma_latency() -> Result<File, RealtimeError> {
     let mut file = std::fs::OpenOptions::new()
         .write(true)
-        .open("/dev/cpu_dma_latency")
-        .map_err(|e| e.to_string())?;
+        .open("/dev/cpu_dma_latency")?;
     // The PM-QoS interface takes a binary s32 in microseconds.
-    file.write_all(&0i32.to_ne_bytes())
-        .map_err(|e| e.to_string())?;
+    file.write_all(&0i32.to_ne_bytes())?;
     Ok(file)
 }
 

@@ -8,23 +8,26 @@
 //! message. The design is checked frozen at every grid point and halfway
 //! between (the loop must be stable wherever the sensor is).
 
-use crate::ScenarioError;
-use crate::design::{flexible_modes_kept, kalman_options, sensor_field};
+use crate::observer::{empty_observer, flexible_modes_kept, kalman_options};
+use crate::plants::thesis_chain::sensor_field;
 use crate::reference::Reference;
-use crate::schema::Scenario;
 use flexloop_control::closed_loop::{LoopSpec, assemble_loop};
-use flexloop_control::discretise::zoh;
+use flexloop_control::design_error::DesignError;
+use flexloop_control::discretise::{DiscretiseError, zoh};
 use flexloop_control::kalman::{KalmanWeights, NoiseModel, with_noise_model};
 use flexloop_control::linalg;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::modal::{ModalModel, ReducedModel};
 use flexloop_control::models;
 use flexloop_control::observer_block::{
-    ObserverDesign, compile_observer_block, design_modal_observer,
+    ObserverBlock, ObserverDesign, compile_observer_block, design_modal_observer,
 };
 use flexloop_control::scheduled_observer::{GainScheduling, ScheduledObserverDesign};
 use flexloop_control::scheduling::{KalmanSchedule, ModelSchedule, PositionGrid};
+use flexloop_control::step_error::StepError;
+use flexloop_scenario::{Scenario, ScenarioError};
 use nalgebra::DMatrix;
+use std::fmt;
 
 /// The sensor's motion and what follows it.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,7 +72,7 @@ impl SensorScan {
 
 /// The scan of `s` (None when its sensor does not move). `frozen_plant` is
 /// the plant as designed at the scan's start; `feedback` the controller.
-pub(crate) fn design_sensor_scan(
+pub fn design_sensor_scan(
     s: &Scenario,
     ts: f64,
     extra_delay: usize,
@@ -127,8 +130,7 @@ pub(crate) fn design_sensor_scan(
         observer,
     };
     // Frozen at every grid point and halfway between: a stable loop.
-    let zero_observer =
-        crate::design::empty_observer(ts, 1, 1, extra_delay).map_err(|e| err(e.to_string()))?;
+    let zero_observer = empty_observer(ts, 1, 1, extra_delay).map_err(|e| err(e.to_string()))?;
     for i in 0..2 * points - 1 {
         let p = lo + (hi - lo) * i as f64 / (2 * (points - 1)) as f64;
         let plant = plant_at(p)?;
@@ -180,24 +182,24 @@ fn scheduled_observer(
     let designed = design_modal_observer(&start, &options).map_err(|e| {
         ScenarioError::new(&s.source, Some("observer"), format!("Kalman observer: {e}"))
     })?;
-    let augmented =
-        |reduced: &ReducedModel| -> Result<(DiscreteStateSpace, KalmanWeights), String> {
-            let base = zoh(&reduced.state_space(), ts).map_err(|e| format!("ZOH: {e}"))?;
-            let weights = KalmanWeights::thesis(&base);
-            match (options.mc, options.q_nu) {
-                (true, Some(q)) => with_noise_model(&base, &weights, &NoiseModel::thesis(&base, q))
-                    .map_err(|e| e.to_string()),
-                _ => Ok((base, weights)),
-            }
-        };
-    let (_, weights) = augmented(&start).map_err(err)?;
+    let augmented = |reduced: &ReducedModel| -> Result<(DiscreteStateSpace, KalmanWeights), ScheduledBlockError> {
+        let base = zoh(&reduced.state_space(), ts).map_err(ScheduledBlockError::Sampling)?;
+        let weights = KalmanWeights::thesis(&base);
+        match (options.mc, options.q_nu) {
+            (true, Some(q)) => Ok(with_noise_model(
+                &base,
+                &weights,
+                &NoiseModel::thesis(&base, q),
+            )?),
+            _ => Ok((base, weights)),
+        }
+    };
+    let (_, weights) = augmented(&start).map_err(|e| err(e.to_string()))?;
     let models = ModelSchedule::new(grid, weights, |p| {
-        let reduced = reduced_at(p).map_err(|e| {
-            flexloop_control::design_error::DesignError::InvalidParameter(e.reason.clone())
-        })?;
+        let reduced = reduced_at(p).map_err(|e| DesignError::InvalidParameter(e.reason.clone()))?;
         augmented(&reduced)
             .map(|(m, _)| m)
-            .map_err(flexloop_control::design_error::DesignError::InvalidParameter)
+            .map_err(|e| DesignError::InvalidParameter(e.to_string()))
     })
     .map_err(|e| err(e.to_string()))?;
     let schedule = KalmanSchedule::design(models).map_err(|e| err(e.to_string()))?;
@@ -219,15 +221,15 @@ fn scheduled_observer(
 pub fn frozen_block(
     o: &ScheduledObserverDesign,
     position: f64,
-) -> Result<crate::ObserverBlock, String> {
+) -> Result<ObserverBlock, ScheduledBlockError> {
     let models = o.schedule.models();
     let mut m = o.schedule.matrices();
     o.schedule
         .interpolate(position, &mut m)
-        .map_err(|e| e.to_string())?;
+        .map_err(ScheduledBlockError::Interpolation)?;
     let n = models.states();
     let model = DiscreteStateSpace::new(models.a().clone(), m.b, m.c.clone(), m.d, models.ts())
-        .map_err(|e| e.to_string())?;
+        .map_err(DesignError::from)?;
     let compensation = o.flexible_columns.clone().map(|cols| {
         let mut c = DMatrix::zeros(m.c.nrows(), n);
         for j in cols {
@@ -244,5 +246,34 @@ pub fn frozen_block(
         },
         o.extra_delay_samples,
     )
-    .map_err(|e| e.to_string())
+    .map_err(ScheduledBlockError::Design)
+}
+
+/// Why the scheduled observer could not be built or frozen at a position.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ScheduledBlockError {
+    /// The reduced model at a position could not be sampled (ZOH).
+    Sampling(DiscretiseError),
+    /// The schedule could not be interpolated at the position.
+    Interpolation(StepError),
+    /// A design step (noise model, observer block) refused.
+    Design(DesignError),
+}
+
+impl fmt::Display for ScheduledBlockError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Sampling(e) => write!(f, "ZOH: {e}"),
+            Self::Interpolation(e) => write!(f, "{e}"),
+            Self::Design(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for ScheduledBlockError {}
+
+impl From<DesignError> for ScheduledBlockError {
+    fn from(e: DesignError) -> Self {
+        Self::Design(e)
+    }
 }

@@ -3,7 +3,9 @@
 //! Evaluated once per sample by the controller, so [`Reference::sample`] is
 //! closed-form and allocation-free.
 
-use flexloop_control::setpoint::Setpoint;
+use flexloop_control::setpoint::{Setpoint, SetpointParams};
+use flexloop_scenario::{Scenario, ScenarioError};
+use std::f64::consts::PI;
 
 const SWITCH_NUDGE_S: f64 = 1e-12;
 
@@ -155,6 +157,73 @@ fn scan_index(t: f64, repeat_s: f64) -> (u64, f64) {
     }
     let index = (t / repeat_s).floor();
     (index as u64, t - index * repeat_s)
+}
+
+impl Reference {
+    /// The profile of `s.reference` (a scan checked for its lead-in and repeat).
+    pub fn from_scenario(s: &Scenario) -> Result<Self, ScenarioError> {
+        let r = &s.reference;
+        Ok(match r.shape.as_str() {
+            "hold" => Reference::Hold,
+            "step" => Reference::Step {
+                amplitude: r.amplitude,
+                start_s: r.start_s,
+            },
+            "sine" => Reference::Sine {
+                amplitude: r.amplitude,
+                omega: 2.0 * PI * r.frequency_hz,
+                start_s: r.start_s,
+            },
+            "scan" => {
+                let ts = 1.0 / s.timing.rate_hz;
+                if r.start_s < ts {
+                    return Err(ScenarioError::new(
+                        &s.source,
+                        Some("reference.start_s"),
+                        format!(
+                            "a scan must start at least one sample ({ts} s) after the run, \
+                             so that its feedforward can be issued ahead of the motion; got {}",
+                            r.start_s
+                        ),
+                    ));
+                }
+                let setpoint = Setpoint::new(&SetpointParams::thesis()).map_err(|e| {
+                    ScenarioError::new(&s.source, Some("reference"), format!("set-point: {e}"))
+                })?;
+                if r.repeat_s > 0.0 && r.repeat_s < setpoint.duration() {
+                    return Err(ScenarioError::new(
+                        &s.source,
+                        Some("reference.repeat_s"),
+                        format!(
+                            "a scan lasts {} s; it cannot repeat every {} s",
+                            setpoint.duration(),
+                            r.repeat_s
+                        ),
+                    ));
+                }
+                // `amplitude` 0: the thesis' stroke, as the profile has it.
+                let stroke = setpoint.evaluate(setpoint.duration()).r;
+                let scale = if r.amplitude == 0.0 {
+                    1.0
+                } else {
+                    r.amplitude / stroke
+                };
+                Reference::Scan {
+                    setpoint: Box::new(setpoint),
+                    start_s: r.start_s,
+                    repeat_s: r.repeat_s,
+                    scale,
+                }
+            }
+            other => {
+                return Err(ScenarioError::new(
+                    &s.source,
+                    Some("reference.shape"),
+                    format!("unknown shape `{other}` (expected hold, step, sine or scan)"),
+                ));
+            }
+        })
+    }
 }
 
 #[cfg(test)]

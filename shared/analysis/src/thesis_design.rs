@@ -21,7 +21,7 @@
 //! | MC+AD + band-pass | MC + AD band-pass, Q_ν 10³ | 83 | 77.5 / 81.4 |
 //!
 //! Q_ν is the thesis intensity; discrete designs convert it
-//! ([`crate::kalman::NoiseModel::thesis`]). With two samples of loop delay the
+//! ([`flexloop_control::kalman::NoiseModel::thesis`]). With two samples of loop delay the
 //! AD output uses one more model step (x̂(k+2|k), control.md §10.1); longer
 //! delays are not compensated further (the thesis does not need them).
 //!
@@ -48,21 +48,23 @@
 //! The full report takes about 1 s in release (0.5–0.8 s discrete, 1.0 s
 //! continuous).
 
-use crate::closed_loop::{
+use flexloop_control::bandwidth::{ContinuousBandwidthProblem, DiscreteBandwidthProblem};
+use flexloop_control::closed_loop::{
     LoopSpec, assemble_continuous_loop, assemble_loop, closed_loop_modes,
     continuous_closed_loop_modes, discrete_modes,
 };
-use crate::damping::DampingMethod;
-use crate::design_error::DesignError;
-use crate::discretise::zoh;
-use crate::freq::{ContinuousBandwidthProblem, DiscreteBandwidthProblem, LoopMetrics};
-use crate::lti::DiscreteStateSpace;
-use crate::models::{CHAIN_MASS, CHAIN_ZETA, thesis_plant, thesis_reduced};
-use crate::observer_block::{
+use flexloop_control::damping::DampingMethod;
+use flexloop_control::design_error::DesignError;
+use flexloop_control::discretise::zoh;
+use flexloop_control::freq::LoopMetrics;
+use flexloop_control::lti::DiscreteStateSpace;
+use flexloop_control::matrix_error::MatrixError;
+use flexloop_control::models::{CHAIN_MASS, CHAIN_ZETA, thesis_plant, thesis_reduced};
+use flexloop_control::observer_block::{
     ContinuousObserverOptions, DampingOptions, ModalObserverOptions, ObserverBlock,
     design_continuous_modal_observer, design_modal_observer,
 };
-use crate::pid::PidTuning;
+use flexloop_control::pid::PidTuning;
 use serde::Serialize;
 use std::f64::consts::PI;
 use std::fmt::Write as _;
@@ -264,7 +266,7 @@ impl ThesisDesignSpec {
             )));
         }
         if !self.limit_db.is_finite() {
-            return Err(DesignError::NonFinite("limit_db"));
+            return Err(DesignError::Matrix(MatrixError::NonFinite("limit_db")));
         }
         if !(pos(self.f_bw_min)
             && pos(self.f_bw_max)
@@ -463,7 +465,7 @@ fn discrete_observer(
     ts: f64,
     loop_delay: usize,
     case: DesignCase,
-) -> Result<crate::observer_block::ModalObserver, DesignError> {
+) -> Result<flexloop_control::observer_block::ModalObserver, DesignError> {
     let opts = ModalObserverOptions {
         ts,
         mc: case.mc(),
@@ -478,7 +480,7 @@ fn discrete_observer(
 fn continuous_observer(
     output: usize,
     case: DesignCase,
-) -> Result<crate::observer_block::ContinuousModalObserver, DesignError> {
+) -> Result<flexloop_control::observer_block::ContinuousModalObserver, DesignError> {
     let opts = ContinuousObserverOptions {
         mc: case.mc(),
         damping: case.ad().map(damping_options),
@@ -502,7 +504,7 @@ fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, DesignError> 
         DesignDomain::Continuous => {
             let o = continuous_observer(spec.output, case)?;
             let f = &o.model.a - &o.kalman.l * &o.model.c;
-            crate::linalg::eigenvalues(&f)?
+            flexloop_control::linalg::eigenvalues(&f)?
                 .iter()
                 .filter(|s| s.im >= 0.0)
                 .filter_map(|s| {
@@ -514,11 +516,11 @@ fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, DesignError> 
         DesignDomain::Discrete { ts, loop_delay } => {
             let o = discrete_observer(spec.output, ts, loop_delay, case)?;
             let d = &o.design;
-            crate::linalg::eigenvalues(&(&d.model.a - &d.gain * &d.model.c))?
+            flexloop_control::linalg::eigenvalues(&(&d.model.a - &d.gain * &d.model.c))?
                 .iter()
                 .filter(|z| z.im >= 0.0 && z.norm() > 0.0)
                 .filter_map(|z| {
-                    let (w, zeta) = crate::linalg::discrete_pole_to_continuous(*z, ts);
+                    let (w, zeta) = flexloop_control::linalg::discrete_pole_to_continuous(*z, ts);
                     pole_row(w, zeta)
                 })
                 .collect()
@@ -540,7 +542,7 @@ fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck, DesignErr
             let o = continuous_observer(spec.output, case)?;
             let cl = assemble_continuous_loop(&plant, Some(&o.system), &tuning.continuous()?)?;
             let f = &o.model.a - &o.kalman.l * &o.model.c;
-            let obs = crate::linalg::eigenvalues(&f)?
+            let obs = flexloop_control::linalg::eigenvalues(&f)?
                 .iter()
                 .filter(|s| s.im > 0.0)
                 .map(|s| (s.norm() / (2.0 * PI), -s.re / s.norm()))
@@ -582,7 +584,7 @@ fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck, DesignErr
 
 /// The seven plants in the spec's domain.
 enum Plants {
-    Continuous(Vec<crate::continuous::ContinuousStateSpace>),
+    Continuous(Vec<flexloop_control::continuous::ContinuousStateSpace>),
     Discrete {
         plants: Vec<DiscreteStateSpace>,
         ts: f64,
@@ -719,7 +721,9 @@ fn evaluate_case(
         fold(|m| m.peak_re_db),
     );
     if ![si, so, re].iter().all(|v| v.is_finite()) {
-        return Err(DesignError::NonFinite("sensitivity peak"));
+        return Err(DesignError::Matrix(MatrixError::NonFinite(
+            "sensitivity peak",
+        )));
     }
     let constrained = |m: &LoopMetrics| {
         let mut v = m.peak_si_db.max(m.peak_so_db);
@@ -891,7 +895,7 @@ pub fn least_damped_near(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::models::TS_10KHZ;
+    use flexloop_control::models::TS_10KHZ;
 
     /// control.md §9/§11.2: best f_bw of the continuous reference model.
     const CONTINUOUS_F_BW: [(DesignCase, f64); 8] = [
