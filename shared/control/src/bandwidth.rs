@@ -93,6 +93,19 @@ struct ObserverEval {
     extra_delay: usize,
 }
 
+impl ObserverEval {
+    /// The observer (A, B, C, D) with inputs [y; u_a], plus u_pending when
+    /// `extra_delay` is 1.
+    fn new(system: Abcd<'_>, extra_delay: usize) -> Result<Self, LinalgError> {
+        let (a, b, c, d) = system;
+        Ok(Self {
+            eval: ResponseEvaluator::new(a, b, c, d)?,
+            inputs: b.ncols(),
+            extra_delay,
+        })
+    }
+}
+
 /// What the two bandwidth problems share: the grid, the cached plant and
 /// observer responses per output, and the evaluators for points off the grid
 /// (around the closed-loop resonances of each f_bw).
@@ -517,13 +530,7 @@ impl ContinuousBandwidthProblem {
             .iter()
             .map(|o| {
                 o.as_ref()
-                    .map(|o| {
-                        Ok::<_, LinalgError>(ObserverEval {
-                            eval: ResponseEvaluator::new(&o.a, &o.b, &o.c, &o.d)?,
-                            inputs: 2,
-                            extra_delay: 0,
-                        })
-                    })
+                    .map(|o| ObserverEval::new((&o.a, &o.b, &o.c, &o.d), 0))
                     .transpose()
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -599,11 +606,7 @@ impl DiscreteBandwidthProblem {
                 o.as_ref()
                     .map(|b| {
                         let s = &b.system;
-                        Ok::<_, LinalgError>(ObserverEval {
-                            eval: ResponseEvaluator::new(&s.a, &s.b, &s.c, &s.d)?,
-                            inputs: s.inputs(),
-                            extra_delay: b.extra_delay_samples,
-                        })
+                        ObserverEval::new((&s.a, &s.b, &s.c, &s.d), b.extra_delay_samples)
                     })
                     .transpose()
             })
