@@ -8,7 +8,7 @@
 //! thesis design: 15 observer states, the scan under way), with timestamps
 //! jittered as a real run's are, so that LZ4 sees realistic data.
 //!
-//! `cargo bench --bench recording` (README, "Benchmarks").
+//! `cargo bench --bench recording` (docs/benchmarks.md, "The computation of one sample: criterion").
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use flexloop_components::{InProcessLoop, LogReader, Recorder, SampleWriter};

@@ -18,7 +18,7 @@
 //! Inputs are replayed from a seeded simulation of the plant itself, so the
 //! numbers are for realistic, non-zero values.
 //!
-//! `cargo bench --bench scaling` (README, "Benchmarks").
+//! `cargo bench --bench scaling` (docs/benchmarks.md, "The computation of one sample: criterion").
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use flexloop_components::ObserverCore;

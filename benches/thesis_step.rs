@@ -8,7 +8,7 @@
 //! from that run, so the numbers are for realistic values, not for a loop at
 //! rest (zeros, or states decaying into denormals).
 //!
-//! `cargo bench --bench thesis_step` (README, "Benchmarks").
+//! `cargo bench --bench thesis_step` (docs/benchmarks.md, "The computation of one sample: criterion").
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use flexloop_components::InProcessLoop;

@@ -1,6 +1,6 @@
 //! `flexloop positions [SCENARIO...]`: Table 4.1 of the thesis. Each case
 //! (scenario) runs its scan with the world-fixed sensor at 29 positions along
-//! the chain, 0 = ma … 7 = m7 (control.md §1.4), and the table gives min /
+//! the chain, 0 = ma … 7 = m7 (docs/control.md §1.4), and the table gives min /
 //! mean / max of the scan rms of e_true beside the thesis' values.
 //!
 //! By default the runs use the in-process loop (the processes' cores in

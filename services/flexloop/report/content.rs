@@ -38,7 +38,7 @@ pub fn document(data: &RunData) -> Document {
     doc.push(Block::Paragraph(
         "From `summary.json`: the logger's histograms over the whole run, the numbers \
          `flexloop bench` prints; \"over one period\" counts samples above the one-sample budget. \
-         README, \"Reading the bench table\", says what each row measures."
+         docs/benchmarks.md, \"Reading the bench table\", says what each row measures."
             .into(),
     ));
     doc.push(Block::Table(latency_table(s)));
@@ -53,7 +53,7 @@ pub fn document(data: &RunData) -> Document {
     doc.push(Block::Paragraph(format!(
         "From the sample log, {} complete ticks (output {}), as `flexloop run` computes them: \
          e_true = r − y_true (noise-free output); MA and MSD over an exposure time of {} ms \
-         (control.md §8).{}",
+         (docs/control.md §8).{}",
         run.metrics.ticks,
         match run.design.output_names.as_slice() {
             [one] => one.clone(),

@@ -136,7 +136,7 @@ fn latency(
         )
     } else {
         format!(
-            "Percentile distribution of each hop of a sample (see README, \"Reading the bench table\"), \
+            "Percentile distribution of each hop of a sample (see docs/benchmarks.md, \"Reading the bench table\"), \
              from `latency.hlog`. x: percentile (50 %, 90 %, 99 %, ... one decade per nine); y: µs.{}",
             if log_y { LOG_NOTE } else { "" }
         )
@@ -486,7 +486,7 @@ pub fn flexible_error(data: &RunData) -> Plot {
 
 fn flexible_caption(c: &FlexibleComparison, length: super::Length) -> String {
     format!(
-        "What is compared (control.md §5.1): ŷ_flex = C_f x̂ is the output of the flexible modes the \
+        "What is compared (docs/control.md §5.1): ŷ_flex = C_f x̂ is the output of the flexible modes the \
          observer models (rigid columns zero, no T_DC·u). Its true counterpart, the plant's own \
          flexible motion at the sensor (y − rigid motion), is not in the log: it is rebuilt offline \
          by running the plant model (all modes, the same modal coordinates as the observer's reduced \

@@ -1,4 +1,4 @@
-//! Least-squares feedforward gains from a recorded run (control.md §7, the
+//! Least-squares feedforward gains from a recorded run (docs/control.md §7, the
 //! data-based update the thesis uses in place of its reference [54]).
 //!
 //! The run recorded e_true with the gains Θ₀ it used. Changing the gains by

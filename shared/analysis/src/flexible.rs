@@ -1,4 +1,4 @@
-//! The observer's flexible output against the plant's (control.md §5.1).
+//! The observer's flexible output against the plant's (docs/control.md §5.1).
 //!
 //! Measurement compensation subtracts ŷ_flex = C_f x̂ from y: the output of
 //! the flexible modes the observer models (rigid columns zero, no T_DC·u

@@ -18,7 +18,7 @@
 //! - [`scheduling_comparison`]: time-varying Kalman filter against
 //!   interpolated steady-state gains on a sensor the chain scans past.
 //! - [`thesis_design`]: the thesis' design study, the largest PID bandwidth
-//!   of every observer case under the 6 dB rule (control.md §9, §10.1).
+//!   of every observer case under the 6 dB rule (docs/control.md §9, §10.1).
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
 

@@ -1,5 +1,5 @@
 //! The design report of any scenario's loop, from the discrete closed loop
-//! the processes run (control.md §8, §9): the plant's flexible modes with
+//! the processes run (docs/control.md §8, §9): the plant's flexible modes with
 //! the damping the loop gives them, the observer's error poles, stability,
 //! and per output the peaks of |S^I| and |S^O| (the 6 dB rule) and the
 //! sensitivity bandwidth. For MIMO loops the peaks of the largest singular
@@ -20,7 +20,7 @@ use serde::Serialize;
 use std::f64::consts::PI;
 use std::fmt::{self, Write};
 
-/// The limit of the 6 dB rule on |S^I| and |S^O| (control.md §9).
+/// The limit of the 6 dB rule on |S^I| and |S^O| (docs/control.md §9).
 pub const PEAK_LIMIT_DB: f64 = 6.0;
 
 /// Frequencies evaluated, log-spaced from 0.1 Hz to just below Nyquist.

@@ -1,4 +1,4 @@
-//! The control engineer's numbers of a run (control.md §8): tracking error
+//! The control engineer's numbers of a run (docs/control.md §8): tracking error
 //! over each scan window (rms, peak, moving average MA and moving standard
 //! deviation MSD over the exposure time), control effort split into its
 //! parts, and innovation statistics.
@@ -8,7 +8,7 @@ use serde::Serialize;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MetricsOptions {
-    /// Exposure time T of MA and MSD (control.md §8: T = slit / scan speed;
+    /// Exposure time T of MA and MSD (docs/control.md §8: T = slit / scan speed;
     /// the thesis does not give the slit, so this is a choice).
     pub exposure_s: f64,
 }
@@ -195,7 +195,7 @@ fn axis_metrics(trace: &RunTrace, windows: &[(f64, f64)]) -> (Vec<AxisMetrics>, 
 }
 
 /// Largest |MA| and MSD over windows of `exposure_s` that fit inside `e`
-/// (control.md (1.1)–(1.2): valid only where the whole window is inside).
+/// (docs/control.md (1.1)–(1.2): valid only where the whole window is inside).
 fn moving_stats(e: &[f64], ts: f64, exposure_s: f64) -> (f64, f64) {
     let w = ((exposure_s / ts).round() as usize).max(1);
     if e.len() < w {

@@ -7,7 +7,7 @@
 //!   and averaging over a few periods isolates that mode's envelope (the
 //!   neighbours are hundreds of Hz away); the slope of its logarithm is −ζω.
 //!   This is what shows whether the damping force is applied with the right
-//!   timing across the real processes (control.md §10.1). The estimate x̂ is
+//!   timing across the real processes (docs/control.md §10.1). The estimate x̂ is
 //!   not used: it carries the observer's own error dynamics, which ring near
 //!   the same frequencies.
 

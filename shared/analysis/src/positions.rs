@@ -1,4 +1,4 @@
-//! Table 4.1 of the thesis (control.md §1.4, §7, §9): the scan run with the
+//! Table 4.1 of the thesis (docs/control.md §1.4, §7, §9): the scan run with the
 //! world-fixed sensor at each of 29 positions along the chain, rms of e_true
 //! over the scan window per position, and min / mean / max over them.
 //!
@@ -111,7 +111,7 @@ impl fmt::Display for PositionError {
 impl std::error::Error for PositionError {}
 
 /// Table 4.1 of the thesis, rms(e_true) [nm] min / mean / max over 29
-/// positions (control.md §9), by the shipped scenario that runs each case.
+/// positions (docs/control.md §9), by the shipped scenario that runs each case.
 /// The original loop has no redesigned feedback (the thesis repeats it).
 pub const THESIS_TABLE_4_1: [(&str, [f64; 3]); 7] = [
     ("thesis-original", [9.3667, 14.4019, 26.3194]),
@@ -132,7 +132,7 @@ pub fn thesis_table_4_1(scenario: &str) -> Option<[f64; 3]> {
 }
 
 /// 0, 1/per_span, …, 7: positions in node units (0 = ma … 7 = m7). Four
-/// per span gives the thesis' 29 (7·4 + 1; control.md §1.4).
+/// per span gives the thesis' 29 (7·4 + 1; docs/control.md §1.4).
 pub fn sensor_positions(per_span: usize) -> Vec<f64> {
     let per_span = per_span.max(1);
     let n = SENSOR_POSITION_MAX as usize * per_span;

@@ -1,5 +1,5 @@
 //! Time-varying Kalman filter against interpolated steady-state gains on a
-//! moving sensor (control.md §3 "TVKF vs scheduled steady-state KF", §5.6 of
+//! moving sensor (docs/control.md §3 "TVKF vs scheduled steady-state KF", §5.6 of
 //! the thesis: "no significant difference").
 //!
 //! The chain scans past the world-fixed sensor: the sensor position follows

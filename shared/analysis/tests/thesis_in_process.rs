@@ -1,6 +1,6 @@
 //! The thesis scenarios shipped in `scenarios/`, run by the in-process loop
 //! (the same cores as the processes, in lockstep): Table 3.7 at 10 kHz with
-//! one sample of loop delay (control.md §10.1) and the damping AD achieves.
+//! one sample of loop delay (docs/control.md §10.1) and the damping AD achieves.
 
 use flexloop_analysis::feedforward_fit::fit_from_run;
 use flexloop_analysis::modal_damping::modal_damping;
@@ -55,7 +55,7 @@ fn scan_rms_as_shipped(name: &str) -> f64 {
 
 #[test]
 fn shipped_scenarios_reproduce_table_3_7_at_10_khz() {
-    // control.md §10.1, bold column (one sample of loop delay, predictor).
+    // docs/control.md §10.1, bold column (one sample of loop delay, predictor).
     let targets = [
         ("thesis-original", 8.46),
         ("thesis-mc", 10.98),
@@ -90,7 +90,7 @@ fn the_fit_through_the_modified_feedforward_recovers_the_mc_result() {
 #[test]
 fn original_loop_reproduces_table_3_7_and_the_fit_finds_the_mass() {
     let (rms, acc, _, trace) = fitted_scan_rms("thesis-original");
-    // control.md §10.1, bold column: 8.46 nm; the fit: Θ_acc = m = 12.5 kg.
+    // docs/control.md §10.1, bold column: 8.46 nm; the fit: Θ_acc = m = 12.5 kg.
     assert!((rms - 8.46).abs() < 0.1 * 8.46, "{rms}");
     assert!((acc - 12.5).abs() < 5e-4, "{acc}");
     assert_eq!(trace.rows.len(), 3000);

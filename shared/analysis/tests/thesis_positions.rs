@@ -1,4 +1,4 @@
-//! Position dependency (control.md §1.4): Table 4.1's shape from the shipped
+//! Position dependency (docs/control.md §1.4): Table 4.1's shape from the shipped
 //! thesis scenarios with the sensor moved along the chain, and the thesis'
 //! claim that a time-varying Kalman filter and interpolated steady-state
 //! gains are indistinguishable on a moving sensor (§3, thesis §5.6).
@@ -41,7 +41,7 @@ fn table_4_1_shape_mc_ad_is_lower_and_flatter_than_the_original_loop() {
     let original = at_nodes("thesis-original", FeedforwardChoice::ComplianceShifted);
     let mc_ad = at_nodes("thesis-mc-ad", FeedforwardChoice::ComplianceShifted);
     // At y5 the feedforward is the scenario's own: the Table 3.7 runs
-    // (control.md §10.1: 8.46 and 2.47 nm).
+    // (docs/control.md §10.1: 8.46 and 2.47 nm).
     let at_y5 = |s: &PositionScan| s.runs[5].rms_e_true * 1e9;
     assert!((at_y5(&original) - 8.46).abs() < 0.85, "{original:?}");
     assert!((at_y5(&mc_ad) - 2.47).abs() < 0.25, "{mc_ad:?}");

@@ -19,7 +19,7 @@ use flexloop_protocol::{
 use nalgebra::{DMatrix, DVector, DVectorView};
 
 /// The observer of a sensor the structure scans past: its gain follows the
-/// position of each tick (control.md §1.4).
+/// position of each tick (docs/control.md §1.4).
 struct Scheduled {
     observer: ScheduledObserver,
     scan: SensorScan,

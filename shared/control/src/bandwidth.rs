@@ -1,4 +1,4 @@
-//! The bandwidth searches of control.md §9 / §10.1: the largest f_bw of the
+//! The bandwidth searches of docs/control.md §9 / §10.1: the largest f_bw of the
 //! Table 3.3 PID such that every output meets the 6 dB rule (and, for MC,
 //! the bound on |T_{r→e_true}|) with a stable closed loop, in continuous time
 //! (the thesis's setting: [`ContinuousBandwidthProblem`]) and in discrete time
@@ -400,9 +400,9 @@ pub struct BandwidthProblem<L> {
     responses: Responses,
 }
 
-/// control.md §9, the thesis's setting.
+/// docs/control.md §9, the thesis's setting.
 pub type ContinuousBandwidthProblem = BandwidthProblem<ContinuousLoops>;
-/// control.md §10.1: sampled, with loop delay.
+/// docs/control.md §10.1: sampled, with loop delay.
 pub type DiscreteBandwidthProblem = BandwidthProblem<DiscreteLoops>;
 
 impl<L: ClosedLoops> BandwidthProblem<L> {
@@ -694,7 +694,7 @@ mod tests {
         )
     }
 
-    /// The SISO formulas of control.md §5.4 with the observer transfers
+    /// The SISO formulas of docs/control.md §5.4 with the observer transfers
     /// (u referred to the controller output, delays included) equal the
     /// transfers of the assembled state-space loop: r → e_meas = S^I,
     /// n → y_meas = S^O, r → e_true = T_re.

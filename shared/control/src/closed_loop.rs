@@ -1,4 +1,4 @@
-//! Assembly of the discrete single-rate loop of control.md §5.4/§10.1 into
+//! Assembly of the discrete single-rate loop of docs/control.md §5.4/§10.1 into
 //! one closed-loop [`DiscreteStateSpace`], for eigenvalue, frequency-response
 //! and simulation checks at design time.
 //!
@@ -14,7 +14,7 @@
 //!
 //! [`assemble_continuous_loop`] builds the same loop in continuous time (no
 //! delay; the observer gets the total input u directly), for the continuous
-//! design checks of control.md §9.
+//! design checks of docs/control.md §9.
 
 use crate::continuous::ContinuousStateSpace;
 use crate::design_error::DesignError;

@@ -1,4 +1,4 @@
-//! Active-damping gain design on estimated modal velocities (control.md
+//! Active-damping gain design on estimated modal velocities (docs/control.md
 //! §5.2): the "automated manual" gains (3.31), the minimal-interaction gains
 //! (3.32), and the dynamic gain K(s) with per-mode band-pass filters
 //! (3.34)/(4.17), compiled to a discrete map x̂ → u_d.
@@ -202,7 +202,7 @@ impl ActiveDamping {
 
     /// Continuous map from the observer state (n_obs ≥ 2 n_modes) to u_d:
     /// the static gains, or K_i H_BP,i(s) on η̇̂_i per damped mode (3.34),
-    /// for the continuous design checks of control.md §9.
+    /// for the continuous design checks of docs/control.md §9.
     pub fn to_continuous(&self, n_obs: usize) -> Result<ContinuousStateSpace, DesignError> {
         self.check_observer_states(n_obs)?;
         let Some(q) = self.bandpass_q else {

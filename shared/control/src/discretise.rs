@@ -1,5 +1,5 @@
 //! Continuous → discrete conversion: exact zero-order hold for plants and
-//! observer models (control.md §3, (2.20)), Tustin with optional pre-warping
+//! observer models (docs/control.md §3, (2.20)), Tustin with optional pre-warping
 //! for controllers and filters, and pure sample delays.
 
 use crate::continuous::ContinuousStateSpace;

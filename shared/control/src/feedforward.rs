@@ -1,5 +1,5 @@
 //! The 4-gain feedforward C_ff(s) = Θ_snap s⁴ + Θ_jerk s³ + Θ_acc s² + Θ_vel s
-//! on the set-point derivatives (control.md §7, (A.1)), and least-squares
+//! on the set-point derivatives (docs/control.md §7, (A.1)), and least-squares
 //! fitting of the four gains from recorded data.
 
 use crate::setpoint::SetpointSample;

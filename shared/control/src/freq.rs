@@ -1,5 +1,5 @@
 //! Frequency responses of continuous and discrete state spaces, and the
-//! SISO loop analysis of control.md §5.4/§6: sensitivities S^I, S^O, the
+//! SISO loop analysis of docs/control.md §5.4/§6: sensitivities S^I, S^O, the
 //! r → e_true transfer, bandwidth as the first 0 dB crossing, and peaks.
 //! The bandwidth searches built on them are in [`crate::bandwidth`].
 
@@ -213,7 +213,7 @@ pub fn log_grid_hz(f_lo: f64, f_hi: f64, points: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The Table 3.3 PID with low-pass and notches (control.md §6) at a point s
+/// The Table 3.3 PID with low-pass and notches (docs/control.md §6) at a point s
 /// of the s-plane, in closed form (the same transfer function as
 /// [`PidTuning::continuous`]).
 pub fn pid_response(t: &PidTuning, s: C64) -> C64 {
@@ -261,7 +261,7 @@ pub struct LoopMetrics {
     pub stable: bool,
 }
 
-/// The four SISO observer transfers at one frequency (control.md §5):
+/// The four SISO observer transfers at one frequency (docs/control.md §5):
 /// ŷ_flex = O_yy y + O_yu u, u_d = O_uy y + O_uu u.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObserverResponse {
@@ -272,7 +272,7 @@ pub struct ObserverResponse {
 }
 
 /// S^I, S^O, T_{r→e_true} and the open loop L = P_eq C at one frequency,
-/// from the SISO formulas of control.md §5.4. `p` is the plant from the
+/// from the SISO formulas of docs/control.md §5.4. `p` is the plant from the
 /// controller output to y (including any loop delay), `o` the observer with
 /// its u input referred to the same controller output.
 pub fn siso_sensitivities(p: C64, c: C64, o: Option<ObserverResponse>) -> (C64, C64, C64, C64) {

@@ -1,5 +1,5 @@
 //! Input–output observer with a dynamic correction filter K(z) (Seed 001,
-//! Adams & Forbes; control.md §12.2).
+//! Adams & Forbes; docs/control.md §12.2).
 //!
 //! The plant model runs on the known input; the innovation ρ = y − ŷ drives a
 //! correction filter K(z) whose output ν is fed back into the model:

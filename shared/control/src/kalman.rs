@@ -1,14 +1,14 @@
 //! Discrete Kalman filter design: steady-state gains from the DARE,
 //! predictor and filter forms, the time-varying Riccati step, and the
 //! noise-model (PI observer) augmentation that keeps integral action with
-//! measurement compensation (control.md §3, §4.1–§4.3).
+//! measurement compensation (docs/control.md §3, §4.1–§4.3).
 //!
 //! Model: x(k+1) = A x + B u + G w, y = C x + D u + v, with D = T_DC
 //! (compliance of discarded modes), E[wwᵀ] = Q, E[vvᵀ] = R.
 //!
 //! # Units of the weights (continuous thesis values vs per-sample values)
 //! The thesis designs in continuous time with intensities Q_c = σ_w²,
-//! R_c = σ_v² + σ_d² and the noise-model intensity Q_ν (control.md §4). The
+//! R_c = σ_v² + σ_d² and the noise-model intensity Q_ν (docs/control.md §4). The
 //! exact sampled equivalent of those intensities is, to first order in Ts,
 //! (B Q_c Bᵀ Ts, R_c / Ts, Q_ν Ts); a Kalman gain does not change when all
 //! weights are multiplied by one number, so multiplying by Ts gives the
@@ -18,12 +18,12 @@
 //! factor: per-sample Q_ν,d = Q_ν Ts² ([`NoiseModel::thesis`]). Using the
 //! thesis' Q_ν = 0.03 or 10³ unscaled as a per-sample covariance makes the
 //! integrator state 10⁸ times (at 10 kHz) too strong relative to w and v, and
-//! was the reason earlier discrete MC and MC+AD bandwidths missed control.md
+//! was the reason earlier discrete MC and MC+AD bandwidths missed docs/control.md
 //! §10.1 (MC+AD had no feasible bandwidth at all).
 //!
 //! The continuous design itself ([`steady_state_kalman_continuous`], CARE
 //! by the Hamiltonian sign function plus Newton–Kleinman refinement) is
-//! used for the continuous bandwidth checks of control.md §9.
+//! used for the continuous bandwidth checks of docs/control.md §9.
 
 use crate::continuous::ContinuousStateSpace;
 use crate::dare::solve_dare;
@@ -45,7 +45,7 @@ pub struct KalmanWeights {
 }
 
 impl KalmanWeights {
-    /// The thesis weights (control.md §4.1): G = B (w enters like the
+    /// The thesis weights (docs/control.md §4.1): G = B (w enters like the
     /// actuator force), Q = σ_w² I, R = (σ_v² + σ_d²) I = 2e-18 I.
     pub fn thesis(model: &DiscreteStateSpace) -> Self {
         let (m, p) = (model.inputs(), model.outputs());
@@ -57,7 +57,7 @@ impl KalmanWeights {
     }
 
     /// The thesis weights for a continuous model, as intensities: G = B,
-    /// Q = σ_w² I, R = (σ_v² + σ_d²) I (control.md §4.1).
+    /// Q = σ_w² I, R = (σ_v² + σ_d²) I (docs/control.md §4.1).
     pub fn thesis_continuous(model: &ContinuousStateSpace) -> Self {
         let (m, p) = (model.inputs(), model.outputs());
         Self {
@@ -155,7 +155,7 @@ pub fn riccati_step(
 }
 
 /// Integrated-noise states z that keep integral action under MC
-/// (control.md (3.14), §4.3): z(k+1) = z(k) + Q_ν^{1/2} ν, entering the
+/// (docs/control.md (3.14), §4.3): z(k+1) = z(k) + Q_ν^{1/2} ν, entering the
 /// state through U (U = B_t makes O_yu(1) = 0, Theorem 3.2.4).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NoiseModel {
@@ -181,7 +181,7 @@ impl NoiseModel {
     /// U = B_t with the thesis' continuous intensity `q_nu` (0.03 or 10³)
     /// converted to the per-sample covariance that matches
     /// [`KalmanWeights::thesis`]: Q_ν,d = q_nu Ts² I (module doc). This
-    /// reproduces the discrete bandwidths of control.md §10.1.
+    /// reproduces the discrete bandwidths of docs/control.md §10.1.
     pub fn thesis(model: &DiscreteStateSpace, q_nu: f64) -> Self {
         Self::on_inputs(model, q_nu * model.ts * model.ts)
     }
@@ -265,7 +265,7 @@ pub fn with_noise_model_continuous(
     Ok((aug, w))
 }
 
-/// Steady-state continuous Kalman filter (control.md (3.3)).
+/// Steady-state continuous Kalman filter (docs/control.md (3.3)).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ContinuousKalmanGains {
     /// P from A P + P Aᵀ + G Q Gᵀ − P Cᵀ R⁻¹ C P = 0 (stabilising solution).
@@ -508,7 +508,7 @@ mod tests {
         let (p1, l1) = riccati_step(&model, &w, &k.p).unwrap();
         assert!((&p1 - &k.p).norm() < 1e-6 * k.p.norm());
         assert!((&l1 - &k.l).norm() < 1e-6 * k.l.norm());
-        // Observer poles (control.md §4.1, y5): rigid pair ≈ 119 Hz with ζ ≈ 0.73;
+        // Observer poles (docs/control.md §4.1, y5): rigid pair ≈ 119 Hz with ζ ≈ 0.73;
         // flexible mode 1 at ≈ 472 Hz with ζ ≈ 0.037.
         let ev = eigenvalues(&(&model.a - &k.l * &model.c)).unwrap();
         let poles: Vec<(f64, f64)> = ev

@@ -1,5 +1,5 @@
 //! Pole placement for SISO discrete systems (Årzén, "State Feedback and
-//! Observers", control.md §12.1): reachability/observability matrices,
+//! Observers", docs/control.md §12.1): reachability/observability matrices,
 //! Ackermann's formula for state feedback and observers, deadbeat designs,
 //! and the lecture's worked double-integrator example.
 

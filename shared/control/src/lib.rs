@@ -4,7 +4,7 @@
 //! design) may allocate. The per-sample types ([`lti::LtiRunner`]) are sized in
 //! their constructors and allocate nothing in their `step` methods.
 //!
-//! Typical thesis set-up at 10 kHz (control.md §10.1):
+//! Typical thesis set-up at 10 kHz (docs/control.md §10.1):
 //! * plant: [`models::thesis_plant_discrete`] (8 modes, exact ZOH);
 //! * observer: [`observer_block::thesis_observer_block`] (Kalman predictor on
 //!   the reduced model with MC and/or AD), layout in [`observer_block`];

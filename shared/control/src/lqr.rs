@@ -1,5 +1,5 @@
 //! Linear-quadratic (LQ) state feedback on a discrete model, from the
-//! existing DARE solver, and integral action by augmentation (control.md
+//! existing DARE solver, and integral action by augmentation (docs/control.md
 //! §12.1: "L and K can instead come from LQ/LQG"; x_i(k+1) = x_i(k) + C x(k)).
 //!
 //! Convention as in the lecture: u = −L x (− L_i x_i), so the closed loop is

@@ -1,7 +1,7 @@
 //! Modal models of flexible structures: from the nodal form (M, K, modal
 //! damping, actuator and sensor selection) to the mass-normalised modal form,
 //! the continuous "type 1" state space, truncation with compliance (T_DC)
-//! compensation, and position-dependent sensor rows (control.md §1.1, §2).
+//! compensation, and position-dependent sensor rows (docs/control.md §1.1, §2).
 //!
 //! Conventions, fixed here so that every model is reproducible:
 //! * modes are sorted by frequency, rigid modes (ω = 0) first;
@@ -9,7 +9,7 @@
 //! * sign: each mode is scaled so that its gain at the first actuator, φ_a,1,
 //!   is positive; where that gain is negligible (< 1e-9 of the mode's largest
 //!   entry) the node entry of largest magnitude is made positive instead;
-//! * state order x = col(η1, η̇1, η2, η̇2, …) (type 1, control.md (2.9)).
+//! * state order x = col(η1, η̇1, η2, η̇2, …) (type 1, docs/control.md (2.9)).
 
 use crate::continuous::ContinuousStateSpace;
 use crate::linalg::block_diag;
@@ -72,7 +72,7 @@ pub enum ModalDamping {
     StiffnessProportional(f64),
 }
 
-/// Nodal form M q̈ + D q̇ + K q = S_a f, y = S_s q (control.md (2.1)).
+/// Nodal form M q̈ + D q̇ + K q = S_a f, y = S_s q (docs/control.md (2.1)).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodalModel {
     /// Symmetric positive definite mass matrix (n × n).
@@ -315,7 +315,7 @@ impl ModalModel {
             .collect()
     }
 
-    /// Continuous type-1 state space (position outputs, D = 0), control.md (2.9).
+    /// Continuous type-1 state space (position outputs, D = 0), docs/control.md (2.9).
     pub fn state_space(&self) -> ContinuousStateSpace {
         let n = self.modes();
         let blocks: Vec<DMatrix<f64>> = (0..n)
@@ -341,7 +341,7 @@ impl ModalModel {
     }
 
     /// Static compliance T_DC = Σ φ_s,i φ_a,iᵀ / ω_i² over the given modes
-    /// (control.md (2.13)). Rigid modes have no static compliance.
+    /// (docs/control.md (2.13)). Rigid modes have no static compliance.
     pub fn compliance(&self, modes: &[usize]) -> Result<DMatrix<f64>, ModelError> {
         let mut t = DMatrix::zeros(self.outputs(), self.inputs());
         for &i in modes {
@@ -405,7 +405,7 @@ impl ModalModel {
 
     /// Sensor row (1 × n_modes) of a sensor at a fractional node index:
     /// linear interpolation of the mass-normalised mode-shape rows between the
-    /// neighbouring nodes (control.md §1.4; the thesis gives no mapping).
+    /// neighbouring nodes (docs/control.md §1.4; the thesis gives no mapping).
     /// Position 0.0 is node 0, 1.5 halfway between nodes 1 and 2.
     pub fn sensor_row_at(&self, position: f64) -> Result<DMatrix<f64>, ModelError> {
         let shapes = self.shapes.as_ref().ok_or(ModelError::NoModeShapes)?;
@@ -439,7 +439,7 @@ impl ModalModel {
 }
 
 impl ModalModel {
-    /// Rigid-body decoupling (control.md (4.12)): Γ = [φ_a,rigᵀ]⁻¹ and
+    /// Rigid-body decoupling (docs/control.md (4.12)): Γ = [φ_a,rigᵀ]⁻¹ and
     /// Υ = [φ_s,rig]⁻¹, returned with the decoupled model (φ_a Γ, Υ φ_s), in
     /// which the rigid part is the identity times 1/s². Needs as many
     /// actuators and sensors as rigid modes.
@@ -483,7 +483,7 @@ impl ReducedModel {
             .collect()
     }
 
-    /// C_f: C_t with the rigid-mode columns zeroed (MC output, control.md §5.1).
+    /// C_f: C_t with the rigid-mode columns zeroed (MC output, docs/control.md §5.1).
     pub fn flexible_output_matrix(&self) -> DMatrix<f64> {
         let mut c = self.modal.state_space().c;
         for j in 0..2 * self.modal.n_rigid {

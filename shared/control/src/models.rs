@@ -1,4 +1,4 @@
-//! Built-in plant models: the thesis 8-mass chain (control.md §1.3, the main
+//! Built-in plant models: the thesis 8-mass chain (docs/control.md §1.3, the main
 //! benchmark), the smaller thesis examples, and documented stand-ins for the
 //! models whose data the thesis does not give (MIMO example, OAT, 2-DOF
 //! flexible joint).
@@ -20,15 +20,15 @@ pub const CHAIN_MI: f64 = 10.0 / 7.0;
 pub const CHAIN_K: f64 = 9.6e7;
 /// Thesis chain: spring between ma and m1 [N/m].
 pub const CHAIN_KA: f64 = 1e8;
-/// Thesis chain: uniform modal damping (Table 3.4 "original", control.md §1.3).
+/// Thesis chain: uniform modal damping (Table 3.4 "original", docs/control.md §1.3).
 pub const CHAIN_ZETA: f64 = 0.005;
 /// Total moving mass of the thesis chain [kg].
 pub const CHAIN_MASS: f64 = 12.5;
-/// Thesis noise levels (control.md §4.1): σ_w = 10 mN, σ_v = σ_d = 1 nm.
+/// Thesis noise levels (docs/control.md §4.1): σ_w = 10 mN, σ_v = σ_d = 1 nm.
 pub const SIGMA_W: f64 = 0.01;
 pub const SIGMA_V: f64 = 1e-9;
 pub const SIGMA_D: f64 = 1e-9;
-/// Thesis sample rate for a real-time implementation (control.md §10.1).
+/// Thesis sample rate for a real-time implementation (docs/control.md §10.1).
 pub const TS_10KHZ: f64 = 1e-4;
 
 /// A free–free mass–spring chain: node i has mass `masses[i]`, spring
@@ -81,7 +81,7 @@ pub fn chain(
     })
 }
 
-/// The thesis SISO benchmark (control.md §1.3): nodes [ma, m1, …, m7], force
+/// The thesis SISO benchmark (docs/control.md §1.3): nodes [ma, m1, …, m7], force
 /// on ma, ma–(ka)–m1–(k)–m2–…–m7, ζ = 0.005 on every flexible mode, outputs
 /// y1..y7 = positions of m1..m7 (output row i−1 is y_i).
 pub fn thesis_chain() -> NodalModel {
@@ -125,7 +125,7 @@ pub fn thesis_plant_discrete(
 }
 
 /// The thesis observer model for output y_i: rigid + first 3 flexible modes,
-/// T_DC over flexible modes 4–6; mode 7 is "unknown" (control.md §1.3).
+/// T_DC over flexible modes 4–6; mode 7 is "unknown" (docs/control.md §1.3).
 pub fn thesis_reduced(output: usize) -> Result<ReducedModel, ModelError> {
     thesis_plant(output)?.truncate(4, &[4, 5, 6])
 }
@@ -174,7 +174,7 @@ pub fn uniform_chain_sensor(nodes: usize) -> usize {
     ((5 * nodes.saturating_sub(1)) as f64 / 7.0).round() as usize
 }
 
-/// Ex. 2.3.1 (control.md §1.2): five 2 kg masses, springs 1e5 N/m, dampers
+/// Ex. 2.3.1 (docs/control.md §1.2): five 2 kg masses, springs 1e5 N/m, dampers
 /// 5 N s/m along the springs (so ζ_i = b ω_i / (2k)), forces f1..f5 on every
 /// mass, outputs x1..x5. Free–free (one rigid mode).
 pub fn five_mass_chain() -> NodalModel {
@@ -221,7 +221,7 @@ pub fn two_inertia() -> NodalModel {
     m
 }
 
-/// Lecture double integrator (control.md §12.1): ẋ = [[0,1],[0,0]] x + [0;1] u,
+/// Lecture double integrator (docs/control.md §12.1): ẋ = [[0,1],[0,0]] x + [0;1] u,
 /// y = x1. Its ZOH at h gives Φ = [[1,h],[0,1]], Γ = [h²/2; h].
 pub fn double_integrator() -> ContinuousStateSpace {
     ContinuousStateSpace {
@@ -232,7 +232,7 @@ pub fn double_integrator() -> ContinuousStateSpace {
     }
 }
 
-/// The 2×2 MIMO example of Ch. 4.3 (control.md §1.5): 2 rigid + 3 flexible
+/// The 2×2 MIMO example of Ch. 4.3 (docs/control.md §1.5): 2 rigid + 3 flexible
 /// modes at 161, 517 and 760 Hz. The thesis gives no mode shapes or damping;
 /// these are INVENTED: a 10 kg beam-like stage with rotational inertia
 /// 0.4 kg m², actuators at x = ±0.2 m, sensors at x = ±0.25 m; rigid shapes
@@ -272,7 +272,7 @@ pub const OAT_ZETA: [f64; 8] = [
     0.0025, 0.0156, 0.0161, 0.0066, 0.0056, 0.0033, 0.0017, 0.0023,
 ];
 
-/// OAT-like out-of-plane model (Ch. 6, control.md §1.8): 3 rigid modes
+/// OAT-like out-of-plane model (Ch. 6, docs/control.md §1.8): 3 rigid modes
 /// (z, rx, ry) + 8 flexible modes with the Table 6.1 frequencies and damping.
 /// Geometry INVENTED (the thesis gives none): a uniform 0.5 m × 0.4 m plate of
 /// 25 kg centred at the origin; rigid shapes 1/√m, y/√Ixx, −x/√Iyy; flexible
@@ -417,7 +417,7 @@ mod tests {
             let g = m.phi_a[(0, 0)] * m.phi_s[(r, 0)];
             assert!((g - 1.0 / CHAIN_MASS).abs() < 1e-12);
         }
-        // Mode shapes of control.md §1.3 (up to the column sign).
+        // Mode shapes of docs/control.md §1.3 (up to the column sign).
         let at_ma: [f64; 8] = [
             0.2828, 0.3658, -0.2938, -0.2240, 0.1669, 0.1197, -0.0780, -0.0386,
         ];

@@ -1,4 +1,4 @@
-//! Modified feedforward for observer loops (thesis App. A, control.md §7).
+//! Modified feedforward for observer loops (thesis App. A, docs/control.md §7).
 //!
 //! With MC and/or AD the observer reacts to the reference: if the plant
 //! followed r exactly, the observer would still output ŷ_f and û_d, the
@@ -21,7 +21,7 @@
 //! subtracted from the input applied at k + d: the block delays them by d.
 //! Feed tick k of the loop ([`crate::closed_loop`]'s u_ff input) with the
 //! block's output at tick k + d, i.e. run the block d ticks ahead, exactly as
-//! the plain feedforward is advanced by the loop delay (control.md §10.1).
+//! the plain feedforward is advanced by the loop delay (docs/control.md §10.1).
 //! Then, if u0 inverts the plant exactly, e_true = 0.
 
 use crate::design_error::DesignError;
@@ -264,7 +264,7 @@ mod tests {
         let g = crate::feedforward::fit_gains(&rows, &e0).unwrap();
         assert!((g.acc - CHAIN_MASS).abs() < 1e-3, "{g:?}");
         let baseline = scan_rms_nm(&scan(None, true, |k, t| g.apply(&sp.evaluate(t(k + 1)))));
-        // control.md §10.1, bold column: 8.46 nm without observer.
+        // docs/control.md §10.1, bold column: 8.46 nm without observer.
         assert!((baseline - 8.46).abs() < 0.05, "{baseline}");
         // Same gains in the observer loops. Measured: MC 71.8 → 10.97 nm,
         // MC+AD 67.4 → 2.51 nm; §10.1 gets 10.98 and 2.47 nm only by

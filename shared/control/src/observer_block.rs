@@ -1,7 +1,7 @@
 //! The observer block of the loop: one [`DiscreteStateSpace`] that holds a
 //! predictor-form observer plus its measurement-compensation (MC) and
 //! active-damping (AD) outputs, timed for one sample of loop delay
-//! (control.md §3 "Synchronization", §5, §10.1).
+//! (docs/control.md §3 "Synchronization", §5, §10.1).
 //!
 //! # Layout
 //! Inputs, per tick k:
@@ -30,7 +30,7 @@
 //! continuous time (CARE Kalman gain, static or band-passed K(s)), as one
 //! [`ContinuousStateSpace`] with inputs [y; u] and outputs [ŷ_flex; u_d]:
 //! the thesis's own setting, used by the continuous bandwidth checks of
-//! control.md §9 ([`crate::bandwidth::ContinuousBandwidthProblem`]).
+//! docs/control.md §9 ([`crate::bandwidth::ContinuousBandwidthProblem`]).
 //!
 //! # Q_ν
 //! `q_nu` is always the thesis value (a continuous intensity, 0.03 or 10³);
@@ -166,7 +166,7 @@ pub struct DampingOptions {
     pub bandpass_q: Option<f64>,
 }
 
-/// Options of the Kalman-based MC/AD observer (control.md §11.1 item 3).
+/// Options of the Kalman-based MC/AD observer (docs/control.md §11.1 item 3).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModalObserverOptions {
     pub ts: f64,
@@ -390,7 +390,7 @@ pub fn thesis_observer_block(
 }
 
 /// The lecture observer with a constant input-disturbance estimate
-/// (control.md §12.1): model Φe = [[Φ, Γ], [0, I]], Γe = [Γ; 0], Ce = [C 0],
+/// (docs/control.md §12.1): model Φe = [[Φ, Γ], [0, I]], Γe = [Γ; 0], Ce = [C 0],
 /// predictor gain [K; K_w], and u_sf = −L x̂(k+1|k) − v̂(k+1|k) on the u_d
 /// slot (so the controller simply adds u_d). ŷ_flex is zero.
 pub fn state_feedback_observer_block(
@@ -488,7 +488,7 @@ mod tests {
 
     #[test]
     fn active_damping_achieves_reference_damping_with_one_sample_delay() {
-        // control.md §10.1: 0.051 / 0.047 / 0.042 (band-pass Q = 2, 1 sample).
+        // docs/control.md §10.1: 0.051 / 0.047 / 0.042 (band-pass Q = 2, 1 sample).
         let z = ad_damping(Some(2.0), 1, 0);
         for (g, w) in z.iter().zip([0.051, 0.047, 0.042]) {
             assert!((g - w).abs() < 0.003, "{z:?}");

@@ -1,4 +1,4 @@
-//! The thesis feedback controller (control.md §6): PID with a second-order
+//! The thesis feedback controller (docs/control.md §6): PID with a second-order
 //! low-pass, the Table 3.3 single-parameter tuning, optional notches, and
 //! its Tustin discretisation into a [`DiscreteStateSpace`] (input e, output
 //! u_fb).
@@ -92,7 +92,7 @@ impl PidTuning {
         Ok(c)
     }
 
-    /// Tustin discretisation (no pre-warping, as in control.md §10.1).
+    /// Tustin discretisation (no pre-warping, as in docs/control.md §10.1).
     pub fn discrete(&self, ts: f64) -> Result<DiscreteStateSpace, DesignError> {
         Ok(tustin(&self.continuous()?, ts, None)?)
     }

@@ -1,5 +1,5 @@
 //! Robust multi-input pole placement for state feedback and multi-output
-//! observers (control.md §3 "(4.3) … otherwise use the extra freedom",
+//! observers (docs/control.md §3 "(4.3) … otherwise use the extra freedom",
 //! §5.2 (3.33), §12.1 `place`).
 //!
 //! With more than one input the gain that places the poles is not unique;

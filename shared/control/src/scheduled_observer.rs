@@ -1,5 +1,5 @@
 //! The observer block of [`crate::observer_block`] with its Kalman gain
-//! scheduled on a position (control.md §1.4, §4.3, §5.6): for a sensor fixed
+//! scheduled on a position (docs/control.md §1.4, §4.3, §5.6): for a sensor fixed
 //! in the world while the structure moves under it, C and T_DC depend on the
 //! position r_p, and so does the Kalman gain; A, B, the noise model and the
 //! AD map K(z) do not (output position dependency).

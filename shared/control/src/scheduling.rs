@@ -1,4 +1,4 @@
-//! Gain scheduling over a position (control.md §1.4, §3 "TVKF vs scheduled
+//! Gain scheduling over a position (docs/control.md §1.4, §3 "TVKF vs scheduled
 //! steady-state KF", §10, §11.2 item 12).
 //!
 //! When the structure moves relative to a sensor fixed in the world, C and
@@ -16,7 +16,7 @@
 //!   few n×n products per sample.
 //!
 //! A is the same at every position (structural dependency is not handled,
-//! control.md §2), and so is the process noise G Q Gᵀ. Everything is sized in
+//! docs/control.md §2), and so is the process noise G Q Gᵀ. Everything is sized in
 //! the constructors; `step` and `interpolate` do not allocate.
 
 use crate::design_error::{DesignError, check_matrix};
@@ -603,7 +603,7 @@ mod tests {
     use crate::kalman::riccati_step;
     use crate::models::{TS_10KHZ, thesis_chain_modal};
 
-    /// Thesis chain seen by a sensor fixed in the world (control.md §1.4):
+    /// Thesis chain seen by a sensor fixed in the world (docs/control.md §1.4):
     /// nodes ma, m1..m7 at a 20 mm pitch, so 0…0.14 m in 5 mm steps is 29
     /// positions. Reduced model (rigid + 3 flexible, T_DC of modes 4–6).
     fn node(pos: f64) -> f64 {

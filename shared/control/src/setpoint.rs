@@ -1,4 +1,4 @@
-//! The 4th-order (snap-limited) scan set-point of Table 3.6 (control.md §7):
+//! The 4th-order (snap-limited) scan set-point of Table 3.6 (docs/control.md §7):
 //! accelerate, settle, scan at constant velocity, decelerate, rest.
 //! Evaluation at a time t is allocation-free and branch-bounded (at most 16
 //! piecewise-polynomial segments), so it can run in the loop.

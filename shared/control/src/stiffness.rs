@@ -1,4 +1,4 @@
-//! Active-stiffness gains on estimated modal positions (control.md §5.2,
+//! Active-stiffness gains on estimated modal positions (docs/control.md §5.2,
 //! Table 3.1 case c; thesis (3.42)–(3.43)).
 //!
 //! Feeding back u_s = K_s η̂ (ADDED to the plant input, as u_d in

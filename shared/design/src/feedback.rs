@@ -11,7 +11,7 @@ use std::f64::consts::PI;
 pub enum FeedbackPlan {
     /// One PID tuned on 1/(m s²) (the SISO models).
     Mass(f64),
-    /// One PID per rigid-body-decoupled axis (control.md (4.12)): each axis
+    /// One PID per rigid-body-decoupled axis (docs/control.md (4.12)): each axis
     /// is 1/s² in modal units, u = Γ diag(C_fb) Υ e.
     Decoupled {
         gamma: DMatrix<f64>,

@@ -118,7 +118,7 @@ pub fn kalman_options(
         None => Some(if o.ad { 1e3 } else { 0.03 }),
     };
     // The noise model adds one integrator per input; the sensors must see
-    // them all (control.md §4.2: dim ν ≤ n_sens).
+    // them all (docs/control.md §4.2: dim ν ≤ n_sens).
     if o.mc && q_nu.is_some() && n_u > n_y {
         return Err(ScenarioError::new(
             &s.source,

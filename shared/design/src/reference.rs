@@ -98,7 +98,7 @@ impl Reference {
     }
 
     /// The windows over which tracking is judged, up to `until_s`: the scan
-    /// phase of each scan (control.md §8). Empty for other shapes.
+    /// phase of each scan (docs/control.md §8). Empty for other shapes.
     pub fn scan_windows(&self, until_s: f64) -> Vec<(f64, f64)> {
         match self {
             Reference::Scan {

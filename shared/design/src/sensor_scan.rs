@@ -1,4 +1,4 @@
-//! A world-fixed sensor that the thesis chain scans past (control.md §1.4,
+//! A world-fixed sensor that the thesis chain scans past (docs/control.md §1.4,
 //! `plant.sensor_scan`): the position under the sensor follows the scan's
 //! reference, so the plant's output row and the observer's C, T_DC and
 //! Kalman gain change every tick; B and the AD map do not.

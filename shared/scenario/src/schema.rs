@@ -90,7 +90,7 @@ pub struct PlantSection {
     /// Mass of the double integrator.
     #[serde(default = "one")]
     pub mass_kg: f64,
-    /// Thesis chain: the measured mass y1..y7 (control.md §1.3; y5 in the
+    /// Thesis chain: the measured mass y1..y7 (docs/control.md §1.3; y5 in the
     /// thesis runs). Two-inertia setup: 1 = θ1 (the load), 2 = θ2 (the
     /// motor side); absent: 1. The other models measure every sensor.
     #[serde(default = "default_output")]
@@ -99,17 +99,17 @@ pub struct PlantSection {
     /// of equal masses, 2..=64 (2·nodes states).
     pub nodes: Option<usize>,
     /// OAT-like model: which three of the four out-of-plane encoders
-    /// (1..=4) are read, the thesis' "position" (control.md §1.8).
+    /// (1..=4) are read, the thesis' "position" (docs/control.md §1.8).
     pub encoders: Option<Vec<usize>>,
     /// Thesis chain: a world-fixed sensor at this position along the
     /// structure in node units, 0 = ma, 1 = m1 … 7 = m7; between nodes the
-    /// mass-normalised mode-shape rows are interpolated linearly (control.md
+    /// mass-normalised mode-shape rows are interpolated linearly (docs/control.md
     /// §1.4). Replaces `output`: an integer position is the same sensor.
     pub sensor_position: Option<f64>,
     /// Thesis chain: a world-fixed sensor that the structure scans past:
     /// at the first position (node units) when the scan's reference is at
     /// its start, at the second when it is at its end, linearly in between
-    /// (control.md §1.4). Plant and observer follow it every tick; the
+    /// (docs/control.md §1.4). Plant and observer follow it every tick; the
     /// observer schedules its Kalman gain (`observer.scheduling`).
     pub sensor_scan: Option<[f64; 2]>,
     /// Whether the file named `output` (not part of the format): `output`
@@ -208,7 +208,7 @@ pub struct ObserverSection {
     #[serde(default)]
     pub ad: bool,
     /// Noise-model weight Q_ν (U = B_t) when MC is on; absent: 10³ with AD,
-    /// 0.03 without (control.md §10.1); 0: no noise model.
+    /// 0.03 without (docs/control.md §10.1); 0: no noise model.
     pub q_nu: Option<f64>,
     /// Increase of modal damping AD aims for on each retained flexible mode.
     #[serde(default = "default_damping_increase")]
@@ -267,7 +267,7 @@ pub struct ControllerSection {
     /// The PID's single tuning parameter f_bw in Hz (crossover ≈ 1.05 f_bw).
     #[serde(default = "default_pid_bandwidth")]
     pub bandwidth_hz: f64,
-    /// Notch frequencies in Hz (control.md §6), empty: none.
+    /// Notch frequencies in Hz (docs/control.md §6), empty: none.
     #[serde(default)]
     pub notches_hz: Vec<f64>,
     /// Extra samples of loop delay to emulate (0: the one sample the loop has).
@@ -307,7 +307,7 @@ fn default_pid_bandwidth() -> f64 {
     35.5
 }
 
-/// u_ff = snap·r⁗ + jerk·r⃛ + acc·r̈ + vel·ṙ (control.md (A.1)).
+/// u_ff = snap·r⁗ + jerk·r⃛ + acc·r̈ + vel·ṙ (docs/control.md (A.1)).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FeedforwardSection {

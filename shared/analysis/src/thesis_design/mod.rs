@@ -1,4 +1,4 @@
-//! The thesis design report: the bandwidth table of control.md §9 (in
+//! The thesis design report: the bandwidth table of docs/control.md §9 (in
 //! continuous time, the thesis's setting) or §10.1 (discrete time with loop
 //! delay), with the modal data, the MC+AD observer poles and the active
 //! damping achieved in closed loop, for one chosen output position.
@@ -22,7 +22,7 @@
 //!
 //! Q_ν is the thesis intensity; discrete designs convert it
 //! ([`flexloop_control::kalman::NoiseModel::thesis`]). With two samples of loop delay the
-//! AD output uses one more model step (x̂(k+2|k), control.md §10.1); longer
+//! AD output uses one more model step (x̂(k+2|k), docs/control.md §10.1); longer
 //! delays are not compensated further (the thesis does not need them).
 //!
 //! # What this reproduces (tests in this module)
@@ -36,7 +36,7 @@
 //! Discrete at 10 kHz, f_bw for 0 / 1 / 2 samples of loop delay: original
 //! 35.5 / 35.5 / 24.5, MC + r→e 44.5 / 35.0 / 24.0, AD band-pass
 //! 58.5 / 36.0 / 24.5, MC+AD band-pass 69.0 / 43.5 / 26.5, exactly
-//! control.md §10.1. AD damping at f_bw 35.5, one sample: 0.051 / 0.047 /
+//! docs/control.md §10.1. AD damping at f_bw 35.5, one sample: 0.051 / 0.047 /
 //! 0.042 (§10.1). Cases §10.1 does not list: notches 33.5 / 23.0 / 17.5
 //! (the notches' phase lag below the modes costs more than they gain once
 //! ZOH and delay eat the margin); MC without the T_re bound equals MC + r→e
@@ -84,15 +84,15 @@ const BANDPASS_Q: f64 = 2.0;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum DesignDomain {
-    /// Continuous time, no delay (the thesis, control.md §9).
+    /// Continuous time, no delay (the thesis, docs/control.md §9).
     Continuous,
     /// Sampled at `ts` [s]: exact ZOH plant, Tustin controller, DARE
     /// predictor observer, and `loop_delay` samples between computing u_c(k)
-    /// and applying it (control.md §10.1: 1 is the 10 kHz reference).
+    /// and applying it (docs/control.md §10.1: 1 is the 10 kHz reference).
     Discrete { ts: f64, loop_delay: usize },
 }
 
-/// The design cases of control.md §9.
+/// The design cases of docs/control.md §9.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DesignCase {
@@ -232,12 +232,12 @@ pub struct ThesisDesignSpec {
     /// infeasible coarse value.
     pub coarse_step: f64,
     pub fine_step: f64,
-    /// f_bw [Hz] of the PID in the AD damping check (control.md §10.1: 35.5).
+    /// f_bw [Hz] of the PID in the AD damping check (docs/control.md §10.1: 35.5).
     pub ad_check_f_bw: f64,
 }
 
 impl ThesisDesignSpec {
-    /// All cases in continuous time at y5 (control.md §9).
+    /// All cases in continuous time at y5 (docs/control.md §9).
     pub fn continuous() -> Self {
         Self {
             domain: DesignDomain::Continuous,
@@ -252,7 +252,7 @@ impl ThesisDesignSpec {
         }
     }
 
-    /// All cases sampled at `ts` with `loop_delay` samples (control.md §10.1
+    /// All cases sampled at `ts` with `loop_delay` samples (docs/control.md §10.1
     /// uses ts = 1e-4 and delays 0, 1, 2) at y5.
     pub fn discrete(ts: f64, loop_delay: usize) -> Self {
         Self {
@@ -351,7 +351,7 @@ pub struct ModeDamping {
     pub achieved: Option<f64>,
 }
 
-/// The AD damping check (control.md §10.1: band-pass Q = 2, f_bw 35.5, one
+/// The AD damping check (docs/control.md §10.1: band-pass Q = 2, f_bw 35.5, one
 /// sample of delay gives 0.051 / 0.047 / 0.042).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct AdDampingCheck {

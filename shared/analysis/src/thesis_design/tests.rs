@@ -1,7 +1,7 @@
 use super::*;
 use flexloop_control::models::TS_10KHZ;
 
-/// control.md §9/§11.2: best f_bw of the continuous reference model.
+/// docs/control.md §9/§11.2: best f_bw of the continuous reference model.
 const CONTINUOUS_F_BW: [(DesignCase, f64); 8] = [
     (DesignCase::Original, 35.5),
     (DesignCase::Notches, 41.0),
@@ -13,7 +13,7 @@ const CONTINUOUS_F_BW: [(DesignCase, f64); 8] = [
     (DesignCase::McAdBandpass, 77.5),
 ];
 
-/// control.md §10.1, "Bandwidth under the strict 6 dB rule in discrete
+/// docs/control.md §10.1, "Bandwidth under the strict 6 dB rule in discrete
 /// time": f_bw at 10 kHz for 0, 1, 2 samples of loop delay.
 const DISCRETE_F_BW: [(DesignCase, [f64; 3]); 4] = [
     (DesignCase::Original, [35.5, 35.5, 24.5]),
@@ -140,7 +140,7 @@ fn report_parts_with_one_sample_of_delay() {
     spec.f_bw_min = 34.0;
     spec.f_bw_max = 40.0;
     let r = thesis_design_report(&spec).unwrap();
-    // Modal table (control.md §1.3).
+    // Modal table (docs/control.md §1.3).
     assert_eq!(r.modes.len(), 8);
     for (m, f) in r.modes.iter().zip([
         0.0, 470.06, 941.88, 1396.06, 1805.13, 2145.46, 2399.72, 2556.45,

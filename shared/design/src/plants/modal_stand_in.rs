@@ -13,10 +13,10 @@ use flexloop_scenario::{Scenario, ScenarioError};
 use nalgebra::{DMatrix, DVector};
 
 /// The stand-ins for the models whose data the thesis leaves incomplete
-/// (control.md §1.5, §1.7, §1.8; `models` documents what is invented): the
+/// (docs/control.md §1.5, §1.7, §1.8; `models` documents what is invented): the
 /// full modal model under exact ZOH for the plant, a Kalman observer on its
 /// reduced model (T_DC of the discarded modes), and one PID per
-/// rigid-body-decoupled axis (control.md (4.12)); the feedforward inverts
+/// rigid-body-decoupled axis (docs/control.md (4.12)); the feedforward inverts
 /// the rigid body and the static compliance of the flexible modes.
 pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
     let model_err =
@@ -112,7 +112,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
 }
 
 /// Kalman weights of the stand-ins (None: the thesis' σ_w, σ_v, σ_d).
-/// OAT (control.md §4.4): Q = 10⁻⁴ I on the inputs, R = 10⁻¹⁸ I. Two-inertia
+/// OAT (docs/control.md §4.4): Q = 10⁻⁴ I on the inputs, R = 10⁻¹⁸ I. Two-inertia
 /// (§1.7, Table 3.8's setup): the continuous Q = diag(0.1, 0.1, 1, 1) on the
 /// physical state [θ1, θ2, θ̇1, θ̇2] and R = 5·10⁻⁵, brought to the modal
 /// state by η = Φᵀ M q and to per-sample weights as the thesis' are

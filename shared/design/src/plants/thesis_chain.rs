@@ -1,4 +1,4 @@
-//! The thesis chain (control.md §1.3, §10.1), its one sensor on a mass or
+//! The thesis chain (docs/control.md §1.3, §10.1), its one sensor on a mass or
 //! anywhere between.
 
 use super::Parts;
@@ -10,7 +10,7 @@ use flexloop_control::modal::{ModalModel, ModelError};
 use flexloop_control::models;
 use flexloop_scenario::{Scenario, ScenarioError};
 
-/// The thesis chain (control.md §1.3, §10.1): the full 8-mode model under
+/// The thesis chain (docs/control.md §1.3, §10.1): the full 8-mode model under
 /// exact ZOH for the plant; a steady-state Kalman predictor on the reduced
 /// model (rigid + 3 flexible modes, T_DC of modes 4–6, mode 7 unknown) with
 /// MC, AD and the noise model as the scenario says.
@@ -24,7 +24,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         .filter(|f| *f > 0.0)
         .map(|f| (f, models::CHAIN_ZETA))
         .collect();
-    // Output position dependency only (control.md §1.4): C_t and T_DC
+    // Output position dependency only (docs/control.md §1.4): C_t and T_DC
     // follow the sensor, B_t does not, so the AD gain K (from φ_a) is the
     // same everywhere while the Kalman gain, which depends on C, is designed
     // for this position. Retained modes: rigid + 3 flexible by default, T_DC
