@@ -5,7 +5,7 @@ use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
 use flexloop_protocol::channels::{COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP};
-use flexloop_protocol::{Command, Measurement, flags};
+use flexloop_protocol::{Activation, Command, Measurement, flags};
 use flexloop_runtime::clock::{TickGrid, wait_until};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
@@ -78,6 +78,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     );
     core.set_activation(activation.refresh()?);
     let mut last_command = std::time::Instant::now();
+    // The newest command a lockstep tick waited for and got.
+    let mut last_served: Option<u64> = None;
     let lockstep = scenario.timing.mode == Mode::Lockstep;
     let period_ns = scenario.period_ns();
     let stall_threshold_ns = period_ns / 2;
@@ -92,7 +94,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         let (tick_ns, woke_ns) = if lockstep {
             if k > 0 {
                 // Stopping too: the command for this last tick is on its way.
-                wait_for_command(&commands, &mut activation, &mut core, k, &mut last_command)?;
+                wait_for_command(
+                    &commands,
+                    &mut activation,
+                    &mut core,
+                    k,
+                    &mut last_command,
+                    &mut last_served,
+                )?;
             }
             logger_pace.wait_for_logger(&logger_progress, k)?;
             let now = monotonic_ns();
@@ -209,12 +218,18 @@ impl LoggerPace {
 /// controller silent for [`LOCKSTEP_MISS_AFTER`] costs the tick (a miss, then
 /// the watchdog's safe action), so that a crashed controller does not stop
 /// the plant; silent for [`LOCKSTEP_SILENCE`] in a row, the run fails.
+/// Except while a replaced observer generation owns samples no command has
+/// served yet (a restart replaying its way back, a swap's boundary): the
+/// controller is alive and waits for that observer, however long a loaded
+/// machine makes it take, so the tick is not given away; only the silence
+/// fails the run.
 fn wait_for_command(
     commands: &Inlet<Command>,
     activation: &mut ActivationView,
     core: &mut PlantCore,
     k: u64,
     last_command: &mut std::time::Instant,
+    last_served: &mut Option<u64>,
 ) -> Result<(), NodeError> {
     let since = std::time::Instant::now();
     loop {
@@ -225,10 +240,13 @@ fn wait_for_command(
         }
         if core.has_command_for(k) {
             *last_command = std::time::Instant::now();
+            *last_served = Some(k - 1);
             return Ok(());
         }
         let patience = if shutdown::requested() {
             LOCKSTEP_STOP_WAIT
+        } else if awaits_new_observer(activation.current(), k, *last_served) {
+            LOCKSTEP_SILENCE
         } else {
             LOCKSTEP_MISS_AFTER
         };
@@ -243,4 +261,37 @@ fn wait_for_command(
         )));
     }
     Ok(())
+}
+
+/// Whether the command due for tick `k` (command `k - 1`, from estimate
+/// `k - 1`) waits on an observer generation that replaced another and owns
+/// estimates from which no command has been served yet (`last_served`: the
+/// newest command applied).
+fn awaits_new_observer(a: &Activation, k: u64, last_served: Option<u64>) -> bool {
+    a.observer_generation != a.previous_observer_generation
+        && a.observer_from_seq < k
+        && last_served.is_none_or(|s| s < a.observer_from_seq)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tick_waits_on_a_restarted_observer_until_a_command_passed_its_boundary() {
+        // Observer generation 1 owns the estimates from 390 on (a restart).
+        let a = Activation {
+            observer_from_seq: 390,
+            observer_generation: 1,
+            ..Activation::INITIAL
+        };
+        // Tick 390 takes command 389: the dead observer's estimate.
+        assert!(!awaits_new_observer(&a, 390, Some(388)));
+        // Tick 391 takes command 390: the new observer's first.
+        assert!(awaits_new_observer(&a, 391, Some(389)));
+        // Once a command from its estimates came, the loop has passed it.
+        assert!(!awaits_new_observer(&a, 392, Some(390)));
+        // Without a replaced observer, nothing to wait for.
+        assert!(!awaits_new_observer(&Activation::INITIAL, 391, Some(389)));
+    }
 }
