@@ -37,7 +37,6 @@ pub struct CatchUp {
     stash: Box<[Measurement; STASH]>,
     head: usize,
     len: usize,
-    overflowed: bool,
 }
 
 impl CatchUp {
@@ -48,7 +47,6 @@ impl CatchUp {
             stash: Box::new([Measurement::default(); STASH]),
             head: 0,
             len: 0,
-            overflowed: false,
         }
     }
 
@@ -76,11 +74,11 @@ impl CatchUp {
     /// order they arrive: the live queue delivers them in order).
     pub fn hold_live(&mut self, m: &Measurement) {
         if self.len == STASH {
-            // The replay is too slow for the loop: the oldest held sample
-            // goes, and the merge can no longer be gapless.
+            // The replay is slower than the loop (a loaded machine): the
+            // oldest held sample goes, and the replay brings it instead (the
+            // supervisor's ring reaches further back than the stash).
             self.head = (self.head + 1) % STASH;
             self.len -= 1;
-            self.overflowed = true;
         }
         self.stash[(self.head + self.len) % STASH] = *m;
         self.len += 1;
@@ -94,12 +92,7 @@ impl CatchUp {
             self.head = (self.head + 1) % STASH;
             self.len -= 1;
         }
-        !self.overflowed && self.len > 0 && self.stash[self.head].seq == self.next
-    }
-
-    /// Whether live samples were lost because the replay was too slow.
-    pub fn overflowed(&self) -> bool {
-        self.overflowed
+        self.len > 0 && self.stash[self.head].seq == self.next
     }
 
     /// The next held live sample, oldest first (the sequence advances past it).
@@ -190,6 +183,24 @@ mod tests {
         // Live samples that do not continue the sequence do not end it.
         c.hold_live(&m(13));
         assert!(!c.reached_live());
+    }
+
+    #[test]
+    fn a_hole_in_the_replay_that_the_live_samples_cover_is_no_hole() {
+        // The supervisor's ring lost 11..15 (its queue overflowed while it
+        // was descheduled); the observer's live queue, drained at the gap,
+        // has held everything from 11.
+        let mut c = CatchUp::after(9);
+        assert_eq!(c.replayed(&m(10)), Replayed::Step);
+        assert!(matches!(c.replayed(&m(16)), Replayed::Gap { .. }));
+        for seq in 11..=13 {
+            c.hold_live(&m(seq));
+        }
+        assert!(c.reached_live());
+        let held: Vec<u64> = std::iter::from_fn(|| c.take_held())
+            .map(|m| m.seq)
+            .collect();
+        assert_eq!(held, [11, 12, 13]);
     }
 
     #[test]
@@ -286,15 +297,17 @@ mod tests {
     }
 
     #[test]
-    fn too_many_held_samples_end_the_merge_as_incomplete() {
+    fn held_samples_dropped_for_room_are_replayed_instead() {
         let mut c = CatchUp::after(0);
         for seq in 10..10 + STASH as u64 + 1 {
             c.hold_live(&m(seq));
         }
-        assert!(c.overflowed());
-        for seq in 1..=10 {
+        for seq in 1..=9 {
             assert_eq!(c.replayed(&m(seq)), Replayed::Step);
         }
         assert!(!c.reached_live(), "sample 10 was dropped from the stash");
+        assert_eq!(c.replayed(&m(10)), Replayed::Step);
+        assert!(c.reached_live());
+        assert_eq!(c.take_held().map(|m| m.seq), Some(11));
     }
 }
