@@ -493,6 +493,19 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
         std::thread::sleep(Duration::from_millis(50));
     }
     let old_standby = pid_on_duty(&dir, "controller", "standby");
+    // A standby taken from the spares is replaced by a new spare: the
+    // processes to compare are those once both roles have their spare again.
+    let since = Instant::now();
+    while pids_on_duty(&dir, "controller", "spare").is_empty()
+        || pids_on_duty(&dir, "observer", "spare").is_empty()
+    {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "no spares: {:?}",
+            processes(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     let pids_before: std::collections::BTreeSet<i64> = processes(&dir)
         .iter()
         .filter_map(|p| p["pid"].as_i64())
@@ -534,7 +547,8 @@ fn after_a_swap_to_a_retuned_controller_the_standby_follows_the_new_design() {
     // whenever it found the active state of the sample before (it acts on
     // the newest sample only and may miss one when it lags: the promotion
     // copies the state anyway). A standby of the old design matches none.
-    std::thread::sleep(Duration::from_millis(300));
+    // Samples, not time: a loaded machine runs few ticks in a while.
+    wait_for_ticks(&dir, recorded_ticks_in(&dir, "samples.mcap") + 1_000);
     stop(&prefix, child);
     let standby_generation = renewed["generation"].as_u64().unwrap() as u32;
     let active_generation = events(&dir)

@@ -178,15 +178,20 @@ pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Child, St
     (child, prefix)
 }
 
+/// The measurements the logger's sample file `file` in `dir` holds so far
+/// (from the file's indexes: reading it whole each time would take the
+/// loop's CPU).
+pub fn recorded_ticks_in(dir: &Path, file: &str) -> usize {
+    flexloop_components::mcap_repair::topic_counts(&dir.join(file))
+        .map_or(0, |c| c.get("/measurement").copied().unwrap_or(0) as usize)
+}
+
 /// Waits (bounded) until the logger's sample file `file` in `dir` holds
 /// `ticks` measurements (it gets a chunk every 100 ms).
 pub fn wait_for_ticks_in(dir: &Path, file: &str, ticks: usize) {
     let since = Instant::now();
     loop {
-        // From the file's indexes: reading it whole each time would take
-        // the loop's CPU.
-        let recorded = flexloop_components::mcap_repair::topic_counts(&dir.join(file))
-            .map_or(0, |c| c.get("/measurement").copied().unwrap_or(0) as usize);
+        let recorded = recorded_ticks_in(dir, file);
         if recorded >= ticks {
             return;
         }
