@@ -12,7 +12,6 @@ use flexloop_node::overrides::OverrideFlags;
 use flexloop_protocol::flags;
 use flexloop_runfiles::bench::{BenchFile, SwapReport};
 use flexloop_runfiles::json::write_json_atomically;
-use flexloop_runfiles::supervision::SwitchRecord;
 use flexloop_runfiles::{Histogram, RunDir};
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
 use flexloop_scenario::{Mode, Overrides};
@@ -373,7 +372,7 @@ fn swap_report(run_dir: &RunDir, switches: &[Switch]) -> anyhow::Result<SwapRepo
         misses_outside_after_stalls: outside.after_stalls,
         stalls_outside: outside.stalls,
         ticks_outside: outside.ticks,
-        switches: switches.iter().map(switch_record).collect(),
+        switches: switches.iter().map(Switch::record).collect(),
     })
 }
 
@@ -421,20 +420,6 @@ fn tally_misses(
         }
     }
     (inside, outside)
-}
-
-/// A switch as the run files record it.
-pub fn switch_record(s: &Switch) -> SwitchRecord {
-    SwitchRecord {
-        role: s.role.name().to_string(),
-        generation: s.generation,
-        start_seq: s.start_seq,
-        from_seq: s.from_seq,
-        du_switch: s.du_switch,
-        du_before: s.du_before,
-        du_after: s.du_after,
-        warm: s.warm,
-    }
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 
 use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
 use crate::registry;
-use anyhow::{Context, bail};
+use anyhow::bail;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
 use flexloop_runfiles::RunDir;
@@ -106,8 +106,6 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
         _ => bail!("several loops are running: name one with --prefix"),
     };
     let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)?;
-    let answer: flexloop_runfiles::supervision::SwapAnswer =
-        serde_json::from_value(answer).context("the supervisor's answer")?;
     let switch = match (answer.ok, answer.switch) {
         (true, Some(switch)) => switch,
         _ => bail!(

@@ -4,69 +4,73 @@
 //! and after a swap.
 
 use super::decide::Record;
-use serde_json::{Value, json};
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
-const EVENTS_FILE: &str = flexloop_runfiles::RunDir::EVENTS;
-/// The live processes and what each does (active, standby, spare), rewritten
-/// whenever that changes: for `flexloop status` and for tests that must
-/// stop one particular instance.
-const PROCESSES_FILE: &str = flexloop_runfiles::RunDir::PROCESSES;
-
 pub struct RunFiles {
-    run_dir: PathBuf,
+    run_dir: RunDir,
     /// Events are stamped with the time since.
     started: Instant,
-    /// What [`PROCESSES_FILE`] holds now.
-    processes_written: Value,
-    /// Event lines waiting for [`RunFiles::publish`].
-    unwritten: Vec<Value>,
+    /// What `processes.json` holds now: the live processes and what each
+    /// does, for `flexloop status` and for tests that must stop one
+    /// particular instance.
+    processes_written: Option<Processes>,
+    /// Events waiting for [`RunFiles::publish`].
+    unwritten: Vec<SupervisorEvent>,
 }
 
 impl RunFiles {
     pub fn new(run_dir: &Path) -> Self {
         Self {
-            run_dir: run_dir.to_path_buf(),
+            run_dir: RunDir::new(run_dir),
             started: Instant::now(),
-            processes_written: Value::Null,
+            processes_written: None,
             unwritten: Vec::new(),
         }
     }
 
     pub fn run_dir(&self) -> &Path {
-        &self.run_dir
+        self.run_dir.path()
     }
 
     /// Stamps one event, for the events file at the next [`RunFiles::publish`].
     pub fn append(&mut self, record: &Record) {
-        self.unwritten.push(json!({
-            "t_s": self.started.elapsed().as_secs_f64(),
-            "kind": record.kind,
-            "role": record.role.name(),
-            "generation": record.generation,
-            "seq": record.seq,
-            "detail": record.detail,
-        }));
+        self.unwritten.push(SupervisorEvent {
+            t_s: self.started.elapsed().as_secs_f64(),
+            kind: record.kind.to_string(),
+            role: record.role.name().to_string(),
+            generation: record.generation,
+            seq: record.seq,
+            detail: record.detail.clone(),
+        });
     }
 
     /// Rewrites the process list, then appends the events since the last
     /// time: who reads of a process in the events finds it in the list.
-    pub fn publish(&mut self, processes: Value) {
+    pub fn publish(&mut self, processes: Processes) {
         self.write_processes(processes);
-        for line in std::mem::take(&mut self.unwritten) {
-            self.write_event(&line);
+        for event in std::mem::take(&mut self.unwritten) {
+            self.write_event(&event);
         }
     }
 
     /// Appends one line to the events file (best effort: an event that
     /// cannot be written is printed instead).
-    fn write_event(&self, line: &Value) {
+    fn write_event(&self, event: &SupervisorEvent) {
+        let line = match serde_json::to_string(event) {
+            Ok(line) => line,
+            Err(e) => {
+                eprintln!("flexloop: event {event:?}: {e}");
+                return;
+            }
+        };
         let written = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
-            .open(self.run_dir.join(EVENTS_FILE))
+            .open(self.run_dir.events())
             // One write of the whole line: with O_APPEND a reader never sees
             // half of it (`writeln!` writes the pieces of its format apart).
             .and_then(|mut f| f.write_all(format!("{line}\n").as_bytes()));
@@ -75,15 +79,15 @@ impl RunFiles {
         }
     }
 
-    /// Rewrites [`PROCESSES_FILE`] if the list changed (atomically: a reader
+    /// Rewrites `processes.json` if the list changed (atomically: a reader
     /// sees the old list or the new one).
-    fn write_processes(&mut self, list: Value) {
-        if list == self.processes_written {
+    fn write_processes(&mut self, list: Processes) {
+        if self.processes_written.as_ref() == Some(&list) {
             return;
         }
-        let path = self.run_dir.join(PROCESSES_FILE);
+        let path = self.run_dir.processes();
         if flexloop_runfiles::json::write_json_atomically(&path, &list).is_ok() {
-            self.processes_written = list;
+            self.processes_written = Some(list);
         }
     }
 }

@@ -5,14 +5,16 @@
 use super::shell::{DRAIN_TIMEOUT, SHADOW_TIMEOUT};
 use anyhow::{Context, Result, bail};
 use flexloop_node::Role;
-use serde_json::{Value, json};
+use flexloop_runfiles::FileError;
+use flexloop_runfiles::json::{read_json, write_json_atomically};
+use flexloop_runfiles::supervision::{self, SwapAnswer};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Where `flexloop swap` leaves requests for the supervisor and finds answers.
 const REQUESTS_DIR: &str = flexloop_runfiles::RunDir::REQUESTS;
 
-/// What a request asks for.
+/// What a request asks for, checked.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SwapRequest {
     pub role: Role,
@@ -34,24 +36,18 @@ pub fn pending(run_dir: &Path) -> Vec<PathBuf> {
 
 /// Reads one request file.
 pub fn read(path: &Path) -> Result<SwapRequest> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
-    let request: Value =
-        serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
-    parse(&request)
+    parse(read_json(path)?)
 }
 
-fn parse(request: &Value) -> Result<SwapRequest> {
-    let role = match request["role"].as_str() {
-        Some("controller") => Role::Controller,
-        Some("observer") => Role::Observer,
+fn parse(request: supervision::SwapRequest) -> Result<SwapRequest> {
+    let role = match request.role.as_str() {
+        "controller" => Role::Controller,
+        "observer" => Role::Observer,
         other => bail!("cannot swap {other:?}: only controller or observer"),
     };
-    let scenario = request["scenario"]
-        .as_str()
-        .context("request has no scenario")?;
     Ok(SwapRequest {
         role,
-        scenario: PathBuf::from(scenario),
+        scenario: PathBuf::from(request.scenario),
     })
 }
 
@@ -60,18 +56,14 @@ fn answer_path(request: &Path) -> PathBuf {
 }
 
 /// Answers a request (best effort: who asked gives up after a while).
-pub fn answer(request: &Path, answer: &Value) {
+pub fn answer(request: &Path, answer: &SwapAnswer) {
     let _ = std::fs::remove_file(request);
-    let path = answer_path(request);
-    let tmp = path.with_extension("answer.tmp");
-    if std::fs::write(&tmp, answer.to_string()).is_ok() {
-        let _ = std::fs::rename(&tmp, &path);
-    }
+    let _ = write_json_atomically(&answer_path(request), answer);
 }
 
 /// `flexloop swap`: leaves a request in the loop's run directory and waits
 /// for the supervisor's answer (as long as a swap may take, and then some).
-pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value> {
+pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<SwapAnswer> {
     let patience = SHADOW_TIMEOUT + DRAIN_TIMEOUT + Duration::from_secs(10);
     let dir = run_dir.join(REQUESTS_DIR);
     std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
@@ -82,18 +74,27 @@ pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value
         .map(|d| d.as_nanos())
         .unwrap_or(0);
     let request = dir.join(format!("{stamp}-{}.request", std::process::id()));
-    let tmp = request.with_extension("tmp");
-    let body = json!({"role": role, "scenario": scenario.display().to_string()});
-    std::fs::write(&tmp, body.to_string()).with_context(|| format!("{}", tmp.display()))?;
-    std::fs::rename(&tmp, &request).with_context(|| format!("{}", request.display()))?;
+    let body = supervision::SwapRequest {
+        role: role.to_string(),
+        scenario: scenario.display().to_string(),
+    };
+    // Atomically: the supervisor lists `*.request` files and reads them whole.
+    write_json_atomically(&request, &body)?;
     let answer = answer_path(&request);
     let since = Instant::now();
     while since.elapsed() < patience {
-        if let Ok(text) = std::fs::read_to_string(&answer) {
-            let _ = std::fs::remove_file(&answer);
-            return serde_json::from_str(&text).with_context(|| format!("{}", answer.display()));
+        match read_json::<SwapAnswer>(&answer) {
+            Ok(read) => {
+                let _ = std::fs::remove_file(&answer);
+                return Ok(read);
+            }
+            // Not there yet (it appears whole, by a rename).
+            Err(FileError::Io { .. }) => std::thread::sleep(Duration::from_millis(20)),
+            Err(e) => {
+                let _ = std::fs::remove_file(&answer);
+                return Err(e).context("the supervisor's answer");
+            }
         }
-        std::thread::sleep(Duration::from_millis(20));
     }
     let _ = std::fs::remove_file(&request);
     bail!("the supervisor did not answer the swap request")
@@ -103,17 +104,44 @@ pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<Value
 mod tests {
     use super::*;
 
+    fn request(text: &str) -> Result<SwapRequest> {
+        let dir = std::env::temp_dir().join(format!("flexloop-request-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{}.request", text.len()));
+        std::fs::write(&path, text).unwrap();
+        let read = read(&path);
+        let _ = std::fs::remove_dir_all(&dir);
+        read
+    }
+
     #[test]
     fn a_request_names_a_swappable_role_and_a_scenario() {
-        let ok = parse(&json!({"role": "observer", "scenario": "/s.toml"})).unwrap();
+        let ok = request(r#"{"role": "observer", "scenario": "/s.toml"}"#).unwrap();
         assert_eq!(ok.role, Role::Observer);
         assert_eq!(ok.scenario, PathBuf::from("/s.toml"));
-        let plant = parse(&json!({"role": "plant", "scenario": "/s.toml"})).unwrap_err();
+        let plant = request(r#"{"role": "plant", "scenario": "/s.toml"}"#).unwrap_err();
         assert!(
             plant.to_string().contains("only controller or observer"),
             "{plant}"
         );
-        let bare = parse(&json!({"role": "controller"})).unwrap_err();
-        assert_eq!(bare.to_string(), "request has no scenario");
+        let bare = request(r#"{"role": "controller"}"#).unwrap_err();
+        let message = format!("{bare:#}");
+        assert!(
+            message.contains(".request") && message.contains("missing field `scenario`"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn an_answer_replaces_its_request_and_reads_back() {
+        let dir = std::env::temp_dir().join(format!("flexloop-answer-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let request = dir.join("1-2.request");
+        std::fs::write(&request, "{}").unwrap();
+        answer(&request, &SwapAnswer::refused("no spare".into()));
+        assert!(!request.exists());
+        let back: SwapAnswer = read_json(&answer_path(&request)).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(back, SwapAnswer::refused("no spare".into()));
     }
 }

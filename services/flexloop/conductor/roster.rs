@@ -5,7 +5,7 @@
 
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
-use serde_json::{Value, json};
+use flexloop_runfiles::supervision::{ProcessEntry, Processes};
 use std::path::PathBuf;
 
 /// What a live instance does.
@@ -182,21 +182,19 @@ impl Roster {
     }
 
     /// The live processes and their duties, as `processes.json` lists them.
-    pub fn processes(&self) -> Value {
-        let list: Vec<Value> = self
+    pub fn processes(&self) -> Processes {
+        let processes = self
             .members
             .iter()
             .filter(|m| m.alive())
-            .map(|m| {
-                json!({
-                    "role": m.role.name(),
-                    "pid": m.pid,
-                    "duty": m.duty.name(),
-                    "generation": m.generation,
-                    "scenario": m.scenario.display().to_string(),
-                })
+            .map(|m| ProcessEntry {
+                role: m.role.name().to_string(),
+                pid: m.pid,
+                duty: m.duty.name().to_string(),
+                generation: m.generation,
+                scenario: m.scenario.display().to_string(),
             })
             .collect();
-        json!({ "processes": list })
+        Processes { processes }
     }
 }

@@ -19,6 +19,7 @@ use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
+use flexloop_runfiles::supervision::SwapAnswer;
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{Overrides, Scenario};
 use serde_json::json;
@@ -256,8 +257,8 @@ impl Conductor {
             let answer = match requests::read(&request)
                 .and_then(|r| self.swap(running, r.role, &r.scenario))
             {
-                Ok(switch) => json!({"ok": true, "switch": switch.json()}),
-                Err(e) => json!({"ok": false, "error": format!("{e:#}")}),
+                Ok(switch) => SwapAnswer::done(switch.record()),
+                Err(e) => SwapAnswer::refused(format!("{e:#}")),
             };
             // The files first: who asked may look there next.
             self.publish_files();
@@ -330,7 +331,7 @@ impl Conductor {
             "swap",
             role,
             Some(generation),
-            json!({"scenario": scenario_path.display().to_string(), "switch": switch.json()}),
+            json!({"scenario": scenario_path.display().to_string(), "switch": switch.record()}),
         ));
         self.switches.push(switch.clone());
         if role == Role::Controller {
@@ -542,7 +543,7 @@ impl Conductor {
                     "promote-standby",
                     Role::Controller,
                     Some(generation),
-                    switch.json(),
+                    json!(switch.record()),
                 ));
                 self.switches.push(switch);
                 return Ok(());
@@ -606,10 +607,12 @@ impl Conductor {
                 return Err(e);
             }
         };
-        self.record_action(
-            self.core
-                .note("restart", role, Some(generation), switch.json()),
-        );
+        self.record_action(self.core.note(
+            "restart",
+            role,
+            Some(generation),
+            json!(switch.record()),
+        ));
         self.switches.push(switch);
         Ok(())
     }

@@ -2,7 +2,7 @@
 //! command's step there.
 
 use flexloop_node::Role;
-use serde_json::{Value, json};
+use flexloop_runfiles::supervision::SwitchRecord;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Switch {
@@ -22,16 +22,17 @@ pub struct Switch {
 }
 
 impl Switch {
-    pub fn json(&self) -> Value {
-        json!({
-            "role": self.role.name(),
-            "generation": self.generation,
-            "start_seq": self.start_seq,
-            "from_seq": self.from_seq,
-            "du_switch": self.du_switch,
-            "du_before": self.du_before,
-            "du_after": self.du_after,
-            "warm": self.warm,
-        })
+    /// The switch as the run files record it (events, swap answer, `bench.json`).
+    pub fn record(&self) -> SwitchRecord {
+        SwitchRecord {
+            role: self.role.name().to_string(),
+            generation: self.generation,
+            start_seq: self.start_seq,
+            from_seq: self.from_seq,
+            du_switch: self.du_switch,
+            du_before: self.du_before,
+            du_after: self.du_after,
+            warm: self.warm,
+        }
     }
 }

@@ -74,6 +74,26 @@ pub struct SwapAnswer {
     pub error: Option<String>,
 }
 
+impl SwapAnswer {
+    /// The swap was done.
+    pub fn done(switch: SwitchRecord) -> Self {
+        Self {
+            ok: true,
+            switch: Some(switch),
+            error: None,
+        }
+    }
+
+    /// The swap was refused or failed, and why.
+    pub fn refused(error: String) -> Self {
+        Self {
+            ok: false,
+            switch: None,
+            error: Some(error),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
