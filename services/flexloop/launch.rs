@@ -121,6 +121,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
     std::fs::copy(&args.scenario, RunDir::new(&run_dir).scenario_copy())
         .context("cannot copy the scenario")
         .with_context(in_run_dir)?;
+    report_dead_prefixes();
     let prefix = format!("flx{}_", std::process::id());
     Ok(Prepared {
         plan: LaunchPlan {
@@ -255,5 +256,13 @@ fn close_sample_files(run_dir: &RunDir) {
             ),
             Err(e) => eprintln!("flexloop: {}: cannot close it: {e}", path.display()),
         }
+    }
+}
+
+/// Removes the shared-memory files of loops whose supervisor died without
+/// cleaning up (killed, or a test that failed before stopping it), and says so.
+pub fn report_dead_prefixes() {
+    for prefix in flexloop_transport::remove_dead_prefixes() {
+        eprintln!("flexloop: removed the files of dead loop {prefix} (its supervisor is gone)");
     }
 }

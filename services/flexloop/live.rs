@@ -63,6 +63,7 @@ pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
 }
 
 pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
+    crate::launch::report_dead_prefixes();
     let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");

@@ -112,6 +112,48 @@ pub fn remove_leftovers(prefix: &str) {
     }
 }
 
+/// Removes the files of every run prefix (`flx<pid>_`, `flxsweep<pid>_`)
+/// whose supervisor `<pid>` is no longer alive: a supervisor killed with
+/// SIGKILL, or a test that failed before stopping its loop, never ran its own
+/// clean-up. Returns the prefixes cleaned. A live pid's files are never
+/// touched, so loops running beside this one are safe.
+pub fn remove_dead_prefixes() -> Vec<String> {
+    let mut dead = Vec::new();
+    for dir in [Path::new("/dev/shm"), Path::new(DEFAULT_ROOT_PATH)] {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            if let Some(prefix) = run_prefix(&entry.file_name().to_string_lossy())
+                && !dead.contains(&prefix)
+            {
+                dead.push(prefix);
+            }
+        }
+    }
+    dead.retain(|prefix| {
+        let pid = prefix
+            .trim_start_matches("flxsweep")
+            .trim_start_matches("flx");
+        let pid = pid.trim_end_matches('_');
+        !Path::new("/proc").join(pid).exists()
+    });
+    for prefix in &dead {
+        remove_leftovers(prefix);
+    }
+    dead
+}
+
+/// `flx<digits>_` or `flxsweep<digits>_` at the start of `name`.
+fn run_prefix(name: &str) -> Option<String> {
+    let rest = name
+        .strip_prefix("flxsweep")
+        .or_else(|| name.strip_prefix("flx"))?;
+    let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+    (digits > 0 && rest.as_bytes().get(digits) == Some(&b'_'))
+        .then(|| name[..name.len() - rest.len() + digits + 1].to_string())
+}
+
 fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: usize) {
     // Bounded depth: iceoryx2's tree is three levels deep.
     if depth > 4 {
@@ -131,5 +173,22 @@ fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: u
         } else if named {
             found.push(path);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::run_prefix;
+
+    #[test]
+    fn run_prefixes_are_recognised_and_nothing_else() {
+        assert_eq!(
+            run_prefix("flx632_9204dd_node.0_10_0.global_mgmt").as_deref(),
+            Some("flx632_")
+        );
+        assert_eq!(run_prefix("flxsweep77_x").as_deref(), Some("flxsweep77_"));
+        assert_eq!(run_prefix("flx_x"), None);
+        assert_eq!(run_prefix("flx12x_"), None);
+        assert_eq!(run_prefix("iceoryx2"), None);
     }
 }
