@@ -7,7 +7,7 @@
 //! (`roster`), which generation owns which samples (the activation), the
 //! restart budgets and their back-off, the restarts pending, the standbys
 //! told to retire, and what it has seen of the loop (newest sample, pace,
-//! the active instances' last states, shadows following, recent commands).
+//! the active instances' last states, shadows following, the inputs the plant applied).
 
 mod events;
 mod policy;
@@ -17,7 +17,7 @@ pub use events::{Action, Event, Record, Stage};
 pub use policy::{Policy, backoff};
 pub use steps::{DrainStep, Engagement, Failure, Renewal, RestartPlan, Retirement, ShadowStep};
 
-use super::measure::{BEFORE_SWITCH, CommandHistory, Pace};
+use super::measure::{AppliedHistory, BEFORE_SWITCH, Pace};
 use super::per_role::PerRole;
 use super::roster::{Duty, Roster};
 use super::switch::Switch;
@@ -66,7 +66,7 @@ pub struct Core {
     /// Shadows seen following, by role and generation.
     shadows_seen: Vec<(Role, u32)>,
     pace: Pace,
-    commands: CommandHistory,
+    applied: AppliedHistory,
     /// A swap or restart is under way: crashes wait for its end to be
     /// settled (it may be the one that deals with them).
     busy: bool,
@@ -74,7 +74,7 @@ pub struct Core {
 
 impl Core {
     pub fn new(policy: Policy, activation: Activation) -> Self {
-        let commands = CommandHistory::new(policy.n_inputs);
+        let applied = AppliedHistory::new(policy.n_inputs);
         Self {
             policy,
             roster: Roster::default(),
@@ -88,7 +88,7 @@ impl Core {
             last_active: PerRole::default(),
             shadows_seen: Vec::new(),
             pace: Pace::default(),
-            commands,
+            applied,
             busy: false,
         }
     }
@@ -141,17 +141,16 @@ impl Core {
                 }
                 Vec::new()
             }
-            Event::Command {
+            Event::Command { seq } => {
+                self.saw_sample(seq);
+                Vec::new()
+            }
+            Event::Applied {
                 seq,
-                generation,
-                standby,
+                command_seq,
                 u,
             } => {
-                self.saw_sample(seq);
-                let owner = generation == self.activation.controller_for(seq);
-                if owner || standby {
-                    self.commands.push(seq, owner, u);
-                }
+                self.applied.push(seq, command_seq, u);
                 Vec::new()
             }
             Event::Estimate { seq } => {
@@ -543,7 +542,7 @@ impl Core {
         from_seq: u64,
         warm: bool,
     ) -> Switch {
-        let steps = self.commands.steps_at(from_seq);
+        let steps = self.applied.steps_at(from_seq);
         Switch {
             role,
             generation,

@@ -1,12 +1,12 @@
 //! What the conductor measures of the running loop: its pace, and the
 //! command's step at a switch.
 
-use flexloop_protocol::MAX_INPUTS;
+use flexloop_protocol::{MAX_INPUTS, NO_SEQ};
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-/// Commands kept for measuring the step at a switch.
-const COMMAND_HISTORY: usize = 4096;
+/// Samples kept for measuring the step at a switch.
+const APPLIED_HISTORY: usize = 4096;
 /// Ordinary sample-to-sample changes are measured over this many samples
 /// before and after the switch.
 pub const BEFORE_SWITCH: u64 = 100;
@@ -44,17 +44,28 @@ impl Pace {
     }
 }
 
-/// The recent commands the plant may have applied: (sample, from its owner,
-/// u); the owner's, and the standby's, which the plant applies while the
-/// owner is silent.
+/// What the plant applied over its recent samples, from its measurements:
+/// the step at a switch is the one the actuator saw. (Not from the commands:
+/// their channel holds 16 samples, and a supervisor starved for longer on a
+/// loaded machine guessed steps from the ones it still had.)
 #[derive(Debug)]
-pub struct CommandHistory {
-    recent: VecDeque<(u64, bool, [f64; MAX_INPUTS])>,
+pub struct AppliedHistory {
+    recent: VecDeque<Applied>,
     n_inputs: usize,
 }
 
-/// The command's step at a boundary and the largest ordinary steps before
-/// and after it (|u(k) − u(k−1)|, the largest over the inputs).
+/// One sample as the plant published it.
+#[derive(Debug, Clone, Copy)]
+struct Applied {
+    seq: u64,
+    /// The command applied over the sample ([`NO_SEQ`] before the first).
+    command_seq: u64,
+    u: [f64; MAX_INPUTS],
+}
+
+/// The input's step where a switch took effect and the largest ordinary
+/// steps before and after it (|u(k) − u(k−1)|, the largest over the
+/// inputs; NaN where the samples are not known).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Steps {
     pub at_switch: f64,
@@ -62,57 +73,67 @@ pub struct Steps {
     pub after: f64,
 }
 
-impl CommandHistory {
+impl AppliedHistory {
     pub fn new(n_inputs: usize) -> Self {
         Self {
-            recent: VecDeque::with_capacity(COMMAND_HISTORY),
+            recent: VecDeque::with_capacity(APPLIED_HISTORY),
             n_inputs,
         }
     }
 
-    pub fn push(&mut self, seq: u64, from_owner: bool, u: [f64; MAX_INPUTS]) {
-        if self.recent.len() == COMMAND_HISTORY {
+    pub fn push(&mut self, seq: u64, command_seq: u64, u: [f64; MAX_INPUTS]) {
+        if self.recent.len() == APPLIED_HISTORY {
             self.recent.pop_front();
         }
-        self.recent.push_back((seq, from_owner, u));
+        self.recent.push_back(Applied {
+            seq,
+            command_seq,
+            u,
+        });
     }
 
-    /// What the plant applied at `seq`: the owner's command, else the
-    /// standby's, else (neither seen: late or lost on a busy machine) the
-    /// input it held, if that was the sample before's; older is not known.
-    fn applied(&self, seq: u64) -> Option<[f64; MAX_INPUTS]> {
-        let of = |owner: bool| {
-            self.recent
-                .iter()
-                .rev()
-                .find(|(s, o, _)| *s == seq && *o == owner)
-                .map(|(_, _, u)| *u)
-        };
-        of(true).or_else(|| of(false)).or_else(|| {
-            self.recent
-                .iter()
-                .filter(|(s, _, _)| s.saturating_add(1) == seq)
-                .max_by_key(|(s, o, _)| (*s, *o))
-                .map(|(_, _, u)| *u)
-        })
+    fn applied(&self, seq: u64) -> Option<&Applied> {
+        self.recent.iter().rev().find(|a| a.seq == seq)
     }
 
+    /// |u(seq) − u(seq − 1)|, if the plant's samples of both were seen.
     fn step(&self, seq: u64) -> Option<f64> {
         let (a, b) = (self.applied(seq.checked_sub(1)?)?, self.applied(seq)?);
         Some(
             (0..self.n_inputs)
-                .map(|i| (b[i] - a[i]).abs())
+                .map(|i| (b.u[i] - a.u[i]).abs())
                 .fold(0.0, f64::max),
         )
     }
 
+    /// The steps around the first sample on which a command of `from_seq`
+    /// or later acts (the switch's first command; a held input until then
+    /// is the safe action's, counted before it).
     pub fn steps_at(&self, from_seq: u64) -> Steps {
-        let largest =
-            |range: std::ops::Range<u64>| range.filter_map(|s| self.step(s)).fold(0.0, f64::max);
+        let largest = |range: std::ops::Range<u64>| {
+            let known: Vec<f64> = range.filter_map(|s| self.step(s)).collect();
+            if known.is_empty() {
+                f64::NAN
+            } else {
+                known.into_iter().fold(0.0, f64::max)
+            }
+        };
+        let Some(first) = self
+            .recent
+            .iter()
+            .find(|a| a.command_seq != NO_SEQ && a.command_seq >= from_seq)
+            .map(|a| a.seq)
+        else {
+            return Steps {
+                at_switch: f64::NAN,
+                before: f64::NAN,
+                after: f64::NAN,
+            };
+        };
         Steps {
-            at_switch: self.step(from_seq).unwrap_or(f64::NAN),
-            before: largest(from_seq.saturating_sub(BEFORE_SWITCH)..from_seq),
-            after: largest(from_seq + 1..from_seq + 1 + BEFORE_SWITCH),
+            at_switch: self.step(first).unwrap_or(f64::NAN),
+            before: largest(first.saturating_sub(BEFORE_SWITCH)..first),
+            after: largest(first + 1..first + 1 + BEFORE_SWITCH),
         }
     }
 }
@@ -158,22 +179,24 @@ mod tests {
     }
 
     #[test]
-    fn the_step_is_the_owners_else_the_standbys_else_the_held_input() {
-        let mut history = CommandHistory::new(1);
-        for seq in 0..10 {
-            history.push(seq, true, u(seq as f64));
+    fn the_step_is_where_the_first_new_command_acts() {
+        let mut history = AppliedHistory::new(1);
+        assert!(history.steps_at(0).at_switch.is_nan());
+        // Commands 0..=8 act one sample later; 9 and 10 are held (the safe
+        // action), then command 10 (the new owner's first) acts at 11.
+        for seq in 1..10 {
+            history.push(seq, seq - 1, u(seq as f64));
         }
-        // Sample 10: the owner silent, the standby's command applied.
-        history.push(10, false, u(12.0));
-        history.push(11, true, u(12.5));
-        // Sample 12: nothing seen; the plant held sample 11's.
-        history.push(13, true, u(13.0));
+        history.push(10, 8, u(9.0));
+        history.push(11, 10, u(12.0));
+        history.push(12, 11, u(12.5));
         let steps = history.steps_at(10);
         assert_eq!(steps.at_switch, 3.0);
         assert_eq!(steps.before, 1.0);
         assert_eq!(steps.after, 0.5);
-        assert_eq!(history.steps_at(12).at_switch, 0.0);
-        // Before the first command nothing is known.
-        assert!(history.steps_at(0).at_switch.is_nan());
+        // A sample not seen leaves its steps unknown, not guessed.
+        history.push(14, 13, u(13.0));
+        assert!(history.steps_at(13).at_switch.is_nan());
+        assert!(history.steps_at(20).at_switch.is_nan());
     }
 }

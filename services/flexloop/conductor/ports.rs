@@ -83,6 +83,11 @@ impl Ports {
         if let Some(measurements) = &self.measurements {
             while let Ok(Some(m)) = measurements.receive() {
                 replay.keep(*m);
+                core.handle(Event::Applied {
+                    seq: m.seq,
+                    command_seq: m.command_seq,
+                    u: m.u_applied,
+                });
                 if m.flags & flags::END_OF_RUN != 0 {
                     core.handle(Event::EndOfRun);
                 }
@@ -111,12 +116,7 @@ impl Ports {
             });
         }
         while let Ok(Some(c)) = self.commands.receive() {
-            core.handle(Event::Command {
-                seq: c.seq,
-                generation: c.generation,
-                standby: c.flags & flags::STANDBY != 0,
-                u: c.u,
-            });
+            core.handle(Event::Command { seq: c.seq });
         }
         core.handle(Event::Polled {
             now: Instant::now(),

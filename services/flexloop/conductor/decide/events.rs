@@ -26,12 +26,12 @@ pub enum Event<'a> {
     /// A process reported itself an idle spare (a new spare, or an instance
     /// replaced at a boundary).
     SpareIdle { pid: i32 },
-    /// A command on the loop's command channel.
-    Command {
+    /// A command for sample `seq` on the loop's command channel.
+    Command { seq: u64 },
+    /// The plant's sample `seq`: the command it applied over it and its value.
+    Applied {
         seq: u64,
-        generation: u32,
-        /// Sent by the standby controller.
-        standby: bool,
+        command_seq: u64,
         u: [f64; MAX_INPUTS],
     },
     /// The observer's estimate for `seq` (it follows the measurement of `seq - 1`).

@@ -778,24 +778,25 @@ fn a_restart_runs_the_file_of_the_generation_that_owned_the_loop() {
 // ---- what the core sees ----
 
 #[test]
-fn only_the_owners_and_the_standbys_commands_count_for_the_step() {
+fn the_step_at_a_switch_is_the_one_the_plant_applied() {
     let mut f = Fixture::new(policy());
-    let command = |seq: u64, generation: u32, standby: bool, u0: f64| {
+    let applied = |seq: u64, command_seq: u64, u0: f64| {
         let mut u = [0.0; MAX_INPUTS];
         u[0] = u0;
-        Event::Command {
+        Event::Applied {
             seq,
-            generation,
-            standby,
+            command_seq,
             u,
         }
     };
-    for seq in 0..10 {
-        f.core.handle(command(seq, 0, false, 1.0));
-        // A shadow's command (generation 1, not the owner yet) is ignored.
-        f.core.handle(command(seq, 1, false, 50.0));
+    for seq in 1..10 {
+        f.core.handle(Event::Command { seq });
+        f.core.handle(applied(seq, seq - 1, 1.0));
     }
-    f.core.handle(command(10, 1, true, 3.0));
+    // The new owner's first command (10) acts on sample 11.
+    f.core.handle(applied(10, 9, 1.0));
+    f.core.handle(Event::Command { seq: 10 });
+    f.core.handle(applied(11, 10, 3.0));
     assert_eq!(f.core.last_seq(), Some(10));
     let switch = f.core.switch(Role::Controller, 1, 5, 10, true);
     assert_eq!((switch.du_switch, switch.du_before), (2.0, 0.0));
