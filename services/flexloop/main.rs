@@ -4,9 +4,11 @@
 //! - [`launch`]: a loop's start, supervision and end, for every command that runs one.
 //! - [`live`]: `up`, and `down`, `status` and `swap` on a running loop.
 //! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`],
-//!   [`probes`]: `bench`; [`report`], [`design`], [`positions`], [`export`].
+//!   [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
+//!   [`positions`], [`export`].
 
 mod bench;
+mod chaos;
 mod conductor;
 mod design;
 mod export;
@@ -59,6 +61,8 @@ enum Command {
     /// Run the loop, measure this machine's floors, print the latency table and a verdict
     /// (or, with --sweep, one run per point of a grid; with --logging-cost, with and without the logger).
     Bench(bench::BenchArgs),
+    /// Kill the loop's processes at random moments and report what each kill cost (chaos.json).
+    Chaos(chaos::ChaosArgs),
 }
 
 impl Command {
@@ -66,7 +70,11 @@ impl Command {
     fn supervises(&self) -> bool {
         matches!(
             self,
-            Command::Up(_) | Command::Run(_) | Command::Bench(_) | Command::Positions(_)
+            Command::Up(_)
+                | Command::Run(_)
+                | Command::Bench(_)
+                | Command::Positions(_)
+                | Command::Chaos(_)
         )
     }
 }
@@ -106,6 +114,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Status(args) => live::status(args.prefix),
         Command::Swap(args) => live::swap(args),
         Command::Bench(args) => bench::dispatch(args),
+        Command::Chaos(args) => chaos::chaos(args),
     }
 }
 

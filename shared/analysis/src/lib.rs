@@ -12,6 +12,8 @@
 //!   from the closed-loop model and identified from the run's ring-down.
 //! - [`loop_report`]: the design report of any scenario's loop (modes,
 //!   observer poles, stability, per-output sensitivity peaks).
+//! - [`fault_recovery`]: what a killed process cost the loop (ticks on the
+//!   safe action, samples the recording lacks).
 //! - [`feedforward_fit`]: least-squares feedforward gains from a recorded run.
 //! - [`positions`]: Table 4.1, the scan with the sensor at positions along
 //!   the chain (min / mean / max rms of e_true).
@@ -22,6 +24,7 @@
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
 
+pub mod fault_recovery;
 pub mod feedforward_fit;
 pub mod flexible;
 pub mod latency_log;

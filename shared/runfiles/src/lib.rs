@@ -9,8 +9,10 @@
 //! - [`summary`]: `summary.json` (the logger) and `plant_latency.json` (the plant).
 //! - [`supervision`]: `events.jsonl`, `processes.json` and the registry of running loops.
 //! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
+//! - [`chaos`]: `chaos.json`, what `flexloop chaos` did and what it cost.
 
 pub mod bench;
+pub mod chaos;
 pub mod json;
 pub mod latency;
 pub mod run_dir;

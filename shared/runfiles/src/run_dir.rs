@@ -30,6 +30,9 @@ impl RunDir {
     pub const METRICS: &str = "metrics.json";
     /// `flexloop bench`'s results.
     pub const BENCH: &str = "bench.json";
+    /// `flexloop chaos`: its results, and the loop it ran (a run directory of its own).
+    pub const CHAOS: &str = "chaos.json";
+    pub const CHAOS_LOOP: &str = "loop";
     /// `flexloop report`'s folder and its two documents.
     pub const REPORT: &str = "report";
     pub const REPORT_MARKDOWN: &str = "report.md";
@@ -90,6 +93,14 @@ impl RunDir {
 
     pub fn bench(&self) -> PathBuf {
         self.join(Self::BENCH)
+    }
+
+    pub fn chaos(&self) -> PathBuf {
+        self.join(Self::CHAOS)
+    }
+
+    pub fn chaos_loop(&self) -> RunDir {
+        RunDir::new(self.join(Self::CHAOS_LOOP))
     }
 
     pub fn report(&self) -> PathBuf {

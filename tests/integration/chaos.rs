@@ -1,0 +1,44 @@
+//! `flexloop chaos`: it kills what it is asked to, sees each replacement,
+//! stops the loop cleanly and accounts for every kill in chaos.json. (What
+//! a kill costs in ticks is a timing figure: the command prints it, no test
+//! asserts it.)
+
+use crate::util::*;
+use flexloop_runfiles::chaos::ChaosFile;
+use std::time::Duration;
+
+#[test]
+fn chaos_kills_every_role_asked_for_and_accounts_for_each_kill() {
+    let dir = temp_dir("chaos");
+    let mut cmd = flexloop();
+    cmd.args([
+        "chaos",
+        "lecture-double-integrator",
+        "--kills",
+        "4",
+        "--seed",
+        "3",
+    ])
+    .args(["--roles", "controller,observer,logger,spare"])
+    .args(["--rate", "1000", "--no-realtime", "--run-dir"])
+    .arg(&*dir);
+    let out = run_bounded(cmd, Duration::from_secs(240));
+    let text = std::fs::read_to_string(dir.join("chaos.json"))
+        .unwrap_or_else(|e| panic!("no chaos.json ({e}): {}", describe(&out)));
+    let chaos: ChaosFile = serde_json::from_str(&text).unwrap();
+    assert_eq!(chaos.kills.len(), 4, "{}", describe(&out));
+    assert!(chaos.kills.iter().all(|k| k.replaced), "{text}");
+    let killed: Vec<&str> = chaos.kills.iter().map(|k| k.role.as_str()).collect();
+    let summed: u32 = chaos.roles.iter().map(|r| r.kills).sum();
+    assert_eq!(summed, 4, "{killed:?}");
+    // The loop ended cleanly and left nothing behind; the recording is whole
+    // outside the logger's own outages.
+    assert_eq!(chaos.exit_code, 0, "{}", describe(&out));
+    assert_eq!(chaos.files_left, 0);
+    assert!(chaos.ticks > 0);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for role in &chaos.roles {
+        assert!(stdout.contains(&role.role), "{stdout}");
+    }
+    assert_clean(&dir.join("loop"));
+}
