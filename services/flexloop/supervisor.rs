@@ -10,10 +10,15 @@ use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_runtime::shutdown;
 use flexloop_transport::{Domain, cleanup_dead_nodes};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+/// How long the processes may take to start the loop, beyond the run's own
+/// limit.
+const STARTUP_LIMIT: Duration = Duration::from_secs(120);
 
 /// What to start.
 #[derive(Debug, Clone)]
@@ -62,6 +67,14 @@ pub struct RunningLoop {
     pub plan: LaunchPlan,
     pub children: Vec<ChildProcess>,
     pub started: Instant,
+    /// When the loop was first seen ticking (the conductor says): the run's
+    /// time limit counts from here, since start-up has bounds of its own
+    /// and takes long in debug builds on a loaded machine (every process,
+    /// warm spares included, designs the loop before tick 0).
+    pub ticking_since: Option<Instant>,
+    /// A pidfd per live child: the supervisor wakes when one exits, not at
+    /// its next look (20 ms were 200 held ticks at 10 kHz after a crash).
+    exits: Vec<(i32, OwnedFd)>,
 }
 
 fn binary(role: Role) -> std::io::Result<PathBuf> {
@@ -76,6 +89,8 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop> {
         plan: plan.clone(),
         children: Vec::new(),
         started: Instant::now(),
+        ticking_since: None,
+        exits: Vec::new(),
     };
     for (role, joining) in start_order(plan.with_logger, plan.warm_spares) {
         let started = if joining == Joining::Spare {
@@ -132,6 +147,15 @@ fn join_flag(joining: Joining) -> Option<&'static str> {
         Joining::Standby => Some("--standby"),
         Joining::Spare => Some("--spare"),
     }
+}
+
+/// A descriptor that becomes readable when `pid` exits (Linux 5.3+); `None`
+/// on an older kernel, where the supervisor finds exits at its next look.
+fn open_pidfd(pid: i32) -> Option<OwnedFd> {
+    // SAFETY: pidfd_open takes a pid and flags and returns a new descriptor.
+    let fd = unsafe { libc::syscall(libc::SYS_pidfd_open, pid, 0) };
+    // SAFETY: a descriptor just returned to this process, owned by nobody else.
+    (fd >= 0).then(|| unsafe { OwnedFd::from_raw_fd(fd as i32) })
 }
 
 fn spawn(
@@ -249,7 +273,35 @@ impl RunningLoop {
             settled: joining == Joining::Spare,
             stderr_file,
         });
+        if let Some(fd) = open_pidfd(pid) {
+            self.exits.push((pid, fd));
+        }
         Ok(pid)
+    }
+
+    /// Sleeps until a child exits, a signal arrives or `limit` passes.
+    fn wait_for_an_exit(&mut self, limit: Duration) {
+        let ended: Vec<i32> = self
+            .children
+            .iter()
+            .filter(|c| c.exit.is_some())
+            .map(|c| c.pid)
+            .collect();
+        // A reaped child's pidfd stays readable: it would wake every time.
+        self.exits.retain(|(pid, _)| !ended.contains(pid));
+        let mut fds: Vec<libc::pollfd> = self
+            .exits
+            .iter()
+            .map(|(_, fd)| libc::pollfd {
+                fd: fd.as_raw_fd(),
+                events: libc::POLLIN,
+                revents: 0,
+            })
+            .collect();
+        let timeout_ms = limit.as_millis().min(i32::MAX as u128) as i32;
+        // SAFETY: `fds` holds `fds.len()` initialised entries. An error or a
+        // signal only ends the wait early: the caller looks again.
+        unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, timeout_ms) };
     }
 
     /// Stops one child by pid (one we started and have not reaped).
@@ -270,9 +322,10 @@ impl RunningLoop {
         }
     }
 
-    /// Watches until the run ends by itself, a child fails, `limit` passes or
-    /// a termination signal arrives; the caller then stops and cleans up.
-    /// `tick` is called every 20 ms, after reaping and before judging exits:
+    /// Watches until the run ends by itself, a child fails, `limit` passes (from
+    /// tick 0, start-up aside) or a termination signal arrives; the caller then stops and cleans up.
+    /// `tick` is called every 20 ms and as soon as a child exits, after
+    /// reaping and before judging exits:
     /// it may settle a child's exit (a restart) or end the run.
     pub fn watch(
         &mut self,
@@ -287,11 +340,14 @@ impl RunningLoop {
             if let Some(ended) = tick(self) {
                 return ended;
             }
-            let timed_out = limit.is_some_and(|l| self.started.elapsed() > l);
+            let timed_out = limit.is_some_and(|l| match self.ticking_since {
+                Some(t) => t.elapsed() > l,
+                None => self.started.elapsed() > l + STARTUP_LIMIT,
+            });
             if let Some(ended) = verdict(&self.children, timed_out) {
                 return ended;
             }
-            std::thread::sleep(Duration::from_millis(20));
+            self.wait_for_an_exit(Duration::from_millis(20));
         }
     }
 

@@ -37,6 +37,12 @@ const RETIRE_TIMEOUT: Duration = Duration::from_secs(2);
 /// must see the announcement before the loop reaches it.
 const ANNOUNCE_AHEAD: Duration = Duration::from_millis(50);
 const ANNOUNCE_AHEAD_MIN_SAMPLES: u64 = 50;
+/// A crash this soon after the role's last restart began (or a failed
+/// restart) continues a crash loop, and the back-off grows with each; a crash
+/// after its instance ran longer is a fault of its own, restarted at once. A
+/// back-off before every first restart held the plant's input 100 ms (issue
+/// 16); a crash loop still cannot spin the supervisor.
+const CRASH_LOOP_WINDOW: Duration = Duration::from_millis(250);
 
 struct PendingRestart {
     role: Role,
@@ -52,6 +58,10 @@ pub struct Core {
     /// The plant published its last sample: no new spare or standby.
     run_ending: bool,
     restarts: PerRole<u32>,
+    /// Restarts in a row that ended in a crash loop, and when the role's
+    /// last restart was due.
+    crash_streak: PerRole<u32>,
+    last_restart: PerRole<Option<Instant>>,
     /// Spares that crashed or failed to start, per role (their own budget:
     /// an idle spare's trouble must not use up the active role's restarts).
     spare_failures: PerRole<u32>,
@@ -82,6 +92,8 @@ impl Core {
             last_seq: None,
             run_ending: false,
             restarts: PerRole::default(),
+            crash_streak: PerRole::default(),
+            last_restart: PerRole::default(),
             spare_failures: PerRole::default(),
             pending: Vec::new(),
             retiring: Vec::new(),
@@ -236,14 +248,14 @@ impl Core {
 
     /// Deals with the crashes not dealt with yet: a spare's or the
     /// standby's costs its budget and another takes its place (upkeep); a
-    /// serving instance's schedules its restart after the back-off, within
-    /// the restart budget; else the crash is the run's failure (the
-    /// supervisor judges it).
+    /// serving instance's schedules its restart (after a back-off in a
+    /// crash loop), within the restart budget; else the crash is recorded as
+    /// fatal and left to the supervisor, which ends the run on it.
     fn settle_crashes(&mut self, now: Instant) -> Vec<Action> {
         let crashed: Vec<i32> = self
             .roster
             .iter()
-            .filter(|m| !m.settled && m.exit.is_some_and(|code| code != 0))
+            .filter(|m| !m.settled && !m.fatal_recorded && m.exit.is_some_and(|code| code != 0))
             .map(|m| m.pid)
             .collect();
         let mut actions = Vec::new();
@@ -268,15 +280,33 @@ impl Core {
                 ));
                 continue;
             }
-            let restartable = matches!(role, Role::Observer | Role::Controller | Role::Logger);
-            if !restartable
-                || self.policy.restart == RestartPolicy::Never
-                || *self.restarts.get(role) >= self.policy.max_restarts
-            {
+            let fatal = if !matches!(role, Role::Observer | Role::Controller | Role::Logger) {
+                Some("the plant owns the clock: the run ends with it".to_string())
+            } else if self.policy.restart == RestartPolicy::Never {
+                Some("restart = \"never\"".to_string())
+            } else if *self.restarts.get(role) >= self.policy.max_restarts {
+                Some(format!(
+                    "max_restarts spent ({} of {})",
+                    self.restarts.get(role),
+                    self.policy.max_restarts
+                ))
+            } else {
+                None
+            };
+            if let Some(reason) = fatal {
+                // Left unsettled: the supervisor ends the run on it.
+                if let Some(m) = self.roster.get_mut(pid) {
+                    m.fatal_recorded = true;
+                }
+                actions.push(self.crash_record(
+                    role,
+                    generation,
+                    json!({"exit": code, "fatal": reason}),
+                ));
                 continue;
             }
             self.settle(pid);
-            let wait = self.count_restart(role);
+            let wait = self.count_restart(role, now, false);
             actions.push(self.crash_record(
                 role,
                 generation,
@@ -297,11 +327,20 @@ impl Core {
         })
     }
 
-    /// Counts one more restart of `role` and returns its back-off.
-    fn count_restart(&mut self, role: Role) -> Duration {
-        let count = self.restarts.get_mut(role);
-        let wait = backoff(self.policy.restart_backoff_ms, *count);
-        *count += 1;
+    /// Counts one more restart of `role` at `now` and returns its back-off:
+    /// none unless it continues a crash loop (`failed`: the last restart
+    /// itself failed).
+    fn count_restart(&mut self, role: Role, now: Instant, failed: bool) -> Duration {
+        let looping = failed
+            || self
+                .last_restart
+                .get(role)
+                .is_some_and(|t| now.saturating_duration_since(t) < CRASH_LOOP_WINDOW);
+        let streak = self.crash_streak.get_mut(role);
+        *streak = if looping { *streak + 1 } else { 0 };
+        let wait = backoff(self.policy.restart_backoff_ms, *streak);
+        *self.restarts.get_mut(role) += 1;
+        *self.last_restart.get_mut(role) = Some(now + wait);
         wait
     }
 
@@ -330,7 +369,7 @@ impl Core {
             actions.push(Action::EndRun(Outcome::ChildFailed(role, -1)));
             return actions;
         }
-        let wait = self.count_restart(role);
+        let wait = self.count_restart(role, now, true);
         self.pending.push(PendingRestart {
             role,
             due: now + wait,

@@ -52,6 +52,8 @@ pub struct Member {
     pub exit: Option<i32>,
     /// Replaced, crashed-and-restarted, stopped: its exit is dealt with.
     pub settled: bool,
+    /// Its crash is in the events as the run's end (not restarted).
+    pub fatal_recorded: bool,
 }
 
 impl Member {
@@ -100,6 +102,7 @@ impl Roster {
             scenario,
             exit: None,
             settled: false,
+            fatal_recorded: false,
         });
     }
 

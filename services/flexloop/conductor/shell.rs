@@ -231,10 +231,14 @@ impl Conductor {
         running.terminate(pid);
     }
 
-    /// Called by the supervisor every 20 ms: crashes, restarts, spares,
+    /// Called by the supervisor every 20 ms and when a child exits: crashes,
+    /// restarts, spares,
     /// the standby, requests. The run's files are up to date after it.
     pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
         let outcome = self.tick_stages(running);
+        if self.core.ticking() && running.ticking_since.is_none() {
+            running.ticking_since = Some(Instant::now());
+        }
         self.track(running);
         self.publish_files();
         outcome
@@ -387,7 +391,7 @@ impl Conductor {
                 .core
                 .engagement(role, since.elapsed() > SPARE_START_WAIT)
             {
-                Engagement::WaitForSpare => std::thread::sleep(Duration::from_millis(5)),
+                Engagement::WaitForSpare => std::thread::sleep(Duration::from_millis(1)),
                 Engagement::Order(pid) => {
                     self.order(pid, generation, joining, scenario)?;
                     self.core.ordered(pid, generation, joining, scenario);
@@ -464,7 +468,9 @@ impl Conductor {
                     role.name()
                 );
             }
-            std::thread::sleep(Duration::from_millis(5));
+            // 1 ms, not 5: a restarted observer waits for the state handed
+            // on here, and a restart's every millisecond is 10 held ticks.
+            std::thread::sleep(Duration::from_millis(1));
         }
     }
 

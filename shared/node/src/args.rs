@@ -125,18 +125,6 @@ impl ServiceArgs {
         })
     }
 
-    /// What a process needs before its ports exist: the scenario (for its
-    /// real-time set-up) and, unless it is a spare, which designs only once
-    /// it is ordered to serve, the design.
-    pub fn load_at_start(&self) -> Result<(Scenario, Option<LoopDesign>), NodeError> {
-        if self.joining == Joining::Spare {
-            Ok((Scenario::load(&self.scenario, &self.overrides)?, None))
-        } else {
-            let (scenario, design) = self.load()?;
-            Ok((scenario, Some(design)))
-        }
-    }
-
     /// Loads and designs the scenario (the same in every process).
     pub fn load(&self) -> Result<(Scenario, LoopDesign), NodeError> {
         let scenario = Scenario::load(&self.scenario, &self.overrides)?;

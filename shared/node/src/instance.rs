@@ -8,6 +8,7 @@ use crate::NodeError;
 use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::duty::{Duty, SampleOwnership, Standing, Step};
 use crate::handover::{ActivationView, HandoverRing, publish_state, raise_priority};
+use crate::prepared::PreparedDesign;
 use crate::spare::{Served, SpareDuty, leave_the_loop};
 use crate::startup::StartupClock;
 use flexloop_design::LoopDesign;
@@ -164,7 +165,9 @@ impl<Own> Ports<Own> {
 /// replacement until the next order.
 pub(crate) fn run<C: Component>(args: &ServiceArgs) -> Result<(), NodeError> {
     let clock = StartupClock::start();
-    let (scenario, design) = args.load_at_start()?;
+    // A spare designs its scenario now too, so that an order to serve it
+    // starts at once (see `prepared`).
+    let (scenario, design) = args.load()?;
     // Locked before the ports exist, so their memory is populated now (see plant).
     let rt = realtime_settings(&scenario, C::ROLE);
     let _memory = realtime::apply(C::ROLE.name(), &rt.memory_part());
@@ -173,8 +176,9 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs) -> Result<(), NodeError> {
     let Some(mut ports) = Ports::open::<C>(&node, args, &scenario)? else {
         return Ok(());
     };
-    let mut next = (Duty::entering(args.joining) != Duty::Spare)
-        .then(|| (args.clone(), design.map(|d| (scenario, d)), clock));
+    let is_spare = Duty::entering(args.joining) == Duty::Spare;
+    let prepared = is_spare.then(|| PreparedDesign::new(args, &scenario, &design));
+    let mut next = (!is_spare).then(|| (args.clone(), Some((scenario, design)), clock));
     let mut served = args.generation;
     loop {
         let (serve_args, loaded, clock) = match next.take() {
@@ -191,7 +195,7 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs) -> Result<(), NodeError> {
         };
         let (scenario, design) = match loaded {
             Some(loaded) => loaded,
-            None => serve_args.load()?,
+            None => PreparedDesign::for_order(prepared.as_ref(), &serve_args)?,
         };
         served = serve_args.generation;
         let ended = serve::<C>(&serve_args, &scenario, &design, &mut ports, &clock)?;

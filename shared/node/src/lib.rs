@@ -12,6 +12,7 @@ pub mod logger;
 pub mod observer;
 pub mod overrides;
 pub mod plant;
+pub mod prepared;
 pub mod recording;
 pub mod replay;
 pub mod run_metadata;

@@ -135,7 +135,7 @@ impl Component for Observer {
     ) -> Result<bool, NodeError> {
         let restart = instance.joining == Joining::Restart;
         // A restart waits for that state (the supervisor hands it on every
-        // 5 ms) before anything else: it owns samples from the announcement on.
+        // 1 ms) before anything else: it owns samples from the announcement on.
         let loop_running = instance.joining.is_late() && {
             let since = Instant::now();
             let mut measured = false;
@@ -372,7 +372,7 @@ fn restart_replay<'p>(instance: &Instance, own: &'p Own) -> Option<&'p Inlet<Mea
 }
 
 /// How long a restart waits for its dead predecessor's state while the
-/// loop runs (the supervisor hands it on every 5 ms; without it the
+/// loop runs (the supervisor hands it on every 1 ms; without it the
 /// replacement goes on from its own initial state).
 const RESTART_STATE_WAIT: Duration = Duration::from_secs(1);
 

@@ -485,7 +485,9 @@ pub struct SupervisionSection {
     /// Restarts per component before the supervisor stops the run.
     #[serde(default = "default_max_restarts")]
     pub max_restarts: u32,
-    /// Wait before the first restart; doubled for each further one.
+    /// Wait before a restart that continues a crash loop (a crash within
+    /// 250 ms of the role's last restart, or a failed restart); doubled for
+    /// each further one in a row. Other crashes are restarted at once.
     #[serde(default = "default_backoff")]
     pub restart_backoff_ms: u64,
     /// Keeps an idle instance of the controller and of the observer with

@@ -32,10 +32,14 @@ impl Policy {
     }
 }
 
-/// The wait before a component's next restart, given how many it had: the
-/// configured back-off, doubled for each restart before (at most 2¹⁰ times).
-pub fn backoff(base_ms: u64, restarts_before: u32) -> Duration {
-    Duration::from_millis(base_ms << restarts_before.min(10))
+/// The wait before a component's restart, given how many restarts before it
+/// in a row were a crash loop: none for a fault of its own, then the
+/// configured back-off, doubled for each further one (at most 2¹⁰ times).
+pub fn backoff(base_ms: u64, crash_loop: u32) -> Duration {
+    match crash_loop {
+        0 => Duration::ZERO,
+        n => Duration::from_millis(base_ms << (n - 1).min(10)),
+    }
 }
 
 #[cfg(test)]
@@ -43,12 +47,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_back_off_doubles_per_restart_and_stops_doubling_after_ten() {
-        assert_eq!(backoff(100, 0), Duration::from_millis(100));
-        assert_eq!(backoff(100, 1), Duration::from_millis(200));
-        assert_eq!(backoff(100, 3), Duration::from_millis(800));
-        assert_eq!(backoff(100, 10), Duration::from_millis(102_400));
-        assert_eq!(backoff(100, 40), backoff(100, 10));
+    fn no_back_off_outside_a_crash_loop_then_doubling_up_to_ten_times() {
+        assert_eq!(backoff(100, 0), Duration::ZERO);
+        assert_eq!(backoff(100, 1), Duration::from_millis(100));
+        assert_eq!(backoff(100, 2), Duration::from_millis(200));
+        assert_eq!(backoff(100, 4), Duration::from_millis(800));
+        assert_eq!(backoff(100, 11), Duration::from_millis(102_400));
+        assert_eq!(backoff(100, 40), backoff(100, 11));
         assert_eq!(backoff(0, 5), Duration::ZERO);
     }
 }

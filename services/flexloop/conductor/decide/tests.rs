@@ -144,66 +144,83 @@ fn record<'a>(actions: &'a [Action], kind: &str) -> &'a Record {
 // ---- restart budget and back-off ----
 
 #[test]
-fn a_crash_is_settled_and_its_restart_is_due_after_the_back_off() {
+fn a_first_crash_is_settled_and_restarted_at_once() {
     let mut f = Fixture::new(policy());
     let actions = f.exit(OBSERVER, 137, 0);
     let crash = record(&actions, "crash");
     assert_eq!(crash.role, Role::Observer);
     assert_eq!(crash.generation, Some(0));
     assert_eq!(crash.detail["exit"], 137);
-    assert_eq!(crash.detail["restart_in_ms"], 100);
+    assert_eq!(crash.detail["restart_in_ms"], 0);
     assert!(crash.clean_dead_nodes, "the dead node's memory is cleaned");
     assert!(f.member(OBSERVER).exit_expected());
-    assert!(f.tick(99).is_empty());
-    assert_eq!(f.tick(100), [Action::Restart(Role::Observer)]);
+    assert_eq!(f.tick(0), [Action::Restart(Role::Observer)]);
     // Taken once.
     assert!(f.tick(200).is_empty());
 }
 
 #[test]
-fn each_restart_of_a_role_doubles_its_next_wait_and_not_another_roles() {
-    let mut f = Fixture::new(policy());
-    assert_eq!(
-        record(&f.exit(OBSERVER, 1, 0), "crash").detail["restart_in_ms"],
-        100
-    );
+fn a_crash_loop_backs_off_doubling_and_a_later_crash_is_a_fresh_fault() {
+    let mut f = Fixture::new(Policy {
+        max_restarts: 10,
+        ..policy()
+    });
+    let wait = |actions: &[Action]| record(actions, "crash").detail["restart_in_ms"].clone();
+    assert_eq!(wait(&f.exit(OBSERVER, 1, 0)), 0);
+    assert_eq!(f.tick(0), [Action::Restart(Role::Observer)]);
+    // The restarted one crashes at once: a crash loop.
     f.launch(12, Role::Observer, 1, Joining::Restart);
-    assert_eq!(
-        record(&f.exit(12, 1, 500), "crash").detail["restart_in_ms"],
-        200
-    );
-    assert_eq!(
-        record(&f.exit(CONTROLLER, 1, 500), "crash").detail["restart_in_ms"],
-        100
-    );
+    assert_eq!(wait(&f.exit(12, 1, 50)), 100);
+    assert!(f.tick(149).is_empty());
+    assert_eq!(f.tick(150), [Action::Restart(Role::Observer)]);
+    f.launch(13, Role::Observer, 2, Joining::Restart);
+    assert_eq!(wait(&f.exit(13, 1, 200)), 200);
+    // Another role's first crash is its own.
+    assert_eq!(wait(&f.exit(CONTROLLER, 1, 210)), 0);
+    // Long after the last restart: at once again.
+    f.launch(14, Role::Observer, 3, Joining::Restart);
+    assert_eq!(wait(&f.exit(14, 1, 5_000)), 0);
 }
 
 #[test]
-fn past_its_restart_budget_a_crash_is_left_to_the_supervisor() {
+fn past_its_restart_budget_a_crash_is_recorded_fatal_and_left_to_the_supervisor() {
     let mut f = Fixture::new(Policy {
         max_restarts: 1,
         ..policy()
     });
     assert_eq!(kinds(&f.exit(OBSERVER, 1, 0)), ["crash"]);
     f.launch(12, Role::Observer, 1, Joining::Restart);
-    assert!(f.exit(12, 1, 500).is_empty());
+    let actions = f.exit(12, 1, 500);
+    let crash = record(&actions, "crash");
+    assert_eq!(crash.detail["fatal"], "max_restarts spent (1 of 1)");
+    assert!(crash.detail.get("restart_in_ms").is_none());
     assert!(
         !f.member(12).exit_expected(),
         "unsettled: the supervisor ends the run"
     );
+    // Recorded once, whatever else happens before the run ends.
+    assert!(f.exit(CONTROLLER, 0, 600).is_empty());
+    assert!(f.core.end_operation(f.at(700)).is_empty());
 }
 
 #[test]
-fn with_restarts_off_or_for_the_plant_a_crash_is_never_restarted() {
+fn with_restarts_off_or_for_the_plant_a_crash_is_fatal() {
     let mut never = Fixture::new(Policy {
         restart: RestartPolicy::Never,
         ..policy()
     });
-    assert!(never.exit(CONTROLLER, 1, 0).is_empty());
+    let crash = never.exit(CONTROLLER, 1, 0);
+    assert_eq!(
+        record(&crash, "crash").detail["fatal"],
+        "restart = \"never\""
+    );
     assert!(!never.member(CONTROLLER).exit_expected());
     let mut f = Fixture::new(policy());
-    assert!(f.exit(PLANT, 1, 0).is_empty());
+    let crash = f.exit(PLANT, 137, 0);
+    assert_eq!(record(&crash, "crash").role, Role::Plant);
+    assert_eq!(record(&crash, "crash").detail["exit"], 137);
     assert!(!f.member(PLANT).exit_expected());
+    assert!(f.tick(10_000).is_empty(), "never restarted");
 }
 
 #[test]
@@ -214,19 +231,20 @@ fn a_clean_exit_is_no_crash() {
 }
 
 #[test]
-fn a_failed_restart_is_tried_again_after_a_longer_back_off() {
+fn a_failed_restart_is_tried_again_after_a_back_off() {
     let mut f = Fixture::new(policy());
     f.exit(CONTROLLER, 1, 0);
-    assert_eq!(f.tick(100), [Action::Restart(Role::Controller)]);
+    assert_eq!(f.tick(0), [Action::Restart(Role::Controller)]);
     let actions = f.core.restart_failed(
         Role::Controller,
         &anyhow::anyhow!("no luck"),
-        f.at(100),
+        f.at(200),
         false,
     );
     assert_eq!(kinds(&actions), ["restart-failed"]);
     assert_eq!(record(&actions, "restart-failed").detail, json!("no luck"));
     assert!(!actions.iter().any(|a| matches!(a, Action::EndRun(_))));
+    // A failed restart continues a crash loop, however long it took.
     assert!(f.tick(299).is_empty());
     assert_eq!(f.tick(300), [Action::Restart(Role::Controller)]);
 }
@@ -314,7 +332,7 @@ fn an_ordered_spare_serves_its_generation_and_its_crash_is_a_serving_crash() {
         SPARE_CONTROLLER
     );
     let actions = f.exit(SPARE_CONTROLLER, 137, 10);
-    assert_eq!(record(&actions, "crash").detail["restart_in_ms"], 100);
+    assert_eq!(record(&actions, "crash").detail["restart_in_ms"], 0);
 }
 
 #[test]
