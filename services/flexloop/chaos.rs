@@ -139,12 +139,10 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
         scenario.timing.rate_hz,
         loop_dir.path().display()
     );
-    let kills = match wait_until_serving(&loop_dir, &mut up) {
-        Ok(()) => inject(&args, &loop_dir, &mut up),
-        Err(e) => Err(e),
-    };
+    let injected =
+        wait_until_serving(&loop_dir, &mut up).map(|()| inject(&args, &loop_dir, &mut up));
     let exit_code = up.stop();
-    let kills = kills?;
+    let Injected { kills, aborted } = injected?;
     let files_left = flexloop_transport::leftover_files_for_prefix(&up.prefix).len() as u64;
     let recorded = recorded_ticks(&loop_dir)?;
     let file = summarise(
@@ -152,7 +150,7 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
         &variant,
         scenario.timing.rate_hz,
         &loop_dir,
-        kills,
+        Injected { kills, aborted },
         &recorded,
         files_left,
         exit_code,
@@ -161,6 +159,7 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
     print_table(&file);
     println!("written: {}", dir.chaos().display());
     let failed = file.exit_code != 0
+        || file.aborted.is_some()
         || file.files_left > 0
         || file
             .roles
@@ -314,8 +313,15 @@ fn wait_until_serving(loop_dir: &RunDir, up: &mut UpProcess) -> Result<()> {
     }
 }
 
-/// The kills, one after another.
-fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Result<Vec<Kill>> {
+/// The kills made, and why they stopped short of the number asked for.
+struct Injected {
+    kills: Vec<Kill>,
+    aborted: Option<String>,
+}
+
+/// The kills, one after another; the loop no longer recovering (or ending)
+/// stops them, and what was done is still reported.
+fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Injected {
     // Let the loop settle (spares started, standby following) first.
     std::thread::sleep(Duration::from_secs(1));
     let mut rng = oorandom::Rand64::new(u128::from(args.seed));
@@ -324,19 +330,27 @@ fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Result<Vec
         let pause = KILL_INTERVAL_MS.start
             + rng.rand_range(0..KILL_INTERVAL_MS.end - KILL_INTERVAL_MS.start);
         std::thread::sleep(Duration::from_millis(pause));
+        let stop = |aborted: String, kills: Vec<Kill>| Injected {
+            kills,
+            aborted: Some(aborted),
+        };
         if shutdown::requested() {
-            bail!("interrupted after {i} kills");
+            return stop(format!("interrupted after {i} kills"), kills);
         }
         if let Some(code) = up.ended() {
-            bail!("the loop ended (exit {code}) after {i} kills");
+            return stop(
+                format!("the loop ended (exit {code}) after {i} kills"),
+                kills,
+            );
         }
         let target = args.roles[rng.rand_range(0..args.roles.len() as u64) as usize];
         let Some(pid) = await_target(loop_dir, target) else {
-            bail!(
+            let why = format!(
                 "kill {}: no {} to kill within {REPLACEMENT_WAIT:?}",
                 i + 1,
                 target.name()
             );
+            return stop(why, kills);
         };
         let at_ns = monotonic_ns();
         // SAFETY: a pid from this loop's process list, a child of the
@@ -366,7 +380,10 @@ fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Result<Vec
     }
     // The last replacement recovers and its samples reach the recording.
     std::thread::sleep(Duration::from_secs(2));
-    Ok(kills)
+    Injected {
+        kills,
+        aborted: None,
+    }
 }
 
 /// A process `target` aims at, waiting (bounded) for one to be listed.
@@ -440,7 +457,10 @@ fn recorded_ticks(loop_dir: &RunDir) -> Result<Recorded> {
         ticks.extend(log.measurements().map(|m| Tick {
             seq: m.seq,
             tick_ns: m.tick_ns,
-            safe_action: m.flags & flags::FALLBACK != 0 || without_estimate.contains(&m.seq),
+            // A standby's command applied as the safe action is control
+            // going on, not a held input.
+            safe_action: (m.flags & flags::FALLBACK != 0 && m.flags & flags::STANDBY == 0)
+                || without_estimate.contains(&m.seq),
         }));
     }
     ticks.sort_by_key(|t| t.seq);
@@ -458,11 +478,12 @@ fn summarise(
     variant: &Path,
     rate_hz: f64,
     loop_dir: &RunDir,
-    mut kills: Vec<Kill>,
+    injected: Injected,
     recorded: &Recorded,
     files_left: u64,
     exit_code: i32,
 ) -> ChaosFile {
+    let Injected { mut kills, aborted } = injected;
     let ticks = &recorded.ticks;
     let window = (rate_hz * MISSING_WINDOW_S) as u64;
     for kill in &mut kills {
@@ -503,10 +524,14 @@ fn summarise(
         missing_samples: fault_recovery::missing_ticks(ticks),
         files_left,
         exit_code,
+        aborted,
     }
 }
 
 fn print_table(file: &ChaosFile) {
+    if let Some(why) = &file.aborted {
+        println!("stopped after {} kills: {why}", file.kills.len());
+    }
     println!(
         "{:<11} {:>5}  {:>13} {:>13} {:>13}  {:>11}  {:>12}  {:>8}",
         "role",

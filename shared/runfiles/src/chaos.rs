@@ -26,6 +26,9 @@ pub struct ChaosFile {
     pub files_left: u64,
     /// `flexloop up`'s exit status.
     pub exit_code: i32,
+    /// Why the kills stopped short of the number asked for (the loop
+    /// ended, or had nothing of a role to kill for 10 s: it did not recover).
+    pub aborted: Option<String>,
 }
 
 /// One kill -9.

@@ -97,8 +97,8 @@ pub struct Record {
     /// The loop's newest sample when it was decided.
     pub seq: Option<u64>,
     pub detail: Value,
-    /// Clean the dead nodes' shared memory first (now that no live process
-    /// uses it; never from inside the loop) and put their count in
-    /// `detail.cleaned_nodes`.
+    /// A process died: its node's shared memory is to be cleaned (now that
+    /// no live process uses it; never from inside the loop), after the
+    /// restart it brings is under way.
     pub clean_dead_nodes: bool,
 }
