@@ -8,6 +8,7 @@
 //! used rows and columns `direct[i][j]`); everything else is as recorded.
 
 use anyhow::{Context, bail};
+use flexloop_analysis::run_log::JoinedLog;
 use flexloop_components::LogReader;
 use flexloop_protocol::layout::{self, Field, MessageLayout, Scalar};
 use flexloop_runfiles::RunDir;
@@ -17,7 +18,8 @@ use std::path::{Path, PathBuf};
 /// `export RUN --csv [--out DIR]`.
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// A run directory or a samples*.mcap file
+    /// A run directory (every logger generation's samples*.mcap, joined in
+    /// order) or one samples*.mcap file
     run: PathBuf,
     /// One CSV per channel (the only format)
     #[arg(long)]
@@ -32,20 +34,22 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
     if !csv {
         bail!("export needs a format: --csv (the only one)");
     }
-    let (file, default_out) = sample_file_of(&run)?;
-    let log = LogReader::open(&file).with_context(|| file.display().to_string())?;
-    if log.torn_tail {
+    let (joined, default_out) = read_run(&run)?;
+    for (file, error) in &joined.torn {
         eprintln!(
-            "flexloop export: {} is unfinished ({}); exporting the complete chunks it holds",
-            file.display(),
-            log.tail_error.as_deref().unwrap_or("no footer")
+            "flexloop export: {} is unfinished ({error}); exporting the complete chunks it holds",
+            file.display()
         );
     }
+    if let Some(what) = joined.describe() {
+        eprintln!("flexloop export: {what}");
+    }
+    let log = &joined.log;
     let period_s = log
         .meta("period_ns")
         .and_then(|p| p.parse::<f64>().ok())
         .map(|ns| ns * 1e-9)
-        .with_context(|| format!("{}: metadata `period_ns` missing", file.display()))?;
+        .with_context(|| format!("{}: metadata `period_ns` missing", run.display()))?;
     let out = out.unwrap_or(default_out);
     std::fs::create_dir_all(&out).with_context(|| out.display().to_string())?;
     let tables: [(&str, MessageLayout, Vec<&[u8]>); 3] = [
@@ -69,27 +73,34 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
         let path = out.join(format!("{name}.csv"));
         write_messages(&path, layout, rows, period_s)
             .with_context(|| path.display().to_string())?;
-        println!("{} ({} rows)", path.display(), rows.len());
+        let gaps = joined.gaps.get(
+            flexloop_runfiles::summary::PerChannel::NAMES
+                .iter()
+                .position(|n| n == name)
+                .expect("a channel"),
+        );
+        if gaps == 0 {
+            println!("{} ({} rows)", path.display(), rows.len());
+        } else {
+            println!(
+                "{} ({} rows; {gaps} samples not recorded, gap events in events.csv)",
+                path.display(),
+                rows.len()
+            );
+        }
     }
     let path = out.join("events.csv");
-    write_events(&path, &log).with_context(|| path.display().to_string())?;
+    write_events(&path, log).with_context(|| path.display().to_string())?;
     println!("{} ({} rows)", path.display(), log.events.len());
     Ok(0)
 }
 
-/// The sample file a RUN argument names and where its CSVs go by default.
-fn sample_file_of(run: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+/// The sample files a RUN argument names, read as one log, and where its
+/// CSVs go by default.
+fn read_run(run: &Path) -> anyhow::Result<(JoinedLog, PathBuf)> {
     if run.is_dir() {
-        let run_dir = RunDir::new(run);
-        let file = run_dir.samples(0);
-        if !file.is_file() {
-            bail!(
-                "{}: no {} in it (not a run directory?)",
-                run.display(),
-                RunDir::SAMPLES
-            );
-        }
-        return Ok((file, run_dir.csv()));
+        let joined = JoinedLog::open(run)?;
+        return Ok((joined, RunDir::new(run).csv()));
     }
     if run.is_file() {
         let stem = run
@@ -98,7 +109,7 @@ fn sample_file_of(run: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
             .unwrap_or_else(|| "samples".into());
         let parent = run.parent().unwrap_or(Path::new("."));
         return Ok((
-            run.to_path_buf(),
+            JoinedLog::open_file(run)?,
             parent.join(format!("{stem}-{}", RunDir::CSV)),
         ));
     }

@@ -206,7 +206,9 @@ fn run_to_the_end(
     running.cleanup();
     // It lists live processes: there are none now.
     let _ = std::fs::remove_file(run_dir.processes());
-    close_sample_files(&run_dir);
+    for line in crate::finish::finish_recording(&run_dir) {
+        eprintln!("flexloop: {line}");
+    }
     match outcome {
         Outcome::ChildFailed(role, code) => Err(anyhow!(
             "flexloop-{} failed (exit {code}); all processes stopped\n{}",
@@ -230,39 +232,10 @@ pub fn stamped_run_dir(kind: &str) -> PathBuf {
     PathBuf::from("runs").join(format!("{stamp}-{kind}-{}", std::process::id()))
 }
 
-/// Closes the sample files of a run whose logger was killed before it
-/// finished them (a restarted logger writes its own), so that every MCAP
-/// reader opens them; finished files are left as they are.
-fn close_sample_files(run_dir: &RunDir) {
-    let Ok(entries) = std::fs::read_dir(run_dir.path()) else {
-        return;
-    };
-    for path in entries.flatten().map(|e| e.path()) {
-        let is_samples = path
-            .file_name()
-            .and_then(|n| n.to_str())
-            .is_some_and(flexloop_runfiles::run_dir::is_sample_file);
-        if !is_samples {
-            continue;
-        }
-        match flexloop_components::mcap_repair::repair_file(&path) {
-            Ok(c) if c.already_complete => {}
-            Ok(c) => eprintln!(
-                "flexloop: {}: the logger did not finish it; closed after its last complete chunk ({} messages in {} chunks kept, {} bytes of torn data cut)",
-                path.display(),
-                c.messages,
-                c.chunks,
-                c.cut_bytes
-            ),
-            Err(e) => eprintln!("flexloop: {}: cannot close it: {e}", path.display()),
-        }
-    }
-}
-
-/// Removes the shared-memory files of loops whose supervisor died without
-/// cleaning up (killed, or a test that failed before stopping it), and says so.
+/// Finishes the loops whose supervisor died (killed, or a test that failed
+/// before stopping its loop) and removes their shared memory, and says so.
 pub fn report_dead_prefixes() {
-    for prefix in flexloop_transport::remove_dead_prefixes() {
-        eprintln!("flexloop: removed the files of dead loop {prefix} (its supervisor is gone)");
+    for line in crate::dead_loops::finish_dead_loops("up") {
+        eprintln!("flexloop: {line}");
     }
 }

@@ -63,7 +63,7 @@ pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
 }
 
 pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
-    crate::launch::report_dead_prefixes();
+    say_finished_dead_loops("down");
     let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");
@@ -86,6 +86,7 @@ pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
 }
 
 pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
+    say_finished_dead_loops("status");
     let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");
@@ -95,6 +96,13 @@ pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
         print_status(&entry)?;
     }
     Ok(0)
+}
+
+/// Finishes the loops whose supervisor died, saying what it did.
+fn say_finished_dead_loops(command: &str) {
+    for line in crate::dead_loops::finish_dead_loops(command) {
+        println!("flexloop: {line}");
+    }
 }
 
 pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {

@@ -10,8 +10,10 @@
 mod bench;
 mod chaos;
 mod conductor;
+mod dead_loops;
 mod design;
 mod export;
+mod finish;
 mod launch;
 mod live;
 mod logging_cost;

@@ -1,5 +1,7 @@
 //! Running loops, as files under /tmp/flexloop/loops, so that `flexloop down`
-//! and `flexloop status` find the loop a `flexloop up` started elsewhere.
+//! and `flexloop status` find the loop a `flexloop up` started elsewhere,
+//! and a loop whose supervisor died is found and finished
+//! ([`crate::dead_loops`]).
 
 use std::path::PathBuf;
 
@@ -29,7 +31,7 @@ pub fn unregister(prefix: &str) {
 
 /// Alive and not a zombie (an exited supervisor whose parent has not reaped
 /// it yet has stopped all the same).
-fn alive(pid: i32) -> bool {
+pub fn alive(pid: i32) -> bool {
     // SAFETY: signal 0 only checks that the process exists.
     if pid <= 0 || unsafe { libc::kill(pid, 0) } != 0 {
         return false;
@@ -41,28 +43,92 @@ fn alive(pid: i32) -> bool {
     state != Some('Z')
 }
 
-/// Loops whose supervisor is alive; stale entries are removed.
-pub fn list() -> Vec<Entry> {
+/// Every registered loop, its supervisor alive or not.
+fn entries() -> Vec<Entry> {
     let Ok(dir) = std::fs::read_dir(DIR) else {
         return Vec::new();
     };
     let mut entries = Vec::new();
     for file in dir.flatten() {
+        // `<prefix>.json` only: a claimed entry is being finished.
+        if file.path().extension().is_none_or(|e| e != "json") {
+            continue;
+        }
         let Ok(text) = std::fs::read_to_string(file.path()) else {
             continue;
         };
-        // Half written (its supervisor is writing it now): skipped, not removed.
+        // Half written (its supervisor is writing it now): skipped.
         let Ok(entry) = serde_json::from_str::<Entry>(&text) else {
             continue;
         };
-        if alive(entry.supervisor_pid) {
-            entries.push(entry);
-        } else {
-            let _ = std::fs::remove_file(file.path());
-        }
+        entries.push(entry);
     }
     entries.sort_by(|a, b| a.prefix.cmp(&b.prefix));
     entries
+}
+
+/// Loops whose supervisor is alive.
+pub fn list() -> Vec<Entry> {
+    entries()
+        .into_iter()
+        .filter(|e| alive(e.supervisor_pid))
+        .collect()
+}
+
+/// Loops whose supervisor died without unregistering them.
+pub fn dead() -> Vec<Entry> {
+    entries()
+        .into_iter()
+        .filter(|e| !alive(e.supervisor_pid))
+        .collect()
+}
+
+/// A dead loop's entry, taken by the one command that finishes it.
+pub struct Claim {
+    path: PathBuf,
+}
+
+impl Drop for Claim {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+fn claim_path(prefix: &str, pid: u32) -> PathBuf {
+    PathBuf::from(DIR).join(format!("{prefix}.json.finishing.{pid}"))
+}
+
+/// Takes a dead loop's entry (a rename: of two commands that try at once,
+/// one gets it); none if another command has it. Dropping the claim
+/// removes the entry.
+pub fn claim(entry: &Entry) -> Option<Claim> {
+    let path = claim_path(&entry.prefix, std::process::id());
+    std::fs::rename(self::path(&entry.prefix), &path)
+        .ok()
+        .map(|()| Claim { path })
+}
+
+/// Whether a live command is finishing the loop of `prefix` now.
+pub fn being_finished(prefix: &str) -> bool {
+    let Ok(dir) = std::fs::read_dir(DIR) else {
+        return false;
+    };
+    let head = format!("{prefix}.json.finishing.");
+    dir.flatten().any(|f| {
+        let name = f.file_name().to_string_lossy().into_owned();
+        match name
+            .strip_prefix(&head)
+            .and_then(|pid| pid.parse::<i32>().ok())
+        {
+            Some(pid) if alive(pid) => true,
+            Some(_) => {
+                // Its finisher died: the entry comes back for the next one.
+                let _ = std::fs::rename(f.path(), path(prefix));
+                false
+            }
+            None => false,
+        }
+    })
 }
 
 /// Running loops with `prefix`, or all of them.

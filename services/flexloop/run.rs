@@ -7,8 +7,8 @@ use crate::launch::{LoopArgs, prepare, supervise};
 use anyhow::{Context, bail};
 use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
+use flexloop_analysis::run_log::JoinedLog;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
-use flexloop_components::LogReader;
 use flexloop_design::LoopDesign;
 use flexloop_design::reference::Reference;
 use flexloop_runfiles::json::write_json_atomically;
@@ -75,6 +75,13 @@ pub struct RunReport {
     pub summary: RunSummary,
     pub metrics: ControlMetrics,
     pub damping: Vec<ModeDamping>,
+    /// The sample files read (every logger generation's, in order) and the
+    /// samples no logger recorded.
+    pub files: Vec<PathBuf>,
+    pub outages: Vec<flexloop_runfiles::summary::Outage>,
+    /// What joining the files did, if there was more than one file or an
+    /// outage (for the user).
+    pub joined: Option<String>,
 }
 
 impl RunReport {
@@ -89,9 +96,9 @@ impl RunReport {
         };
         let scenario = Scenario::load(&run_dir.scenario_copy(), &overrides)?;
         let design = LoopDesign::from_scenario(&scenario)?;
-        let log_path = run_dir.samples(0);
-        let log = LogReader::open(&log_path).with_context(|| log_path.display().to_string())?;
-        let trace = RunTrace::from_log(&log, design.ts);
+        // Every logger generation's file, in order.
+        let joined = JoinedLog::open(run_dir.path())?;
+        let trace = RunTrace::from_log(&joined.log, design.ts);
         let end_s = trace.rows.last().map(|r| trace.time(r)).unwrap_or_default();
         let windows = design.reference.scan_windows(end_s);
         let metrics = ControlMetrics::compute(&trace, &windows, &MetricsOptions::default());
@@ -104,6 +111,9 @@ impl RunReport {
             summary,
             metrics,
             damping,
+            joined: joined.describe(),
+            files: joined.files,
+            outages: joined.outages,
         })
     }
 
@@ -128,6 +138,9 @@ impl RunReport {
                 String::new()
             }
         );
+        if let Some(joined) = &self.joined {
+            println!("  sample log: {joined}");
+        }
         match m.rms_e_true_scan {
             Some(rms) => println!(
                 "  rms e_true over the scan{}      {:>10.3} {small}",
@@ -303,6 +316,9 @@ pub struct TuneFfArgs {
 pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
     let run_dir = args.run_dir;
     let report = RunReport::load(&RunDir::new(&run_dir))?;
+    if let Some(joined) = &report.joined {
+        eprintln!("flexloop tune-ff: {joined}");
+    }
     if report.design.n_inputs != 1 || report.design.n_outputs != 1 {
         bail!(
             "{}: tune-ff fits the four-gain feedforward of a loop with one input and one \

@@ -383,7 +383,7 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     wait_for_ticks(&dir, 200);
     // SAFETY: the supervisor this test started.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
-    let out = wait_bounded(child, Duration::from_secs(60));
+    let out = child.wait(Duration::from_secs(60));
     assert!(out.status.success(), "{}", describe(&out));
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(!log.torn_tail, "{:?}", log.tail_error);
@@ -399,7 +399,7 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     let plant = *pids_of(&dir, "plant").first().expect("a plant");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(plant, libc::SIGKILL) };
-    let out = wait_bounded(child, Duration::from_secs(60));
+    let out = child.wait(Duration::from_secs(60));
     assert!(
         !out.status.success(),
         "a dead plant fails the run: {}",
@@ -409,5 +409,177 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     assert!(!log.torn_tail, "{:?}", log.tail_error);
     assert!(seqs(&log).len() >= 200);
     assert_eq!(summary(&dir)["recording"]["state"], "complete");
+    assert_clean(&dir);
+}
+
+/// `flexloop <command> --prefix <prefix>`, bounded.
+fn flexloop_on(command: &str, prefix: &str) -> std::process::Output {
+    let mut cmd = flexloop();
+    cmd.args([command, "--prefix", prefix]);
+    run_bounded(cmd, Duration::from_secs(120))
+}
+
+#[test]
+fn the_next_down_finishes_a_loop_whose_supervisor_and_logger_were_killed() {
+    let dir = temp_dir("dead-supervisor");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 500);
+    let logger = pid_on_duty(&dir, "logger", "active");
+    // SAFETY: pids of processes this test started (through flexloop).
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGKILL);
+        libc::kill(logger, libc::SIGKILL);
+    }
+    let out = child.wait(Duration::from_secs(30));
+    assert!(!out.status.success());
+    // What the dead supervisor left: its last process list and its files.
+    assert!(!processes(&dir).is_empty());
+    let down = flexloop_on("down", &prefix);
+    assert!(down.status.success(), "{}", describe(&down));
+    let said = String::from_utf8_lossy(&down.stdout);
+    // Another test's command may have found the dead loop first; then it
+    // said so, and this one waited until it was done.
+    if said.contains(&prefix) {
+        assert!(said.contains("lost its supervisor"), "{said}");
+        assert!(
+            said.contains("samples.mcap: the logger did not finish it; closed"),
+            "{said}"
+        );
+        assert!(said.contains("processes.json: marked ended"), "{said}");
+    }
+    // Nothing left: no process, no shared memory, no registry entry.
+    assert_clean(&dir);
+    let status = flexloop_on("status", &prefix);
+    assert!(
+        String::from_utf8_lossy(&status.stdout).contains("no loop running"),
+        "{}",
+        describe(&status)
+    );
+    let listed: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("processes.json")).unwrap())
+            .unwrap();
+    assert_eq!(listed["processes"], serde_json::json!([]), "{listed}");
+    assert!(
+        listed["ended"].as_str().unwrap().contains("died"),
+        "{listed}"
+    );
+    // The file is closed: the official reader's indexed read opens it.
+    let file = dir.join("samples.mcap");
+    let log = LogReader::open(&file).unwrap();
+    assert!(!log.torn_tail, "{:?}", log.tail_error);
+    assert!(seqs(&log).len() >= 500);
+    assert_python_agrees(&python(), &file, &log);
+    // The summary the logger could not write, rebuilt from the file: every
+    // tick the plant counted is recorded or a gap.
+    let s = summary(&dir);
+    let plant: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("plant_latency.json")).unwrap())
+            .unwrap();
+    assert_eq!(s["ticks"], plant["ticks"], "{s}");
+    let recorded = s["samples"]["measurement"].as_u64().unwrap();
+    assert_eq!(recorded, seqs(&log).len() as u64);
+    assert_eq!(
+        recorded + s["gaps"]["measurement"].as_u64().unwrap(),
+        s["ticks"].as_u64().unwrap(),
+        "{s}"
+    );
+    assert_eq!(s["generations"][0]["state"], "killed", "{s}");
+}
+
+#[test]
+fn a_logger_killed_three_times_leaves_one_summary_and_every_tick_accounted_for() {
+    let dir = temp_dir("logger-generations");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    let files = [
+        "samples.mcap",
+        "samples.g1.mcap",
+        "samples.g2.mcap",
+        "samples.g3.mcap",
+    ];
+    for (kill, file) in files[..3].iter().enumerate() {
+        wait_for_ticks_in(&dir, file, 300);
+        let pid = pid_on_duty(&dir, "logger", "active");
+        // SAFETY: a pid of a process this test started (through flexloop).
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+        let since = Instant::now();
+        while events(&dir)
+            .iter()
+            .filter(|e| e["kind"] == "restart" && e["role"] == "logger")
+            .count()
+            <= kill
+        {
+            assert!(
+                since.elapsed() < Duration::from_secs(90),
+                "the logger did not come back: {:?}",
+                events(&dir)
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    wait_for_ticks_in(&dir, files[3], 300);
+    stop(&prefix, child);
+    // One summary for the run: every generation, every tick the plant
+    // counted recorded or in a gap.
+    let s = summary(&dir);
+    let generations: Vec<&str> = s["generations"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{s}"))
+        .iter()
+        .map(|g| g["file"].as_str().unwrap())
+        .collect();
+    assert_eq!(generations, files, "{s}");
+    let plant: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("plant_latency.json")).unwrap())
+            .unwrap();
+    let ticks = s["ticks"].as_u64().unwrap();
+    assert_eq!(ticks, plant["ticks"].as_u64().unwrap(), "{s}");
+    for channel in ["measurement", "command"] {
+        assert_eq!(
+            s["samples"][channel].as_u64().unwrap() + s["gaps"][channel].as_u64().unwrap(),
+            ticks,
+            "{channel}: {s}"
+        );
+    }
+    // The export joins the four files: its rows and its gap events add up
+    // to the run's ticks.
+    let mut cmd = flexloop();
+    cmd.arg("export").arg(&dir).arg("--csv");
+    let export = run_bounded(cmd, Duration::from_secs(120));
+    assert!(export.status.success(), "{}", describe(&export));
+    assert!(
+        String::from_utf8_lossy(&export.stderr).contains("joined 4 sample files"),
+        "{}",
+        describe(&export)
+    );
+    let csv = |name: &str| std::fs::read_to_string(dir.join("csv").join(name)).unwrap();
+    let events_csv = csv("events.csv");
+    let gap_events: Vec<Value> = events_csv
+        .lines()
+        .skip(1)
+        .filter_map(|l| {
+            let json = &l[l.find(",\"{").map(|i| i + 2)?..l.len() - 1];
+            serde_json::from_str::<Value>(&json.replace("\"\"", "\"")).ok()
+        })
+        .filter(|e| e["kind"] == "gap")
+        .collect();
+    for channel in ["measurement", "command"] {
+        let rows = csv(&format!("{channel}.csv")).lines().count() as u64 - 1;
+        let gaps: u64 = gap_events
+            .iter()
+            .filter(|e| e["channel"] == channel)
+            .map(|e| e["count"].as_u64().unwrap())
+            .sum();
+        assert_eq!(rows + gaps, ticks, "{channel}: {rows} rows, {gaps} in gaps");
+    }
+    // Every outage between two loggers is a gap event of the summary.
+    let outages = s["outages"].as_array().cloned().unwrap_or_default();
+    for o in &outages {
+        assert!(
+            gap_events
+                .iter()
+                .any(|e| e["cause"] == "logger-outage" && e["seq"] == o["seq"]),
+            "{o}"
+        );
+    }
     assert_clean(&dir);
 }

@@ -159,12 +159,12 @@ pub fn assert_clean(run_dir: &Path) {
 }
 
 /// `flexloop up` until stopped, in the background.
-pub fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Child, String) {
+pub fn start(dir: &Path, scenario_name: &str, args: &[&str]) -> (Up, String) {
     start_file(dir, &scenario(scenario_name), args)
 }
 
 /// [`start`] with a scenario file anywhere.
-pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Child, String) {
+pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Up, String) {
     let mut cmd = flexloop();
     cmd.arg("up")
         .arg(scenario_file)
@@ -175,7 +175,71 @@ pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Child, St
         .stderr(Stdio::piped());
     let child = cmd.spawn().unwrap();
     let prefix = format!("flx{}_", child.id());
-    (child, prefix)
+    let up = Up {
+        child: Some(child),
+        prefix: prefix.clone(),
+    };
+    (up, prefix)
+}
+
+/// A `flexloop up` a test started. A test that ends without stopping it
+/// (it panicked) stops it on drop: its supervisor by its pid, then the
+/// prefix's shared-memory files, so that a failed test leaves no loop
+/// running and nothing in /dev/shm.
+pub struct Up {
+    child: Option<Child>,
+    prefix: String,
+}
+
+impl Up {
+    /// The supervisor's pid.
+    pub fn id(&self) -> u32 {
+        self.child.as_ref().map_or(0, Child::id)
+    }
+
+    /// Waits (bounded) for the supervisor to end by itself; its output.
+    pub fn wait(mut self, limit: Duration) -> Output {
+        let since = Instant::now();
+        let child = self.child.as_mut().expect("not waited for yet");
+        while child.try_wait().unwrap().is_none() {
+            if since.elapsed() > limit {
+                let out = self.end();
+                panic!(
+                    "timed out after {limit:?}\n{}",
+                    out.map(|o| describe(&o)).unwrap_or_default()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.child.take().unwrap().wait_with_output().unwrap()
+    }
+
+    /// Stops the supervisor if it runs (SIGTERM, which stops its processes
+    /// and removes its files; SIGKILL after 20 s), then removes whatever
+    /// of its prefix is left (its processes die with it).
+    fn end(&mut self) -> Option<Output> {
+        let mut child = self.child.take()?;
+        if child.try_wait().ok().flatten().is_none() {
+            // SAFETY: our own child, not reaped yet, so the pid is not reused.
+            unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+            let since = Instant::now();
+            while child.try_wait().ok().flatten().is_none()
+                && since.elapsed() < Duration::from_secs(20)
+            {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = child.kill();
+        }
+        let out = child.wait_with_output().ok();
+        flexloop_transport::remove_leftovers(&self.prefix);
+        out
+    }
+}
+
+impl Drop for Up {
+    fn drop(&mut self) {
+        self.end();
+    }
 }
 
 /// The measurements the logger's sample file `file` in `dir` holds so far
@@ -208,8 +272,8 @@ pub fn wait_for_ticks(dir: &Path, ticks: usize) {
     wait_for_ticks_in(dir, "samples.mcap", ticks);
 }
 
-/// `flexloop down` for `prefix`, then waits for `child`; returns its output.
-pub fn stop(prefix: &str, child: Child) -> Output {
+/// `flexloop down` for `prefix`, then waits for `up`; returns its output.
+pub fn stop(prefix: &str, up: Up) -> Output {
     let down = run_bounded(
         {
             let mut c = flexloop();
@@ -219,7 +283,7 @@ pub fn stop(prefix: &str, child: Child) -> Output {
         Duration::from_secs(60),
     );
     assert!(down.status.success(), "{}", describe(&down));
-    let out = wait_bounded(child, Duration::from_secs(60));
+    let out = up.wait(Duration::from_secs(60));
     assert!(out.status.success(), "{}", describe(&out));
     out
 }

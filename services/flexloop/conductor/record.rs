@@ -49,9 +49,13 @@ impl RunFiles {
     }
 
     /// Rewrites the process list, then appends the events since the last
-    /// time: who reads of a process in the events finds it in the list.
+    /// time: who reads of a process in the events finds it in the list. A
+    /// list that cannot be written holds the events back until one can, so
+    /// that no event announces what the list does not show.
     pub fn publish(&mut self, processes: Processes) {
-        self.write_processes(processes);
+        if !self.write_processes(processes) {
+            return;
+        }
         for event in std::mem::take(&mut self.unwritten) {
             self.write_event(&event);
         }
@@ -80,14 +84,96 @@ impl RunFiles {
     }
 
     /// Rewrites `processes.json` if the list changed (atomically: a reader
-    /// sees the old list or the new one).
-    fn write_processes(&mut self, list: Processes) {
+    /// sees the old list or the new one); whether the file holds `list` now.
+    fn write_processes(&mut self, list: Processes) -> bool {
         if self.processes_written.as_ref() == Some(&list) {
-            return;
+            return true;
         }
         let path = self.run_dir.processes();
-        if flexloop_runfiles::json::write_json_atomically(&path, &list).is_ok() {
-            self.processes_written = Some(list);
+        match flexloop_runfiles::json::write_json_atomically(&path, &list) {
+            Ok(()) => {
+                self.processes_written = Some(list);
+                true
+            }
+            Err(e) => {
+                eprintln!("flexloop: {e}; its events wait for it");
+                false
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flexloop_runfiles::json::read_json;
+    use flexloop_runfiles::supervision::ProcessEntry;
+
+    fn list(pids: &[i32]) -> Processes {
+        Processes {
+            processes: pids
+                .iter()
+                .map(|pid| ProcessEntry {
+                    role: "controller".into(),
+                    pid: *pid,
+                    duty: "spare".into(),
+                    generation: None,
+                    scenario: "s.toml".into(),
+                })
+                .collect(),
+            ended: None,
+        }
+    }
+
+    fn spare_event(pid: i32) -> Record {
+        Record {
+            kind: "spare",
+            role: flexloop_node::Role::Controller,
+            generation: None,
+            seq: None,
+            detail: serde_json::json!({ "pid": pid }),
+            clean_dead_nodes: false,
+        }
+    }
+
+    fn events(dir: &RunDir) -> Vec<SupervisorEvent> {
+        std::fs::read_to_string(dir.events())
+            .unwrap_or_default()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    }
+
+    /// A reader that sees an event finds the process it announces in the
+    /// list: the list is written first, and an event waits while the list
+    /// cannot be written.
+    #[test]
+    fn an_event_is_never_ahead_of_the_process_list() {
+        let dir = std::env::temp_dir().join(format!("flexloop-record-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let run_dir = RunDir::new(&dir);
+        let mut files = RunFiles::new(&dir);
+        files.publish(list(&[10]));
+        files.append(&spare_event(11));
+        assert!(events(&run_dir).is_empty(), "an event before its publish");
+        // The list's temporary file cannot be made: the list stays old.
+        let blocker = dir.join("processes.json.tmp");
+        std::fs::create_dir(&blocker).unwrap();
+        files.publish(list(&[11]));
+        assert!(
+            events(&run_dir).is_empty(),
+            "the event went ahead of the list"
+        );
+        let shown: Processes = read_json(&run_dir.processes()).unwrap();
+        assert_eq!(shown, list(&[10]));
+        std::fs::remove_dir(&blocker).unwrap();
+        files.publish(list(&[11]));
+        let written = events(&run_dir);
+        assert_eq!(written.len(), 1);
+        assert_eq!(written[0].detail["pid"], 11);
+        let shown: Processes = read_json(&run_dir.processes()).unwrap();
+        assert_eq!(shown, list(&[11]));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

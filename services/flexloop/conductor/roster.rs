@@ -198,6 +198,9 @@ impl Roster {
                 scenario: m.scenario.display().to_string(),
             })
             .collect();
-        Processes { processes }
+        Processes {
+            processes,
+            ended: None,
+        }
     }
 }

@@ -103,15 +103,16 @@ pub fn document(data: &RunData) -> Document {
     } else {
         doc.push(Block::Table(events_table(data)));
     }
-    if !data.other_generations.is_empty() {
+    if !data.joined_files.is_empty() || !data.run.outages.is_empty() {
         doc.push(Block::Paragraph(format!(
-            "The logger was restarted during the run: this report reads the first logger's files; \
-             later ones are {}.",
-            data.other_generations
+            "The logger was restarted during the run: this report joins the sample files {} and \
+             their latency logs in that order; {}.",
+            data.joined_files
                 .iter()
                 .map(|f| format!("`{f}`"))
                 .collect::<Vec<_>>()
-                .join(", ")
+                .join(", "),
+            flexloop_analysis::run_log::describe_outages(&data.run.outages)
         )));
     }
     doc

@@ -80,8 +80,9 @@ pub struct RunData {
     pub flexible: Result<FlexibleComparison, NoComparison>,
     pub period_ns: u64,
     pub lockstep: bool,
-    /// Sample logs of restarted loggers, which this report does not read.
-    pub other_generations: Vec<String>,
+    /// The sample files read (every logger generation's, in order), when
+    /// there is more than one.
+    pub joined_files: Vec<String>,
 }
 
 impl RunData {
@@ -89,16 +90,25 @@ impl RunData {
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
         let run_dir = RunDir::new(dir);
         let run = RunReport::load(&run_dir)?;
-        let latency = LatencyLog::read(&run_dir.histogram_log(0))?;
+        let latency = LatencyLog::read_run(dir)?;
         let events = read_events(&run_dir.events(), run.design.ts)?;
         let flexible =
             FlexibleComparison::compute(&run.design, &run.trace, run.scenario.observer.mc);
         let period_ns = run.summary.period_ns;
         let lockstep = run.summary.mode == "lockstep";
-        let other_generations = (1..=64)
-            .flat_map(flexloop_runfiles::run_dir::logger_files)
-            .filter(|f| dir.join(f).exists())
-            .collect();
+        let joined_files = if run.files.len() > 1 {
+            run.files
+                .iter()
+                .map(|p| {
+                    p.file_name()
+                        .unwrap_or_default()
+                        .to_string_lossy()
+                        .into_owned()
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Ok(Self {
             length: Length::for_unit(run.design.output_unit),
             dir: dir.to_path_buf(),
@@ -108,7 +118,7 @@ impl RunData {
             flexible,
             period_ns,
             lockstep,
-            other_generations,
+            joined_files,
         })
     }
 }
@@ -117,6 +127,9 @@ pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
     let run_dir = resolve_run(&args.run)?;
     let out_dir = args.out.unwrap_or_else(|| RunDir::new(&run_dir).report());
     let data = RunData::load(&run_dir)?;
+    if let Some(joined) = &data.run.joined {
+        println!("report: {joined}");
+    }
     let doc = content::document(&data);
     write_report(&out_dir, &doc)?;
     println!(

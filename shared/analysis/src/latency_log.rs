@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// A latency log, merged per tag.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct LatencyLog {
     /// Tag -> every interval of it added together.
     pub histograms: BTreeMap<String, Histogram<u64>>,
@@ -38,6 +38,50 @@ impl std::fmt::Display for LatencyLogError {
 impl std::error::Error for LatencyLogError {}
 
 impl LatencyLog {
+    /// Every logger generation's log of the run directory `dir`
+    /// (`latency.hlog`, `latency.g<N>.hlog`, ...) merged per tag. A log
+    /// that cannot be read is named in the error unless another generation's
+    /// could (a logger killed in its first second wrote no interval).
+    pub fn read_run(dir: &Path) -> Result<Self, LatencyLogError> {
+        let run_dir = flexloop_runfiles::RunDir::new(dir);
+        let mut generations: Vec<u32> = run_dir.sample_files().iter().map(|(g, _)| *g).collect();
+        if generations.is_empty() {
+            generations.push(0);
+        }
+        let mut joined: Option<Self> = None;
+        let mut first_error = None;
+        for g in generations {
+            match Self::read(&run_dir.histogram_log(g)) {
+                Ok(log) => joined.get_or_insert_with(Self::default).merge(log),
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                }
+            }
+        }
+        match (joined, first_error) {
+            (Some(log), _) => Ok(log),
+            (None, Some(e)) => Err(e),
+            (None, None) => Ok(Self::default()),
+        }
+    }
+
+    /// Adds another log's histograms (another logger generation's) to these.
+    pub fn merge(&mut self, other: Self) {
+        for (tag, h) in other.histograms {
+            match self.histograms.get_mut(&tag) {
+                Some(mine) => {
+                    // Same bounds (the same logger wrote both): adding cannot fail.
+                    let _ = mine.add(&h);
+                }
+                None => {
+                    self.histograms.insert(tag, h);
+                }
+            }
+        }
+        self.intervals += other.intervals;
+        self.torn_tail |= other.torn_tail;
+    }
+
     pub fn read(path: &Path) -> Result<Self, LatencyLogError> {
         let error = |reason: String| LatencyLogError {
             path: path.to_path_buf(),

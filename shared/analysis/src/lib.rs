@@ -8,6 +8,8 @@
 //!   rebuilt from the logged input.
 //! - [`latency_log`]: the logger's HdrHistogram interval log, merged per
 //!   histogram, and its percentile distribution.
+//! - [`run_log`]: a run's sample files across logger generations, joined
+//!   in order, the samples no logger recorded, and the summary rebuilt.
 //! - [`modal_damping`]: the damping the loop achieves on each flexible mode,
 //!   from the closed-loop model and identified from the run's ring-down.
 //! - [`loop_report`]: the design report of any scenario's loop (modes,
@@ -32,6 +34,7 @@ pub mod loop_report;
 pub mod metrics;
 pub mod modal_damping;
 pub mod positions;
+pub mod run_log;
 pub mod scheduling_comparison;
 pub mod thesis_design;
 pub mod trace;

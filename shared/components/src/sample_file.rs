@@ -364,6 +364,26 @@ pub enum Record {
     Command(Command),
 }
 
+impl Record {
+    /// The message's sequence number (its tick).
+    pub fn seq(&self) -> u64 {
+        match self {
+            Record::Measurement(m) => m.seq,
+            Record::Estimate(e) => e.seq,
+            Record::Command(c) => c.seq,
+        }
+    }
+
+    /// Its channel: 0 measurement, 1 estimate, 2 command.
+    pub fn channel(&self) -> usize {
+        match self {
+            Record::Measurement(_) => 0,
+            Record::Estimate(_) => 1,
+            Record::Command(_) => 2,
+        }
+    }
+}
+
 /// One `/events` message.
 #[derive(Debug, Clone)]
 pub struct LogEvent {
@@ -398,16 +418,30 @@ enum Topic {
 
 impl LogReader {
     pub fn open(path: &Path) -> io::Result<Self> {
+        let mut records = Vec::new();
+        let mut log = Self::scan(path, |r| records.push(r))?;
+        log.records = records;
+        Ok(log)
+    }
+
+    /// Reads the file at `path`, handing every message to `each` in file
+    /// order instead of keeping it (a long run's messages take gigabytes);
+    /// the result holds the metadata, the events and how the file ends, and
+    /// no records.
+    pub fn scan(path: &Path, each: impl FnMut(Record)) -> io::Result<Self> {
         let file = File::open(path)?;
         let len = file.metadata()?.len();
-        Self::read(BufReader::with_capacity(1 << 20, file), len)
+        Self::read(BufReader::with_capacity(1 << 20, file), len, each)
     }
 
     pub fn parse(bytes: &[u8]) -> io::Result<Self> {
-        Self::read(bytes, bytes.len() as u64)
+        let mut records = Vec::new();
+        let mut log = Self::read(bytes, bytes.len() as u64, |r| records.push(r))?;
+        log.records = records;
+        Ok(log)
     }
 
-    fn read(mut source: impl Read, len: u64) -> io::Result<Self> {
+    fn read(mut source: impl Read, len: u64, mut each: impl FnMut(Record)) -> io::Result<Self> {
         let bad = |what: String| io::Error::new(io::ErrorKind::InvalidData, what);
         let mut reader = LinearReader::new_with_options(
             LinearReaderOptions::default()
@@ -470,14 +504,11 @@ impl LogReader {
                     }
                 }
                 R::Message { header, data } => match topics.get(&header.channel_id) {
-                    Some(Topic::Measurement) => {
-                        out.records.push(Record::Measurement(decode(&data)?));
-                    }
+                    Some(Topic::Measurement) => each(Record::Measurement(decode(&data)?)),
                     Some(Topic::Estimate) => {
-                        out.records
-                            .push(Record::Estimate(Box::new(decode::<Estimate>(&data)?)));
+                        each(Record::Estimate(Box::new(decode::<Estimate>(&data)?)));
                     }
-                    Some(Topic::Command) => out.records.push(Record::Command(decode(&data)?)),
+                    Some(Topic::Command) => each(Record::Command(decode(&data)?)),
                     Some(Topic::Events) => out.events.push(LogEvent {
                         log_time_ns: header.log_time,
                         json: serde_json::from_slice(&data).unwrap_or_else(|_| {

@@ -178,11 +178,14 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         *gaps += dropped;
     }
     let gaps = missing(&recorder);
-    write_json_atomically(&run_dir.summary(), &summary)?;
+    // A restarted logger accounts for its own share; `flexloop` joins the
+    // generations into summary.json once the run is over.
+    let summary_path = run_dir.generation_summary(args.generation);
+    write_json_atomically(&summary_path, &summary)?;
     if gaps > 0 {
         eprintln!(
             "flexloop-logger: {gaps} samples never reached the log (see {})",
-            RunDir::SUMMARY
+            summary_path.display()
         );
     }
     drained.map(|_| ())

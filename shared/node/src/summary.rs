@@ -85,7 +85,7 @@ pub fn run_summary<O: RecordSink>(
         rate_hz: scenario.timing.rate_hz,
         duration_s: scenario.timing.duration_s,
         period_ns,
-        ticks: recorder.measurements.samples,
+        ticks: recorder.measurements.samples + recorder.measurements.gaps(),
         last_seq: m.seq,
         counters: Counters {
             misses: m.misses,
@@ -109,6 +109,8 @@ pub fn run_summary<O: RecordSink>(
         logger_cpu_ns,
         latency: latencies(&recorder.latencies, period_ns),
         recording,
+        generations: Vec::new(),
+        outages: Vec::new(),
     }
 }
 

@@ -117,6 +117,28 @@ impl RunDir {
         self.join(stderr_name(role, generation))
     }
 
+    /// The summary a restarted logger of `generation` writes of its own
+    /// share (`summary.g<N>.json`); the first logger's is `summary.json`.
+    pub fn generation_summary(&self, generation: u32) -> PathBuf {
+        self.join(generation_file(Self::SUMMARY, generation))
+    }
+
+    /// Every logger generation's sample file, in generation order.
+    pub fn sample_files(&self) -> Vec<(u32, PathBuf)> {
+        let mut found: Vec<(u32, PathBuf)> = std::fs::read_dir(&self.0)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name();
+                let generation = sample_file_generation(name.to_str()?)?;
+                Some((generation, e.path()))
+            })
+            .collect();
+        found.sort();
+        found
+    }
+
     /// The logger's summary, typed; the error names the file.
     pub fn read_summary(&self) -> Result<RunSummary, FileError> {
         read_json(&self.summary())
@@ -150,6 +172,20 @@ pub fn logger_files(generation: u32) -> [String; 2] {
     ]
 }
 
+/// The logger generation whose sample file is named `name`: 0 for
+/// `samples.mcap`, N for `samples.gN.mcap`; none for any other name.
+pub fn sample_file_generation(name: &str) -> Option<u32> {
+    if name == RunDir::SAMPLES {
+        return Some(0);
+    }
+    let n: u32 = name
+        .strip_prefix("samples.g")?
+        .strip_suffix(".mcap")?
+        .parse()
+        .ok()?;
+    (n > 0).then_some(n)
+}
+
 /// Whether `name` is a sample file of any logger generation.
 pub fn is_sample_file(name: &str) -> bool {
     name.starts_with("samples") && name.ends_with(".mcap")
@@ -175,6 +211,12 @@ mod tests {
         assert_eq!(dir.samples(2), Path::new("r/samples.g2.mcap"));
         assert_eq!(logger_files(3), ["samples.g3.mcap", "latency.g3.hlog"]);
         assert!(is_sample_file("samples.g3.mcap") && !is_sample_file("latency.hlog"));
+        assert_eq!(sample_file_generation("samples.mcap"), Some(0));
+        assert_eq!(sample_file_generation("samples.g12.mcap"), Some(12));
+        assert_eq!(sample_file_generation("samples.g0.mcap"), None);
+        assert_eq!(sample_file_generation("samples.gx.mcap"), None);
+        assert_eq!(sample_file_generation("samples-old.mcap"), None);
+        assert_eq!(dir.generation_summary(2), Path::new("r/summary.g2.json"));
         assert_eq!(dir.stderr("observer", 0), Path::new("r/observer.stderr"));
         assert_eq!(dir.stderr("observer", 4), Path::new("r/observer.g4.stderr"));
     }

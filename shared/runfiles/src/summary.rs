@@ -17,7 +17,8 @@ pub struct RunSummary {
     pub rate_hz: f64,
     pub duration_s: f64,
     pub period_ns: u64,
-    /// Measurements the logger received.
+    /// The run's ticks from the first measurement recorded to the last:
+    /// recorded (`samples.measurement`) or lost (`gaps.measurement`).
     pub ticks: u64,
     pub last_seq: u64,
     pub counters: Counters,
@@ -28,7 +29,57 @@ pub struct RunSummary {
     pub logger_cpu_ns: u64,
     /// Every latency metric by its name (`flexloop_runtime::latency::Metric::name`).
     pub latency: BTreeMap<String, Histogram>,
+    /// The last logger's recording (one logger: the whole run's).
     pub recording: Recording,
+    /// The logger generations this summary joins, in order; empty when one
+    /// logger recorded the whole run and wrote this summary itself.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub generations: Vec<GenerationAccount>,
+    /// Samples no logger recorded because none was running (between one
+    /// logger's last recorded sample and its successor's first, or after
+    /// the last one); counted in `gaps` too.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub outages: Vec<Outage>,
+}
+
+/// What one logger generation recorded.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GenerationAccount {
+    pub generation: u32,
+    /// Its sample file's name in the run directory.
+    pub file: String,
+    /// `complete`, `stopped` (a write failed) or `killed` (the logger died
+    /// before it finished; its file was closed after its last complete chunk).
+    pub state: String,
+    /// Distinct sequence numbers its file holds per channel (samples a
+    /// predecessor also holds count once, for the one before).
+    pub samples: PerChannel,
+    /// Its first and last measurement.
+    pub first_seq: Option<u64>,
+    pub last_seq: Option<u64>,
+}
+
+/// A run of samples of one channel that no logger recorded.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Outage {
+    pub channel: String,
+    /// The first missing sequence number and how many follow it.
+    pub seq: u64,
+    pub count: u64,
+    /// The generation whose logger recorded last before it.
+    pub after_generation: u32,
+    /// The next generation, or none after the last logger.
+    pub before_generation: Option<u32>,
+}
+
+impl Outage {
+    /// As a `/events` gap event (cause `logger-outage`).
+    pub fn event_json(&self) -> String {
+        format!(
+            r#"{{"source":"flexloop","kind":"gap","cause":"logger-outage","channel":"{}","seq":{},"count":{},"after_generation":{}}}"#,
+            self.channel, self.seq, self.count, self.after_generation
+        )
+    }
 }
 
 impl RunSummary {
@@ -59,8 +110,25 @@ pub struct PerChannel {
 }
 
 impl PerChannel {
+    /// The channels' names, in the order of [`PerChannel::get`].
+    pub const NAMES: [&str; 3] = ["measurement", "estimate", "command"];
+
     pub fn total(&self) -> u64 {
         self.measurement + self.estimate + self.command
+    }
+
+    /// The count of the channel of index `i` (see [`PerChannel::NAMES`]).
+    pub fn get(&self, i: usize) -> u64 {
+        [self.measurement, self.estimate, self.command][i]
+    }
+
+    /// From the counts in channel order.
+    pub fn from_array([measurement, estimate, command]: [u64; 3]) -> Self {
+        Self {
+            measurement,
+            estimate,
+            command,
+        }
     }
 
     /// The counts in channel order (measurement, estimate, command).

@@ -23,6 +23,10 @@ pub struct SupervisorEvent {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Processes {
     pub processes: Vec<ProcessEntry>,
+    /// Set once the loop is over though its supervisor could not say so
+    /// (it died): why, and who finished the run. No process is listed then.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ended: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -118,6 +118,16 @@ pub fn remove_leftovers(prefix: &str) {
 /// clean-up. Returns the prefixes cleaned. A live pid's files are never
 /// touched, so loops running beside this one are safe.
 pub fn remove_dead_prefixes() -> Vec<String> {
+    let dead = dead_prefixes();
+    for prefix in &dead {
+        remove_leftovers(prefix);
+    }
+    dead
+}
+
+/// The run prefixes with files in shared memory whose supervisor `<pid>`
+/// is gone (or a zombie: it has stopped all the same).
+pub fn dead_prefixes() -> Vec<String> {
     let mut dead = Vec::new();
     for dir in [Path::new("/dev/shm"), Path::new(DEFAULT_ROOT_PATH)] {
         let Ok(entries) = std::fs::read_dir(dir) else {
@@ -134,13 +144,17 @@ pub fn remove_dead_prefixes() -> Vec<String> {
     dead.retain(|prefix| {
         let pid = prefix
             .trim_start_matches("flxsweep")
-            .trim_start_matches("flx");
-        let pid = pid.trim_end_matches('_');
-        !Path::new("/proc").join(pid).exists()
+            .trim_start_matches("flx")
+            .trim_end_matches('_');
+        let stat = std::fs::read_to_string(Path::new("/proc").join(pid).join("stat"));
+        match stat {
+            Err(_) => true,
+            Ok(stat) => stat
+                .rsplit_once(") ")
+                .is_some_and(|(_, rest)| rest.starts_with('Z')),
+        }
     });
-    for prefix in &dead {
-        remove_leftovers(prefix);
-    }
+    dead.sort();
     dead
 }
 

@@ -11,8 +11,8 @@ mod error;
 mod ports;
 
 pub use domain::{
-    Domain, cleanup_dead_nodes, leftover_files, leftover_files_for_prefix, remove_dead_prefixes,
-    remove_leftovers,
+    Domain, cleanup_dead_nodes, dead_prefixes, leftover_files, leftover_files_for_prefix,
+    remove_dead_prefixes, remove_leftovers,
 };
 pub use error::TransportError;
 /// A process's iceoryx2 node, as [`Domain::node`] returns it.

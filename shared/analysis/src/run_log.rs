@@ -1,0 +1,563 @@
+//! A run's recording across logger generations. A restarted logger writes
+//! its own `samples.g<N>.mcap` beside its predecessors', and a killed one
+//! leaves no summary: this reads every sample file of a run directory in
+//! generation order as one log ([`JoinedLog`]), finds the samples no logger
+//! recorded between one generation and the next or after the last
+//! ([`Outage`]), and rebuilds the run's summary from what the files hold
+//! ([`joined_summary`]).
+
+use crate::latency_log::LatencyLog;
+use flexloop_components::{LogEvent, LogReader, Record};
+use flexloop_runfiles::summary::{
+    Counters, DroppedInLogger, GenerationAccount, Outage, PerChannel, Recording, SampleFileState,
+};
+use flexloop_runfiles::{Histogram, Percentiles, RunDir, RunSummary};
+use flexloop_runtime::latency::QUANTILES;
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+
+/// Why a run's recording could not be read; names the file or directory.
+#[derive(Debug)]
+pub struct RunLogError {
+    pub path: PathBuf,
+    pub reason: String,
+}
+
+impl std::fmt::Display for RunLogError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.reason)
+    }
+}
+
+impl std::error::Error for RunLogError {}
+
+fn error(path: &Path, reason: impl ToString) -> RunLogError {
+    RunLogError {
+        path: path.to_path_buf(),
+        reason: reason.to_string(),
+    }
+}
+
+/// Sequence numbers above this are no tick (`NO_SEQ`, a damaged message).
+const MAX_SEQ: u64 = 1 << 40;
+
+/// Which sequence numbers of each channel the files hold, file by file.
+#[derive(Default)]
+struct Ledger {
+    /// Per channel, bit `seq`: some file holds it.
+    seen: [Vec<u64>; 3],
+    /// Per file and channel: its lowest and highest number, and how many
+    /// numbers no earlier file held.
+    files: Vec<[FileRange; 3]>,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct FileRange {
+    /// The lowest and highest number no earlier file held.
+    new_span: Option<(u64, u64)>,
+    new: u64,
+}
+
+impl Ledger {
+    fn begin_file(&mut self) {
+        self.files.push(Default::default());
+    }
+
+    /// Notes `seq` of `channel` in the current file; false if a file
+    /// (this one or an earlier one) held it already.
+    fn see(&mut self, channel: usize, seq: u64) -> bool {
+        if seq > MAX_SEQ {
+            return false;
+        }
+        let bits = &mut self.seen[channel];
+        let (word, bit) = ((seq / 64) as usize, seq % 64);
+        if bits.len() <= word {
+            bits.resize(word + 1, 0);
+        }
+        if bits[word] & (1 << bit) != 0 {
+            return false;
+        }
+        bits[word] |= 1 << bit;
+        let range = &mut self.files.last_mut().expect("a file begun")[channel];
+        range.new_span = Some(match range.new_span {
+            Some((lo, hi)) => (lo.min(seq), hi.max(seq)),
+            None => (seq, seq),
+        });
+        range.new += 1;
+        true
+    }
+
+    /// The lowest and highest number any file holds.
+    fn span(&self, channel: usize) -> Option<(u64, u64)> {
+        self.files
+            .iter()
+            .filter_map(|f| f[channel].new_span)
+            .reduce(|(a, b), (c, d)| (a.min(c), b.max(d)))
+    }
+
+    fn distinct(&self, channel: usize) -> u64 {
+        self.files.iter().map(|f| f[channel].new).sum()
+    }
+
+    /// Numbers missing from the first held to the last (or to `last_tick`
+    /// when the run went on after its last logger).
+    fn gaps(&self, channel: usize, last_tick: Option<u64>) -> u64 {
+        let Some((lo, hi)) = self.span(channel) else {
+            return 0;
+        };
+        let end = last_tick.map_or(hi, |t| t.max(hi));
+        (end - lo + 1) - self.distinct(channel)
+    }
+
+    /// The runs no logger recorded: from each generation's highest number
+    /// to the next one's lowest new one (none in between can be held: they
+    /// are above every earlier file's and below this one's), and after the
+    /// last one up to `last_tick`.
+    fn outages(&self, generations: &[u32], last_tick: Option<u64>) -> Vec<Outage> {
+        let mut out = Vec::new();
+        for (channel, name) in PerChannel::NAMES.iter().enumerate() {
+            // The highest number so far and the generation that held it.
+            let mut reached: Option<(u64, u32)> = None;
+            for (file, generation) in self.files.iter().zip(generations) {
+                let Some((lo, hi)) = file[channel].new_span else {
+                    continue;
+                };
+                if let Some((top, after)) = reached
+                    && lo > top + 1
+                {
+                    out.push(Outage {
+                        channel: name.to_string(),
+                        seq: top + 1,
+                        count: lo - top - 1,
+                        after_generation: after,
+                        before_generation: Some(*generation),
+                    });
+                }
+                if reached.is_none_or(|(top, _)| hi > top) {
+                    reached = Some((hi, *generation));
+                }
+            }
+            if let (Some((top, after)), Some(last)) = (reached, last_tick)
+                && last > top
+            {
+                out.push(Outage {
+                    channel: name.to_string(),
+                    seq: top + 1,
+                    count: last - top,
+                    after_generation: after,
+                    before_generation: None,
+                });
+            }
+        }
+        out
+    }
+}
+
+/// The run's last tick as its plant counted it (`plant_latency.json`), if
+/// the plant wrote it: ticks after the last logger's last sample are lost
+/// too.
+fn last_tick(run_dir: &RunDir) -> Option<u64> {
+    run_dir
+        .read_plant_latency()
+        .ok()
+        .and_then(|p| p.ticks.checked_sub(1))
+}
+
+/// Every sample file of a run read as one log, in generation order.
+#[derive(Debug)]
+pub struct JoinedLog {
+    /// The messages of every file (a number a predecessor holds is kept
+    /// once), every event (the supervisor's, which each logger copies, once)
+    /// with a `gap` event (cause `logger-outage`) per outage, and the first
+    /// file's metadata. `torn_tail`: some file ends torn.
+    pub log: LogReader,
+    pub files: Vec<PathBuf>,
+    pub outages: Vec<Outage>,
+    /// Per channel: numbers no file holds, from the first held to the last
+    /// (or to the run's last tick); outages included. Messages + gaps =
+    /// the run's ticks (measurements).
+    pub gaps: PerChannel,
+    /// Files that end without their footer, and where reading stopped.
+    pub torn: Vec<(PathBuf, String)>,
+}
+
+impl JoinedLog {
+    /// Every `samples*.mcap` of the run directory `dir`.
+    pub fn open(dir: &Path) -> Result<Self, RunLogError> {
+        let run_dir = RunDir::new(dir);
+        let files = run_dir.sample_files();
+        if files.is_empty() {
+            return Err(error(
+                dir,
+                format!("no {} in it (not a run directory?)", RunDir::SAMPLES),
+            ));
+        }
+        let (generations, paths): (Vec<u32>, Vec<PathBuf>) = files.into_iter().unzip();
+        Self::join(&paths, &generations, last_tick(&run_dir))
+    }
+
+    /// One sample file on its own.
+    pub fn open_file(path: &Path) -> Result<Self, RunLogError> {
+        Self::join(&[path.to_path_buf()], &[0], None)
+    }
+
+    fn join(
+        paths: &[PathBuf],
+        generations: &[u32],
+        last_tick: Option<u64>,
+    ) -> Result<Self, RunLogError> {
+        let mut ledger = Ledger::default();
+        let mut records = Vec::new();
+        let mut events: Vec<LogEvent> = Vec::new();
+        let mut supervisor_events = HashSet::new();
+        let mut metadata = None;
+        let mut torn = Vec::new();
+        for path in paths {
+            ledger.begin_file();
+            let log = LogReader::scan(path, |r| {
+                if ledger.see(r.channel(), r.seq()) {
+                    records.push(r);
+                }
+            })
+            .map_err(|e| error(path, e))?;
+            if log.torn_tail {
+                torn.push((path.clone(), log.tail_error.clone().unwrap_or_default()));
+            }
+            // Each logger copies the supervisor's events file from its start.
+            events.extend(log.events.into_iter().filter(|e| {
+                e.json["source"] != "supervisor" || supervisor_events.insert(e.json.to_string())
+            }));
+            if metadata.is_none() {
+                metadata = Some((log.metadata, log.metadata_json));
+            }
+        }
+        let outages = ledger.outages(generations, last_tick);
+        let gaps = PerChannel::from_array([0, 1, 2].map(|c| ledger.gaps(c, last_tick)));
+        let (metadata, metadata_json) = metadata.unwrap_or_default();
+        let offset_ns: u64 = metadata
+            .get("log_time_offset_ns")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
+        // Placed at the last measurement before it.
+        let published: BTreeMap<u64, u64> = records
+            .iter()
+            .filter_map(|r| match r {
+                Record::Measurement(m) => Some((m.seq, m.published_ns)),
+                _ => None,
+            })
+            .collect();
+        for o in &outages {
+            let at = published
+                .range(..o.seq)
+                .next_back()
+                .map_or(0, |(_, ns)| *ns);
+            events.push(LogEvent {
+                log_time_ns: at + offset_ns,
+                json: serde_json::from_str(&o.event_json()).expect("valid JSON"),
+            });
+        }
+        events.sort_by_key(|e| e.log_time_ns);
+        let log = LogReader {
+            metadata_json,
+            metadata,
+            records,
+            events,
+            torn_tail: !torn.is_empty(),
+            tail_error: torn.first().map(|(p, e)| format!("{}: {e}", p.display())),
+        };
+        Ok(Self {
+            log,
+            files: paths.to_vec(),
+            outages,
+            gaps,
+            torn,
+        })
+    }
+
+    /// What joining did, for the user: the files and the samples no logger
+    /// recorded; none for one file and nothing lost between loggers.
+    pub fn describe(&self) -> Option<String> {
+        if self.files.len() < 2 && self.outages.is_empty() {
+            return None;
+        }
+        let names: Vec<String> = self
+            .files
+            .iter()
+            .map(|p| {
+                p.file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        Some(format!(
+            "joined {} sample files ({}); {}",
+            names.len(),
+            names.join(", "),
+            describe_outages(&self.outages)
+        ))
+    }
+}
+
+/// "no sample lost between loggers", or the outages and what they cost.
+pub fn describe_outages(outages: &[Outage]) -> String {
+    if outages.is_empty() {
+        return "no sample lost between loggers".into();
+    }
+    let lost = |channel: &str| -> u64 {
+        outages
+            .iter()
+            .filter(|o| o.channel == channel)
+            .map(|o| o.count)
+            .sum()
+    };
+    let runs = outages
+        .iter()
+        .filter(|o| o.channel == PerChannel::NAMES[0])
+        .count();
+    format!(
+        "{runs} outages without a logger: {} measurements, {} estimates and {} commands not recorded (gap events, cause logger-outage)",
+        lost("measurement"),
+        lost("estimate"),
+        lost("command")
+    )
+}
+
+/// A logger generation's own summary, if it wrote one (a joined summary
+/// in `summary.json` is not the first logger's).
+fn own_summary(run_dir: &RunDir, generation: u32) -> Option<RunSummary> {
+    let path = run_dir.generation_summary(generation);
+    flexloop_runfiles::json::read_json::<RunSummary>(&path)
+        .ok()
+        .filter(|s| s.generations.is_empty())
+}
+
+/// The run's summary rebuilt from its sample files and latency logs, for a
+/// run that several loggers recorded or whose logger was killed before it
+/// wrote one: every tick is recorded or counted in `gaps` (outages
+/// included), the counters are the plant's as its last recorded
+/// measurement carries them, the latencies those of every generation's
+/// latency log.
+pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
+    let run_dir = RunDir::new(dir);
+    let files = run_dir.sample_files();
+    if files.is_empty() {
+        return Err(error(dir, "no sample file in it"));
+    }
+    let last_tick = last_tick(&run_dir);
+    let mut ledger = Ledger::default();
+    let mut last_measurement: Option<flexloop_protocol::Measurement> = None;
+    let mut stale_estimates = 0u64;
+    let mut metadata = BTreeMap::new();
+    let mut generations = Vec::new();
+    let mut own = Vec::new();
+    for (generation, path) in &files {
+        ledger.begin_file();
+        let mut first = None;
+        let mut last = None;
+        let log = LogReader::scan(path, |r| {
+            let new = ledger.see(r.channel(), r.seq());
+            match &r {
+                Record::Measurement(m) => {
+                    first = Some(first.map_or(m.seq, |f: u64| f.min(m.seq)));
+                    last = Some(last.map_or(m.seq, |l: u64| l.max(m.seq)));
+                    if last_measurement.is_none_or(|l| m.seq > l.seq) {
+                        last_measurement = Some(*m);
+                    }
+                }
+                Record::Command(c) if new && c.estimate_seq != c.seq => stale_estimates += 1,
+                _ => {}
+            }
+        })
+        .map_err(|e| error(path, e))?;
+        if metadata.is_empty() {
+            metadata = log.metadata;
+        }
+        let summary = own_summary(&run_dir, *generation);
+        let range = ledger.files.last().expect("a file begun");
+        generations.push(GenerationAccount {
+            generation: *generation,
+            file: path
+                .file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned(),
+            state: summary.as_ref().map_or("killed".to_string(), |s| {
+                s.recording.sample_file.state.clone()
+            }),
+            samples: PerChannel::from_array([range[0].new, range[1].new, range[2].new]),
+            first_seq: first,
+            last_seq: last,
+        });
+        own.push(summary);
+    }
+    let generation_numbers: Vec<u32> = files.iter().map(|(g, _)| *g).collect();
+    let outages = ledger.outages(&generation_numbers, last_tick);
+    let samples = PerChannel::from_array([0, 1, 2].map(|c| ledger.distinct(c)));
+    let gaps = PerChannel::from_array([0, 1, 2].map(|c| ledger.gaps(c, last_tick)));
+    let meta = |key: &str| metadata.get(key).cloned().unwrap_or_default();
+    let period_ns: u64 = meta("period_ns").parse().unwrap_or(0);
+    let latest = own.iter().rev().flatten().next();
+    let m = last_measurement.unwrap_or_default();
+    let mut dropped = DroppedInLogger::default();
+    for s in own.iter().flatten() {
+        let d = s.recording.dropped_in_logger;
+        dropped.measurement += d.measurement;
+        dropped.estimate += d.estimate;
+        dropped.command += d.command;
+        dropped.events += d.events;
+    }
+    let last_file = generations
+        .last()
+        .map(|g| g.file.clone())
+        .unwrap_or_default();
+    let recording = match own.last().and_then(Option::as_ref) {
+        Some(s) => Recording {
+            dropped_in_logger: dropped,
+            ..s.recording.clone()
+        },
+        None => Recording {
+            sample_file: SampleFileState {
+                format: "mcap".into(),
+                state: "killed".into(),
+                ..Default::default()
+            },
+            file: last_file,
+            latency_log_complete: false,
+            dropped_in_logger: dropped,
+        },
+    };
+    Ok(RunSummary {
+        scenario: latest.map_or_else(|| meta("scenario"), |s| s.scenario.clone()),
+        scenario_file: latest.map_or_else(|| meta("scenario_file"), |s| s.scenario_file.clone()),
+        mode: latest.map_or_else(|| meta("mode"), |s| s.mode.clone()),
+        rate_hz: latest.map_or_else(|| meta("rate_hz").parse().unwrap_or(0.0), |s| s.rate_hz),
+        duration_s: latest.map_or_else(
+            || meta("duration_s").parse().unwrap_or(0.0),
+            |s| s.duration_s,
+        ),
+        period_ns,
+        ticks: samples.measurement + gaps.measurement,
+        last_seq: last_tick.unwrap_or(0).max(m.seq),
+        counters: Counters {
+            misses: m.misses,
+            late_commands: m.late_commands,
+            stalled_ticks: m.stalled_ticks,
+            stall_misses: m.stall_misses,
+            stale_estimates,
+            fallback_ticks: m.fallback_ticks,
+            rejected_commands: m.rejected_commands,
+        },
+        samples,
+        gaps,
+        logger_cpu_ns: own.iter().flatten().map(|s| s.logger_cpu_ns).sum(),
+        latency: joined_latencies(&run_dir, &generation_numbers, period_ns, latest),
+        recording,
+        generations,
+        outages,
+    })
+}
+
+/// Every generation's latency log merged per metric; metrics a logger's
+/// own summary names but no log holds count 0.
+fn joined_latencies(
+    run_dir: &RunDir,
+    generations: &[u32],
+    period_ns: u64,
+    latest: Option<&RunSummary>,
+) -> BTreeMap<String, Histogram> {
+    let mut joined = LatencyLog::default();
+    for g in generations {
+        if let Ok(log) = LatencyLog::read(&run_dir.histogram_log(*g)) {
+            joined.merge(log);
+        }
+    }
+    let mut out: BTreeMap<String, Histogram> = latest
+        .map(|s| {
+            s.latency
+                .keys()
+                .map(|k| (k.clone(), Histogram::default()))
+                .collect()
+        })
+        .unwrap_or_default();
+    for (tag, h) in &joined.histograms {
+        let mut values = [0u64; 6];
+        if !h.is_empty() {
+            for (slot, q) in values.iter_mut().zip(QUANTILES) {
+                *slot = h.value_at_quantile(q);
+            }
+            values[5] = h.max();
+        }
+        let within = h.count_between(0, period_ns);
+        out.insert(
+            tag.clone(),
+            Histogram {
+                count: h.len(),
+                percentiles: Percentiles::from_values(values),
+                over_one_period: Some(h.len().saturating_sub(within)),
+            },
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ledger(files: &[&[u64]]) -> Ledger {
+        let mut l = Ledger::default();
+        for f in files {
+            l.begin_file();
+            for s in *f {
+                for c in 0..3 {
+                    l.see(c, *s);
+                }
+            }
+        }
+        l
+    }
+
+    #[test]
+    fn the_samples_between_two_loggers_are_one_outage() {
+        // Generation 0 recorded 0..=9, generation 1 from 15 (and 9 again).
+        let l = ledger(&[&(0..10).collect::<Vec<_>>(), &[9, 15, 16, 17]]);
+        let outages = l.outages(&[0, 1], None);
+        assert_eq!(outages.len(), 3, "{outages:?}");
+        assert_eq!(
+            outages[0],
+            Outage {
+                channel: "measurement".into(),
+                seq: 10,
+                count: 5,
+                after_generation: 0,
+                before_generation: Some(1),
+            }
+        );
+        assert_eq!(l.distinct(0), 13);
+        assert_eq!(l.gaps(0, None), 5);
+        // Every tick recorded or in a gap.
+        assert_eq!(l.distinct(0) + l.gaps(0, None), 18);
+    }
+
+    #[test]
+    fn ticks_after_the_last_logger_are_an_outage_and_gaps_inside_a_file_are_not() {
+        let l = ledger(&[&[0, 1, 2, 4, 5]]);
+        let outages = l.outages(&[0], Some(9));
+        assert_eq!(outages.len(), 3);
+        assert_eq!((outages[0].seq, outages[0].count), (6, 4));
+        assert_eq!(outages[0].before_generation, None);
+        // 3 inside the file (a gap its logger wrote), 6..=9 after it.
+        assert_eq!(l.gaps(0, Some(9)), 5);
+        assert_eq!(l.distinct(0) + l.gaps(0, Some(9)), 10);
+        assert!(l.outages(&[0], Some(5)).is_empty());
+    }
+
+    #[test]
+    fn a_later_logger_that_starts_behind_its_predecessor_loses_nothing() {
+        let l = ledger(&[&[0, 1, 2, 3], &[2, 3, 4, 5]]);
+        assert!(l.outages(&[0, 1], None).is_empty());
+        assert_eq!(l.distinct(0), 6);
+        assert_eq!(l.files[1][0].new, 2);
+    }
+}
