@@ -583,3 +583,16 @@ fn a_logger_killed_three_times_leaves_one_summary_and_every_tick_accounted_for()
     }
     assert_clean(&dir);
 }
+
+#[test]
+fn a_test_that_does_not_stop_its_loop_leaves_nothing_behind() {
+    let dir = temp_dir("unstopped");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 100);
+    // As a failing test's unwinding drops it.
+    drop(child);
+    let left = processes_mentioning(&dir.display().to_string());
+    assert!(left.is_empty(), "processes left: {left:?}");
+    let files = flexloop_transport::leftover_files_for_prefix(&prefix);
+    assert!(files.is_empty(), "shared memory left: {files:?}");
+}

@@ -109,29 +109,47 @@ impl Ledger {
         (end - lo + 1) - self.distinct(channel)
     }
 
-    /// The runs no logger recorded: from each generation's highest number
-    /// to the next one's lowest new one (none in between can be held: they
-    /// are above every earlier file's and below this one's), and after the
-    /// last one up to `last_tick`.
+    /// The first number above `seq` any file holds.
+    fn first_held_after(&self, channel: usize, seq: u64) -> Option<u64> {
+        let bits = &self.seen[channel];
+        let mut at = seq + 1;
+        while let Some(word) = bits.get((at / 64) as usize) {
+            let rest = word >> (at % 64);
+            if rest != 0 {
+                return Some(at + u64::from(rest.trailing_zeros()));
+            }
+            at = (at / 64 + 1) * 64;
+        }
+        None
+    }
+
+    /// The runs no logger recorded: from the highest number of the
+    /// generations so far to the next number a later one holds, and after
+    /// the last one up to `last_tick`.
     fn outages(&self, generations: &[u32], last_tick: Option<u64>) -> Vec<Outage> {
         let mut out = Vec::new();
         for (channel, name) in PerChannel::NAMES.iter().enumerate() {
             // The highest number so far and the generation that held it.
             let mut reached: Option<(u64, u32)> = None;
             for (file, generation) in self.files.iter().zip(generations) {
-                let Some((lo, hi)) = file[channel].new_span else {
+                let Some((_, hi)) = file[channel].new_span else {
                     continue;
                 };
                 if let Some((top, after)) = reached
-                    && lo > top + 1
+                    && hi > top
                 {
-                    out.push(Outage {
-                        channel: name.to_string(),
-                        seq: top + 1,
-                        count: lo - top - 1,
-                        after_generation: after,
-                        before_generation: Some(*generation),
-                    });
+                    // This file goes beyond the earlier ones: it holds the
+                    // next number after their highest.
+                    let next = self.first_held_after(channel, top).unwrap_or(top + 1);
+                    if next > top + 1 {
+                        out.push(Outage {
+                            channel: name.to_string(),
+                            seq: top + 1,
+                            count: next - top - 1,
+                            after_generation: after,
+                            before_generation: Some(*generation),
+                        });
+                    }
                 }
                 if reached.is_none_or(|(top, _)| hi > top) {
                     reached = Some((hi, *generation));
@@ -351,6 +369,7 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
     let mut metadata = BTreeMap::new();
     let mut generations = Vec::new();
     let mut own = Vec::new();
+    let mut queue_drops = Vec::new();
     for (generation, path) in &files {
         ledger.begin_file();
         let mut first = None;
@@ -370,10 +389,14 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
             }
         })
         .map_err(|e| error(path, e))?;
+        let summary = own_summary(&run_dir, *generation);
+        if summary.is_none() {
+            // A killed logger's drops: only its file's gap events tell them.
+            queue_drops.push(logger_queue_drops(&log.events));
+        }
         if metadata.is_empty() {
             metadata = log.metadata;
         }
-        let summary = own_summary(&run_dir, *generation);
         let range = ledger.files.last().expect("a file begun");
         generations.push(GenerationAccount {
             generation: *generation,
@@ -400,8 +423,12 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
     let latest = own.iter().rev().flatten().next();
     let m = last_measurement.unwrap_or_default();
     let mut dropped = DroppedInLogger::default();
-    for s in own.iter().flatten() {
-        let d = s.recording.dropped_in_logger;
+    for d in own
+        .iter()
+        .flatten()
+        .map(|s| s.recording.dropped_in_logger)
+        .chain(queue_drops)
+    {
         dropped.measurement += d.measurement;
         dropped.estimate += d.estimate;
         dropped.command += d.command;
@@ -456,6 +483,25 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
         generations,
         outages,
     })
+}
+
+/// The messages a logger had no room for in its writer queue, from its
+/// file's `gap` events of cause `logger-queue`.
+fn logger_queue_drops(events: &[LogEvent]) -> DroppedInLogger {
+    let mut d = DroppedInLogger::default();
+    for e in events {
+        if e.json["kind"] != "gap" || e.json["cause"] != "logger-queue" {
+            continue;
+        }
+        let count = e.json["count"].as_u64().unwrap_or(0);
+        match e.json["channel"].as_str() {
+            Some("measurement") => d.measurement += count,
+            Some("estimate") => d.estimate += count,
+            Some("command") => d.command += count,
+            _ => {}
+        }
+    }
+    d
 }
 
 /// Every generation's latency log merged per metric; metrics a logger's
@@ -551,6 +597,15 @@ mod tests {
         assert_eq!(l.gaps(0, Some(9)), 5);
         assert_eq!(l.distinct(0) + l.gaps(0, Some(9)), 10);
         assert!(l.outages(&[0], Some(5)).is_empty());
+    }
+
+    #[test]
+    fn a_later_logger_that_fills_an_earlier_hole_still_shows_the_outage() {
+        // Generation 1 holds 3 (generation 0 lost it) and starts again at 8.
+        let l = ledger(&[&[0, 1, 2, 4, 5], &[3, 8, 9]]);
+        let outages = l.outages(&[0, 1], None);
+        assert_eq!((outages[0].seq, outages[0].count), (6, 2), "{outages:?}");
+        assert_eq!(l.gaps(0, None), 2);
     }
 
     #[test]
