@@ -488,8 +488,22 @@ fn the_next_down_finishes_a_loop_whose_supervisor_and_logger_were_killed() {
 
 #[test]
 fn a_logger_killed_three_times_leaves_one_summary_and_every_tick_accounted_for() {
-    let dir = temp_dir("logger-generations");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    logger_killed_three_times("logger-generations-lockstep", &["--mode", "lockstep"]);
+}
+
+#[test]
+fn in_realtime_too_every_tick_of_a_logger_killed_three_times_is_recorded_or_a_gap() {
+    logger_killed_three_times(
+        "logger-generations-realtime",
+        &["--mode", "realtime", "--rate", "1000"],
+    );
+}
+
+/// Kills a run's logger three times, then checks that the summary, the
+/// export and its gap events account for every tick the plant counted.
+fn logger_killed_three_times(name: &str, mode: &[&str]) {
+    let dir = temp_dir(name);
+    let (child, prefix) = start(&dir, "lecture-double-integrator", mode);
     let files = [
         "samples.mcap",
         "samples.g1.mcap",

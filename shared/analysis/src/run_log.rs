@@ -99,14 +99,52 @@ impl Ledger {
         self.files.iter().map(|f| f[channel].new).sum()
     }
 
-    /// Numbers missing from the first held to the last (or to `last_tick`
-    /// when the run went on after its last logger).
+    /// The run's first recorded tick: the lowest number any channel holds
+    /// (every channel has a sample for it; a channel whose first samples
+    /// were lost misses them from there on).
+    fn run_start(&self) -> Option<u64> {
+        (0..3).filter_map(|c| self.span(c)).map(|(lo, _)| lo).min()
+    }
+
+    /// Numbers missing from the run's first tick to the channel's last held
+    /// (or to `last_tick` when the run went on after its last logger).
     fn gaps(&self, channel: usize, last_tick: Option<u64>) -> u64 {
-        let Some((lo, hi)) = self.span(channel) else {
+        let (Some(start), Some((_, hi))) = (self.run_start(), self.span(channel)) else {
             return 0;
         };
         let end = last_tick.map_or(hi, |t| t.max(hi));
-        (end - lo + 1) - self.distinct(channel)
+        (end - start + 1) - self.distinct(channel)
+    }
+
+    /// The runs of numbers no file holds, from the run's first tick to
+    /// `end`, that no range of `reported` covers: (first, count).
+    fn unreported(&self, channel: usize, reported: &[(u64, u64)], end: u64) -> Vec<(u64, u64)> {
+        let Some(lo) = self.run_start() else {
+            return Vec::new();
+        };
+        let mut covered = vec![false; (end.saturating_sub(lo) + 1) as usize];
+        for (first, count) in reported {
+            for seq in (*first).max(lo)..(first + count).min(end + 1) {
+                covered[(seq - lo) as usize] = true;
+            }
+        }
+        let mut runs: Vec<(u64, u64)> = Vec::new();
+        for seq in lo..=end {
+            if covered[(seq - lo) as usize] || self.held(channel, seq) {
+                continue;
+            }
+            match runs.last_mut() {
+                Some((first, count)) if *first + *count == seq => *count += 1,
+                _ => runs.push((seq, 1)),
+            }
+        }
+        runs
+    }
+
+    fn held(&self, channel: usize, seq: u64) -> bool {
+        self.seen[channel]
+            .get((seq / 64) as usize)
+            .is_some_and(|w| w & (1 << (seq % 64)) != 0)
     }
 
     /// The first number above `seq` any file holds.
@@ -195,6 +233,9 @@ pub struct JoinedLog {
     /// (or to the run's last tick); outages included. Messages + gaps =
     /// the run's ticks (measurements).
     pub gaps: PerChannel,
+    /// Missing samples no logger wrote a gap event for (a killed logger's
+    /// last ones), now in `gap` events of cause `unreported`: per channel.
+    pub unreported: PerChannel,
     /// Files that end without their footer, and where reading stopped.
     pub torn: Vec<(PathBuf, String)>,
 }
@@ -264,14 +305,55 @@ impl JoinedLog {
                 _ => None,
             })
             .collect();
+        let at = |seq: u64| published.range(..seq).next_back().map_or(0, |(_, ns)| *ns) + offset_ns;
+        // A killed logger never wrote the gaps still open in its reorder
+        // window, nor those in its torn last chunk: the join does, so that
+        // every missing sample is in a gap event.
+        let mut unreported = Vec::new();
+        for (channel, name) in PerChannel::NAMES.iter().enumerate() {
+            let mut reported: Vec<(u64, u64)> = events
+                .iter()
+                .filter(|e| e.json["kind"] == "gap" && e.json["channel"] == *name)
+                .filter_map(|e| {
+                    let first = e.json["seq"].as_u64()?;
+                    let count = match e.json["last_seq"].as_u64() {
+                        Some(last) => last.checked_sub(first)? + 1,
+                        None => e.json["count"].as_u64()?,
+                    };
+                    Some((first, count))
+                })
+                .collect();
+            reported.extend(
+                outages
+                    .iter()
+                    .filter(|o| o.channel == *name)
+                    .map(|o| (o.seq, o.count)),
+            );
+            let Some((_, hi)) = ledger.span(channel) else {
+                continue;
+            };
+            let end = last_tick.map_or(hi, |t| t.max(hi));
+            for (first, count) in ledger.unreported(channel, &reported, end) {
+                unreported.push((*name, first, count));
+            }
+        }
         for o in &outages {
-            let at = published
-                .range(..o.seq)
-                .next_back()
-                .map_or(0, |(_, ns)| *ns);
             events.push(LogEvent {
-                log_time_ns: at + offset_ns,
+                log_time_ns: at(o.seq),
                 json: serde_json::from_str(&o.event_json()).expect("valid JSON"),
+            });
+        }
+        for (channel, first, count) in &unreported {
+            events.push(LogEvent {
+                log_time_ns: at(*first),
+                json: serde_json::json!({
+                    "source": "flexloop",
+                    "kind": "gap",
+                    "cause": "unreported",
+                    "channel": channel,
+                    "seq": first,
+                    "count": count,
+                }),
             });
         }
         events.sort_by_key(|e| e.log_time_ns);
@@ -283,11 +365,19 @@ impl JoinedLog {
             torn_tail: !torn.is_empty(),
             tail_error: torn.first().map(|(p, e)| format!("{}: {e}", p.display())),
         };
+        let unreported_count = |name: &str| {
+            unreported
+                .iter()
+                .filter(|(c, _, _)| *c == name)
+                .map(|(_, _, n)| n)
+                .sum()
+        };
         Ok(Self {
             log,
             files: paths.to_vec(),
             outages,
             gaps,
+            unreported: PerChannel::from_array(PerChannel::NAMES.map(unreported_count)),
             torn,
         })
     }
@@ -295,7 +385,7 @@ impl JoinedLog {
     /// What joining did, for the user: the files and the samples no logger
     /// recorded; none for one file and nothing lost between loggers.
     pub fn describe(&self) -> Option<String> {
-        if self.files.len() < 2 && self.outages.is_empty() {
+        if self.files.len() < 2 && self.outages.is_empty() && self.unreported.total() == 0 {
             return None;
         }
         let names: Vec<String> = self
@@ -308,8 +398,16 @@ impl JoinedLog {
                     .into_owned()
             })
             .collect();
+        let unreported = if self.unreported.total() == 0 {
+            String::new()
+        } else {
+            format!(
+                "; {} samples missing without a gap event (a killed logger's last) added as gap events of cause unreported",
+                self.unreported.total()
+            )
+        };
         Some(format!(
-            "joined {} sample files ({}); {}",
+            "joined {} sample files ({}); {}{unreported}",
             names.len(),
             names.join(", "),
             describe_outages(&self.outages)
@@ -606,6 +704,29 @@ mod tests {
         let outages = l.outages(&[0, 1], None);
         assert_eq!((outages[0].seq, outages[0].count), (6, 2), "{outages:?}");
         assert_eq!(l.gaps(0, None), 2);
+    }
+
+    #[test]
+    fn a_channel_whose_first_samples_were_lost_misses_them_from_the_runs_start() {
+        let mut l = Ledger::default();
+        l.begin_file();
+        for s in 0..10 {
+            l.see(0, s);
+        }
+        for s in 4..10 {
+            l.see(2, s);
+        }
+        assert_eq!(l.gaps(2, None), 4);
+        assert_eq!(l.unreported(2, &[], 9), vec![(0, 4)]);
+    }
+
+    #[test]
+    fn missing_numbers_no_event_reports_are_found() {
+        let l = ledger(&[&[0, 1, 3, 4, 8, 9], &[12]]);
+        // 2 was reported by its logger, 10..=11 is the outage.
+        let runs = l.unreported(0, &[(2, 1), (10, 2)], 14);
+        assert_eq!(runs, vec![(5, 3), (13, 2)]);
+        assert!(l.unreported(0, &[(2, 1), (5, 3), (10, 2)], 12).is_empty());
     }
 
     #[test]
