@@ -29,7 +29,7 @@ pub struct SwapArgs {
     /// The component to replace
     #[arg(value_enum)]
     pub role: SwapRole,
-    /// The scenario to design the new one from (same [loop] and [plant])
+    /// The scenario to design the new one from (same rate, [plant], [reference] and loop delay)
     pub scenario: PathBuf,
     #[command(flatten)]
     pub which: PrefixArg,

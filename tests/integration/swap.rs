@@ -165,6 +165,49 @@ fn a_retuned_controller_takes_over_without_a_step() {
 }
 
 #[test]
+fn a_swap_to_another_set_point_is_refused_and_the_old_controller_runs_on() {
+    let dir = temp_dir("swap-reference");
+    // The default loop scans every 0.25 s; the original design scans once:
+    // its set-point would jump by the stroke at the switch.
+    let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 500);
+    let controller = pid_on_duty(&dir, "controller", "active");
+    let mut cmd = flexloop();
+    cmd.args(["swap", "controller"])
+        .arg(scenario("thesis-original"))
+        .args(["--prefix", &prefix]);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        err.contains("swap refused")
+            && err.contains("thesis-original.toml")
+            && err.contains("reference.repeat_s"),
+        "{err}"
+    );
+    // Refused before anything started: the same instance serves on.
+    let refused_at = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, refused_at + 500);
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), controller);
+    let active = processes(&dir)
+        .into_iter()
+        .find(|p| p["role"] == "controller" && p["duty"] == "active")
+        .unwrap();
+    assert_eq!(active["generation"], 0, "{active}");
+    stop(&prefix, child);
+    assert!(
+        !events(&dir).iter().any(|e| e["kind"] == "swap"),
+        "{:?}",
+        events(&dir)
+    );
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().count() > refused_at);
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_eq!(counter(&summary(&dir), "misses"), 0);
+    assert_clean(&dir);
+}
+
+#[test]
 fn killed_components_come_back_and_the_plant_falls_back_meanwhile() {
     let dir = temp_dir("swap-crash");
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);

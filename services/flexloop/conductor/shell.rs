@@ -21,6 +21,7 @@ use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runfiles::supervision::SwapAnswer;
 use flexloop_runtime::shutdown;
+use flexloop_scenario::swap::{Swapped, swap_conflicts};
 use flexloop_scenario::{Overrides, Scenario};
 use serde_json::json;
 use std::path::Path;
@@ -307,7 +308,7 @@ impl Conductor {
         role: Role,
         scenario_path: &Path,
     ) -> Result<Switch> {
-        self.check_compatible(scenario_path)?;
+        self.check_compatible(role, scenario_path)?;
         let (old, generation) = self.core.plan_swap(role)?;
         // A replacement follows a ticking loop (and a spare serves only then).
         let since = Instant::now();
@@ -359,26 +360,25 @@ impl Conductor {
         self.record_all(vec![action]);
     }
 
-    /// The replacement must fit the running loop: same rate, mode and plant,
-    /// same loop delay, and a design that passes its own checks.
-    fn check_compatible(&self, path: &Path) -> Result<()> {
+    /// The replacement must fit the running loop: what no design change can
+    /// make bumpless stays as it is (`flexloop_scenario::swap`), and the
+    /// design passes its own checks.
+    fn check_compatible(&self, role: Role, path: &Path) -> Result<()> {
         let new = Scenario::load(path, &self.overrides)?;
-        let run = &self.scenario;
-        let differs = |name: &str| {
-            anyhow!(
-                "{}: field {name} differs from the running loop's ({}); a swap replaces only [controller] or [observer]",
-                path.display(),
-                run.source.display()
-            )
+        let swapped = match role {
+            Role::Observer => Swapped::Observer,
+            _ => Swapped::Controller,
         };
-        if new.timing != run.timing {
-            return Err(differs("loop"));
-        }
-        if new.plant != run.plant {
-            return Err(differs("plant"));
-        }
-        if new.controller.extra_delay_samples != run.controller.extra_delay_samples {
-            return Err(differs("controller.extra_delay_samples"));
+        let fields = swap_conflicts(&self.scenario, &new, swapped);
+        if !fields.is_empty() {
+            bail!(
+                "{}: {} differ{} from the running loop's ({}); a swap may retune the controller \
+                 and the observer, not the loop's rate, plant, set-point or loop delay (docs/architecture.md#what-a-swap-may-change)",
+                path.display(),
+                fields.join(", "),
+                if fields.len() == 1 { "s" } else { "" },
+                self.scenario.source.display()
+            );
         }
         LoopDesign::from_scenario(&new)?;
         Ok(())

@@ -5,11 +5,13 @@
 //! - [`schema`]: the file format, field by field (unknown fields are refused).
 //! - `load`: reading and parsing a file, then the command line's overrides.
 //! - `validate`: ranges, consistency, and the machine's fitness for the profile.
+//! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`error`]: errors that name the file, the field and the reason.
 
 pub mod error;
 mod load;
 pub mod schema;
+pub mod swap;
 mod validate;
 
 pub use error::ScenarioError;

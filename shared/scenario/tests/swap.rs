@@ -1,0 +1,143 @@
+//! What a live swap may change: every field that would step the actuator
+//! or change the loop is named, gains and observer designs pass.
+
+use flexloop_scenario::swap::{Swapped, swap_conflicts};
+use flexloop_scenario::{Overrides, Scenario};
+use std::path::Path;
+
+fn shipped(name: &str) -> Scenario {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenarios")
+        .join(format!("{name}.toml"));
+    Scenario::load(&path, &Overrides::default()).unwrap()
+}
+
+/// The default scenario with `edit` applied.
+fn edited(edit: impl FnOnce(&mut Scenario)) -> Scenario {
+    let mut s = shipped("default");
+    edit(&mut s);
+    s
+}
+
+fn conflicts(new: &Scenario, swapped: Swapped) -> Vec<&'static str> {
+    swap_conflicts(&shipped("default"), new, swapped)
+}
+
+#[test]
+fn each_field_that_steps_the_actuator_or_changes_the_loop_is_named() {
+    type Edit = fn(&mut Scenario);
+    let cases: [(&str, Edit); 14] = [
+        ("loop.rate_hz", |s| s.timing.rate_hz = 5_000.0),
+        ("loop.mode", |s| {
+            s.timing.mode = flexloop_scenario::Mode::Lockstep
+        }),
+        ("plant.input_limit", |s| s.plant.input_limit = 500.0),
+        ("plant.output", |s| s.plant.output = 4),
+        ("plant.sensor_noise", |s| s.plant.sensor_noise = 1e-9),
+        ("plant.model", |s| s.plant.model = "uniform-chain".into()),
+        ("reference.shape", |s| s.reference.shape = "sine".into()),
+        ("reference.amplitude", |s| s.reference.amplitude = 0.05),
+        ("reference.frequency_hz", |s| s.reference.frequency_hz = 3.0),
+        ("reference.repeat_s", |s| s.reference.repeat_s = 0.0),
+        ("reference.start_s", |s| s.reference.start_s = 0.02),
+        ("reference.direction", |s| {
+            s.reference.direction = Some(vec![-1.0])
+        }),
+        ("controller.extra_delay_samples", |s| {
+            s.controller.extra_delay_samples = 1
+        }),
+        ("plant.seed", |s| s.plant.seed = 7),
+    ];
+    for (field, edit) in cases {
+        let new = edited(edit);
+        for swapped in [Swapped::Controller, Swapped::Observer] {
+            assert_eq!(conflicts(&new, swapped), vec![field], "{swapped:?}");
+        }
+    }
+}
+
+#[test]
+fn the_original_thesis_design_on_the_default_loop_is_refused_for_its_reference() {
+    // The reproduction: default (a scan every 0.25 s) against one scan.
+    let mut original = shipped("thesis-original");
+    original.timing.duration_s = 10.0;
+    assert_eq!(
+        conflicts(&original, Swapped::Controller),
+        vec!["reference.repeat_s"]
+    );
+}
+
+#[test]
+fn gains_bandwidths_notches_feedforward_and_the_observer_may_change() {
+    let new = edited(|s| {
+        s.controller.bandwidth_hz = 35.5;
+        s.controller.notches_hz = vec![120.0];
+        s.controller.feedforward = None;
+        s.controller.feedforward_form = "plain".into();
+        s.observer.design = "none".into();
+        s.observer.mc = false;
+        s.observer.ad = false;
+        s.observer.damping_increase = 0.05;
+        s.observer.flexible_modes = Some(2);
+        s.observer.observer_bandwidth_hz = 300.0;
+        // Neither the loop's design nor the set-point.
+        s.timing.duration_s = 0.3;
+        s.name = "retuned".into();
+        s.supervision.estimate_watchdog_ticks = 3;
+        s.realtime.controller.cpu = Some(1);
+        // The default written out is the default.
+        s.reference.direction = Some(vec![1.0]);
+    });
+    assert_eq!(conflicts(&new, Swapped::Controller), Vec::<&str>::new());
+    assert_eq!(conflicts(&new, Swapped::Observer), Vec::<&str>::new());
+}
+
+#[test]
+fn a_controller_without_feedback_must_keep_the_command_it_replaces() {
+    // No PID integrator to continue the old command with.
+    let none = edited(|s| s.controller.feedback = "none".into());
+    assert_eq!(
+        conflicts(&none, Swapped::Controller),
+        vec!["controller.feedback"]
+    );
+    // An observer swap runs no controller from the file.
+    assert_eq!(conflicts(&none, Swapped::Observer), Vec::<&str>::new());
+
+    let lecture = shipped("lecture-double-integrator");
+    let mut retuned = lecture.clone();
+    retuned.controller.feedforward = Some(Default::default());
+    assert_eq!(
+        swap_conflicts(&lecture, &retuned, Swapped::Controller),
+        vec!["controller.feedforward"]
+    );
+    let mut other_form = lecture.clone();
+    other_form.controller.feedforward_form = "modified".into();
+    assert_eq!(
+        swap_conflicts(&lecture, &other_form, Swapped::Controller),
+        vec!["controller.feedforward_form"]
+    );
+    // Its observer's state feedback may be retuned (the observer's part).
+    let mut faster = lecture.clone();
+    faster.observer.feedback_bandwidth_hz = 30.0;
+    assert_eq!(
+        swap_conflicts(&lecture, &faster, Swapped::Controller),
+        Vec::<&str>::new()
+    );
+}
+
+#[test]
+fn every_differing_field_is_named_at_once() {
+    let new = edited(|s| {
+        s.reference.repeat_s = 0.0;
+        s.plant.input_limit = 10.0;
+        s.controller.extra_delay_samples = 1;
+    });
+    assert_eq!(
+        conflicts(&new, Swapped::Controller),
+        vec![
+            "plant.input_limit",
+            "reference.repeat_s",
+            "controller.extra_delay_samples"
+        ]
+    );
+}
