@@ -15,6 +15,11 @@ use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+/// Exit status of a command whose loop ran to its end but whose verdict
+/// failed: stalls dominated (`up`, `status`), or `run`'s control figures
+/// are not the design's (`flexloop_analysis::verdict`). 2 is an error.
+pub const VERDICT_FAILED: i32 = 3;
+
 /// `[SCENARIO] [--rate HZ] [--duration S] [--mode M] [--no-realtime] [--run-dir DIR]`:
 /// the command line of `up` and `run`.
 #[derive(Debug, Clone, clap::Args)]
@@ -157,11 +162,44 @@ pub fn supervise(
         supervisor_pid: std::process::id() as i32,
         run_dir: prepared.plan.run_dir.clone(),
         scenario: prepared.scenario.name.clone(),
+        cpus: pinned_cpus(&prepared.scenario),
     };
+    warn_about_shared_cpus(&entry);
     registry::register(&entry).context("cannot register the loop")?;
     let result = run_to_the_end(prepared, hook);
     registry::unregister(&entry.prefix);
     result
+}
+
+/// The CPUs the loop's processes are pinned to, in order, once each.
+fn pinned_cpus(scenario: &Scenario) -> Vec<usize> {
+    let rt = &scenario.realtime;
+    let mut cpus: Vec<usize> = [&rt.plant, &rt.observer, &rt.controller, &rt.logger]
+        .iter()
+        .filter_map(|p| p.cpu)
+        .collect();
+    cpus.sort_unstable();
+    cpus.dedup();
+    cpus
+}
+
+/// Says so when another running loop is pinned to a CPU this one pins to:
+/// two loops on one CPU stall each other (97–98 % of ticks stalled, seen).
+fn warn_about_shared_cpus(entry: &registry::Entry) {
+    let others = registry::list();
+    for (other, cpus) in registry::sharing_cpus(&entry.cpus, &others) {
+        let list: Vec<String> = cpus.iter().map(usize::to_string).collect();
+        eprintln!(
+            "flexloop: WARNING: loop {} ({}, supervisor {}) is already pinned to CPU {} too: \
+             both loops will stall each other; stop it (`flexloop down --prefix {}`) or pin \
+             this one elsewhere ([realtime] cpu)",
+            other.scenario,
+            other.prefix,
+            other.supervisor_pid,
+            list.join(", "),
+            other.prefix
+        );
+    }
 }
 
 fn run_to_the_end(

@@ -2,9 +2,10 @@
 //! foreground; `down`, `status` and `swap` find a running one through the
 //! registry and stop, show or change it.
 
-use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
+use crate::launch::{LoopArgs, VERDICT_FAILED, prepare, resolve_scenario, supervise};
 use crate::registry;
 use anyhow::bail;
+use flexloop_analysis::verdict::GridCounts;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
 use flexloop_runfiles::RunDir;
@@ -59,7 +60,22 @@ pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
         prepared.scenario.timing.mode.as_str(),
         prepared.plan.run_dir.display()
     );
-    supervise(prepared, |_, _| None).map(|_| 0)
+    let run_dir = prepared.run_dir();
+    supervise(prepared, |_, _| None)?;
+    Ok(grid_verdict(&run_dir))
+}
+
+/// The run's verdict from the plant's counts, printed last; a run whose
+/// ticks mostly stalled fails (`flexloop_analysis::verdict`).
+fn grid_verdict(run_dir: &RunDir) -> i32 {
+    let summary = run_dir.read_summary().unwrap_or_default();
+    let grid = crate::run::grid_counts(run_dir, &summary);
+    eprintln!("flexloop: verdict: {}", grid.verdict());
+    if grid.stalls_dominate() {
+        VERDICT_FAILED
+    } else {
+        0
+    }
 }
 
 pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
@@ -92,10 +108,13 @@ pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
         println!("flexloop: no loop running");
         return Ok(1);
     }
+    let mut code = 0;
     for entry in loops {
-        print_status(&entry)?;
+        if print_status(&entry)? {
+            code = VERDICT_FAILED;
+        }
     }
-    Ok(0)
+    Ok(code)
 }
 
 /// Finishes the loops whose supervisor died, saying what it did.
@@ -130,8 +149,8 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
 }
 
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it),
-/// its processes and its events so far.
-fn print_status(entry: &registry::Entry) -> anyhow::Result<()> {
+/// its processes and its events so far. Returns whether stalls dominate.
+fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
     let domain = Domain::new(&entry.prefix)?;
     let node = domain.node("status")?;
     let inlet =
@@ -163,7 +182,7 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<()> {
     print_processes(&run_dir);
     let Some(t) = last else {
         println!("  no telemetry yet (the logger publishes once a second)");
-        return Ok(());
+        return Ok(false);
     };
     if let Some(a) = first.filter(|a| t.published_ns > a.published_ns) {
         let rate =
@@ -185,7 +204,15 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<()> {
     println!("  round trip µs:    {}", fmt(t.round_trip));
     println!("  tick lateness µs: {}", fmt(t.tick_lateness));
     print_events(&run_dir);
-    Ok(())
+    let grid = GridCounts {
+        ticks: t.seq + 1,
+        stalled_ticks: t.stalled_ticks,
+        late_commands: t.late_commands,
+        misses: t.misses,
+        stall_misses: t.stall_misses,
+    };
+    println!("  verdict: {}", grid.verdict());
+    Ok(grid.stalls_dominate())
 }
 
 /// The loop's processes and their duties, from the supervisor's list.

@@ -43,7 +43,7 @@ enum Command {
     /// Start the loop's processes until the scenario's duration ends, Ctrl-C or `flexloop down`.
     Up(launch::LoopFlags),
     /// Run the scenario's trajectory, then print its control metrics beside the timing summary; writes metrics.json.
-    Run(launch::LoopFlags),
+    Run(run::RunFlags),
     /// A finished run as report.md (with SVG figures) and a self-contained report.html.
     Report(report::ReportArgs),
     /// Fit the four feedforward gains from a recorded run and write them into a scenario file.
@@ -106,7 +106,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
     }
     match command {
         Command::Up(flags) => live::up(flags.into_loop_args()?),
-        Command::Run(flags) => run::run(flags.into_loop_args()?),
+        Command::Run(flags) => run::run(flags),
         Command::Report(args) => report::report(args),
         Command::TuneFf(args) => run::tune_ff(args),
         Command::Design(args) => design::design(args),

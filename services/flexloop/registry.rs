@@ -14,6 +14,25 @@ pub struct Entry {
     pub supervisor_pid: i32,
     pub run_dir: PathBuf,
     pub scenario: String,
+    /// The CPUs its processes are pinned to (`[realtime]` `cpu`).
+    #[serde(default)]
+    pub cpus: Vec<usize>,
+}
+
+/// The running loops among `others` whose processes are pinned to any of
+/// `cpus`, each with the CPUs both use.
+pub fn sharing_cpus<'a>(cpus: &[usize], others: &'a [Entry]) -> Vec<(&'a Entry, Vec<usize>)> {
+    others
+        .iter()
+        .filter_map(|other| {
+            let shared: Vec<usize> = cpus
+                .iter()
+                .copied()
+                .filter(|c| other.cpus.contains(c))
+                .collect();
+            (!shared.is_empty()).then_some((other, shared))
+        })
+        .collect()
 }
 
 fn path(prefix: &str) -> PathBuf {
@@ -148,4 +167,39 @@ pub fn stop(entry: &Entry, wait: std::time::Duration) -> bool {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     !alive(entry.supervisor_pid)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(prefix: &str, cpus: &[usize]) -> Entry {
+        Entry {
+            prefix: prefix.into(),
+            supervisor_pid: 1,
+            run_dir: PathBuf::from("r"),
+            scenario: "s".into(),
+            cpus: cpus.to_vec(),
+        }
+    }
+
+    #[test]
+    fn loops_pinned_to_the_same_cpus_are_found_with_the_cpus_they_share() {
+        let others = [entry("a_", &[0, 1]), entry("b_", &[2, 3]), entry("c_", &[])];
+        let found = sharing_cpus(&[1, 2], &others);
+        let found: Vec<(&str, Vec<usize>)> = found
+            .iter()
+            .map(|(e, cpus)| (e.prefix.as_str(), cpus.clone()))
+            .collect();
+        assert_eq!(found, vec![("a_", vec![1]), ("b_", vec![2])]);
+        assert!(sharing_cpus(&[], &others).is_empty());
+        assert!(sharing_cpus(&[5], &others).is_empty());
+    }
+
+    #[test]
+    fn an_entry_written_before_cpus_were_recorded_reads_as_pinned_nowhere() {
+        let old = r#"{"prefix":"p_","supervisor_pid":1,"run_dir":"r","scenario":"s"}"#;
+        let read: Entry = serde_json::from_str(old).unwrap();
+        assert!(read.cpus.is_empty());
+    }
 }

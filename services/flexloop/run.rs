@@ -3,23 +3,35 @@
 //! summary. `flexloop tune-ff RUN`: fits the feedforward gains from a recorded
 //! run and writes them into a scenario file.
 
-use crate::launch::{LoopArgs, prepare, supervise};
+use crate::launch::{LoopFlags, VERDICT_FAILED, prepare, supervise};
 use anyhow::{Context, bail};
 use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
 use flexloop_analysis::run_log::JoinedLog;
+use flexloop_analysis::verdict::{FigureFaults, GridCounts, invalid_reasons, judged_spans};
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_design::LoopDesign;
 use flexloop_design::reference::Reference;
 use flexloop_runfiles::json::write_json_atomically;
-use flexloop_runfiles::summary::Counters;
-use flexloop_runfiles::{Histogram, RunDir, RunSummary};
+use flexloop_runfiles::metrics::{MetricsFile, MetricsTiming};
+use flexloop_runfiles::{RunDir, RunSummary};
 use flexloop_runtime::latency::Metric;
 use flexloop_scenario::{Mode, Overrides, Scenario};
-use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-pub fn run(args: LoopArgs) -> anyhow::Result<i32> {
+/// `run [SCENARIO] [loop flags] [--allow-invalid]`.
+#[derive(Debug, clap::Args)]
+pub struct RunFlags {
+    #[command(flatten)]
+    pub run: LoopFlags,
+    /// Exit 0 even when the figures are not the design's (held inputs,
+    /// safe actions or missing ticks where they are measured, dominating stalls)
+    #[arg(long)]
+    pub allow_invalid: bool,
+}
+
+pub fn run(flags: RunFlags) -> anyhow::Result<i32> {
+    let args = flags.run.into_loop_args()?;
     let prepared = prepare(&args)?;
     let run_dir = prepared.run_dir();
     if prepared.scenario.ticks().is_none() {
@@ -41,30 +53,18 @@ pub fn run(args: LoopArgs) -> anyhow::Result<i32> {
     report.print();
     write_json_atomically(&run_dir.metrics(), &report.metrics_file())?;
     println!("\nmetrics: {}", run_dir.metrics().display());
-    Ok(0)
-}
-
-/// `metrics.json`: `flexloop run`'s control metrics beside its timing.
-#[derive(Serialize)]
-pub struct MetricsFile<'a> {
-    pub scenario: &'a str,
-    pub outputs: &'a [String],
-    pub output_unit: &'a str,
-    pub input_unit: &'a str,
-    pub mode: &'a str,
-    pub rate_hz: f64,
-    pub loop_delay_samples: u32,
-    pub control: &'a ControlMetrics,
-    pub modal_damping: &'a [ModeDamping],
-    pub timing: MetricsTiming,
-    pub incomplete_ticks: u64,
-}
-
-#[derive(Serialize)]
-pub struct MetricsTiming {
-    pub counters: Counters,
-    pub round_trip: Histogram,
-    pub tick_to_command: Histogram,
+    if report.invalid_reasons.is_empty() {
+        return Ok(0);
+    }
+    eprintln!(
+        "flexloop run: the control figures are NOT the design's (metrics.json: valid false): {}",
+        report.invalid_reasons.join("; ")
+    );
+    if flags.allow_invalid {
+        return Ok(0);
+    }
+    eprintln!("flexloop run: exit {VERDICT_FAILED}; --allow-invalid exits 0 all the same");
+    Ok(VERDICT_FAILED)
 }
 
 /// A finished run, read back from its directory.
@@ -82,6 +82,10 @@ pub struct RunReport {
     /// What joining the files did, if there was more than one file or an
     /// outage (for the user).
     pub joined: Option<String>,
+    /// The plant's counts of the run.
+    pub grid: GridCounts,
+    /// Why the figures are not the design's; empty when they are.
+    pub invalid_reasons: Vec<String>,
 }
 
 impl RunReport {
@@ -104,6 +108,19 @@ impl RunReport {
         let metrics = ControlMetrics::compute(&trace, &windows, &MetricsOptions::default());
         let (from_s, to_s) = ring_down_window(&design, end_s);
         let damping = modal_damping(&design, Some(&trace), from_s, to_s);
+        let lead_s = match &design.reference {
+            Reference::Scan { setpoint, .. } => setpoint.scan_window().0,
+            _ => 0.0,
+        };
+        let row_seqs: Vec<u64> = trace.rows.iter().map(|r| r.seq).collect();
+        let faults = FigureFaults::of(
+            &trace.timing,
+            &row_seqs,
+            design.ts,
+            &judged_spans(&windows, lead_s),
+        );
+        let grid = grid_counts(run_dir, &summary);
+        let invalid_reasons = invalid_reasons(&faults, &grid);
         Ok(Self {
             scenario,
             design,
@@ -114,6 +131,8 @@ impl RunReport {
             joined: joined.describe(),
             files: joined.files,
             outages: joined.outages,
+            grid,
+            invalid_reasons,
         })
     }
 
@@ -141,13 +160,19 @@ impl RunReport {
         if let Some(joined) = &self.joined {
             println!("  sample log: {joined}");
         }
+        // Beside the figure: whether it is the design's at all.
+        let mark = if self.invalid_reasons.is_empty() {
+            String::new()
+        } else {
+            "   NOT the design's: see \"invalid\" below".to_string()
+        };
         match m.rms_e_true_scan {
             Some(rms) => println!(
-                "  rms e_true over the scan{}      {:>10.3} {small}",
+                "  rms e_true over the scan{}      {:>10.3} {small}{mark}",
                 if m.scans.len() > 1 { "s" } else { " " },
                 nm(rms)
             ),
-            None => println!("  (no scan window: the reference is not a scan)"),
+            None => println!("  (no scan window: the reference is not a scan){mark}"),
         }
         for (i, s) in m.scans.iter().enumerate().take(8) {
             println!(
@@ -259,19 +284,28 @@ impl RunReport {
                 self.trace.incomplete_ticks
             );
         }
+        println!("  verdict: {}", self.grid.verdict());
+        if !self.invalid_reasons.is_empty() {
+            println!("\ninvalid: the control figures above are not the design's:");
+            for reason in &self.invalid_reasons {
+                println!("  - {reason}");
+            }
+        }
     }
 
-    pub fn metrics_file(&self) -> MetricsFile<'_> {
+    pub fn metrics_file(&self) -> MetricsFile<&ControlMetrics, &ModeDamping> {
         MetricsFile {
-            scenario: &self.scenario.name,
-            outputs: &self.design.output_names,
-            output_unit: self.design.output_unit,
-            input_unit: self.design.input_unit,
-            mode: &self.summary.mode,
+            scenario: self.scenario.name.clone(),
+            outputs: self.design.output_names.clone(),
+            output_unit: self.design.output_unit.into(),
+            input_unit: self.design.input_unit.into(),
+            mode: self.summary.mode.clone(),
             rate_hz: self.summary.rate_hz,
             loop_delay_samples: self.design.loop_delay_samples,
+            valid: self.invalid_reasons.is_empty(),
+            invalid_reasons: self.invalid_reasons.clone(),
             control: &self.metrics,
-            modal_damping: &self.damping,
+            modal_damping: self.damping.iter().collect(),
             timing: MetricsTiming {
                 counters: self.summary.counters,
                 round_trip: self.summary.latency(Metric::RoundTrip.name()),
@@ -279,6 +313,27 @@ impl RunReport {
             },
             incomplete_ticks: self.trace.incomplete_ticks,
         }
+    }
+}
+
+/// The plant's own counts (`plant_latency.json`); the logger's view of
+/// them when the plant wrote none (it crashed).
+pub fn grid_counts(run_dir: &RunDir, summary: &RunSummary) -> GridCounts {
+    match run_dir.read_plant_latency() {
+        Ok(p) => GridCounts {
+            ticks: p.ticks,
+            stalled_ticks: p.counters.stalled_ticks,
+            late_commands: p.counters.late_commands,
+            misses: p.counters.misses,
+            stall_misses: p.counters.stall_misses,
+        },
+        Err(_) => GridCounts {
+            ticks: summary.last_seq + u64::from(summary.ticks > 0),
+            stalled_ticks: summary.counters.stalled_ticks,
+            late_commands: summary.counters.late_commands,
+            misses: summary.counters.misses,
+            stall_misses: summary.counters.stall_misses,
+        },
     }
 }
 

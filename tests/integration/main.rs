@@ -16,3 +16,4 @@ mod sensor_scan;
 mod swap;
 mod thesis;
 mod util;
+mod verdicts;

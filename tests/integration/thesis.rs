@@ -16,6 +16,8 @@ fn run_lockstep(name: &str) -> serde_json::Value {
     assert!(out.status.success(), "{}", describe(&out));
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
+    // Lockstep: every tick as designed, so the figures are the design's.
+    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
     assert_clean(&dir);
     metrics
 }

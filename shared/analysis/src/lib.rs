@@ -23,6 +23,8 @@
 //!   interpolated steady-state gains on a sensor the chain scans past.
 //! - [`thesis_design`]: the thesis' design study, the largest PID bandwidth
 //!   of every observer case under the 6 dB rule (docs/control.md §9, §10.1).
+//! - [`verdict`]: whether the plant kept its grid, and whether a run's
+//!   control figures are the design's.
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
 
@@ -38,6 +40,7 @@ pub mod run_log;
 pub mod scheduling_comparison;
 pub mod thesis_design;
 pub mod trace;
+pub mod verdict;
 
 pub use metrics::{ControlMetrics, MetricsOptions};
 pub use trace::RunTrace;

@@ -8,6 +8,7 @@
 //! - [`latency`]: a histogram's count and percentiles, as every file keeps them.
 //! - [`summary`]: `summary.json` (the logger) and `plant_latency.json` (the plant).
 //! - [`supervision`]: `events.jsonl`, `processes.json` and the registry of running loops.
+//! - [`metrics`]: `metrics.json` (`flexloop run`).
 //! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
 //! - [`chaos`]: `chaos.json`, what `flexloop chaos` did and what it cost.
 
@@ -15,6 +16,7 @@ pub mod bench;
 pub mod chaos;
 pub mod json;
 pub mod latency;
+pub mod metrics;
 pub mod run_dir;
 pub mod summary;
 pub mod supervision;
