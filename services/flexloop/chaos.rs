@@ -158,7 +158,10 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
     write_json_atomically(&dir.chaos(), &file)?;
     print_table(&file);
     println!("written: {}", dir.chaos().display());
-    let failed = file.exit_code != 0
+    // `up`'s failed grid verdict (stalls dominated) is the machine's; what
+    // chaos judges is how the loop survived the kills.
+    let up_failed = file.exit_code != 0 && file.exit_code != crate::launch::VERDICT_FAILED;
+    let failed = up_failed
         || file.aborted.is_some()
         || file.files_left > 0
         || file
