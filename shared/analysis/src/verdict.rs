@@ -8,9 +8,10 @@
 //! - The figures: the control metrics are the design's only if every tick
 //!   they depend on ran as designed. A tick where the plant held its input
 //!   (the command was late or missing), applied its safe action, or where
-//!   the controller ran without the observer, or a tick missing from the log,
-//!   anywhere from the start of a scan's motion to the end of its scan
-//!   window (the whole run for other references) makes them another loop's.
+//!   the controller ran without the observer, or a tick whose measurement,
+//!   command or estimate the log lacks, anywhere from the start of a scan's
+//!   motion to the end of its scan window (the whole run for other
+//!   references) makes them another loop's.
 //!   Stale estimates (one or two ticks old) are reported, not judged: the
 //!   controller uses them as designed.
 
@@ -133,7 +134,10 @@ pub fn invalid_reasons(faults: &FigureFaults, grid: &GridCounts) -> Vec<String> 
         faults.observer_dropped,
         "ran without the observer (its estimate was too old)",
     );
-    say(faults.missing, "are missing from the log");
+    say(
+        faults.missing,
+        "lack their measurement, command or estimate in the log",
+    );
     if grid.stalls_dominate() {
         reasons.push(format!(
             "the plant did not keep its grid: {} of {} ticks stalled ({:.1} %, more than {:.0} %)",
@@ -236,7 +240,7 @@ mod tests {
         let reasons = invalid_reasons(&faults, &grid(100, 1));
         assert_eq!(reasons.len(), 4, "{reasons:?}");
         assert!(reasons[0].starts_with("2 of 31 ticks") && reasons[0].contains("held the input"));
-        assert!(reasons[3].contains("missing from the log"));
+        assert!(reasons[3].contains("lack their measurement, command or estimate"));
     }
 
     #[test]
