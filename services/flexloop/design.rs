@@ -14,8 +14,8 @@
 use anyhow::{Context, bail};
 use flexloop_analysis::loop_report::loop_report;
 use flexloop_analysis::thesis_design::{ThesisDesignSpec, thesis_design_report};
-use flexloop_design::LoopDesign;
-use flexloop_scenario::{Overrides, Scenario};
+use flexloop_design::acceptance::{self, Accepted};
+use flexloop_scenario::Overrides;
 use std::path::PathBuf;
 
 /// `design [SCENARIO] [--continuous] [--json]`.
@@ -38,7 +38,15 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         json,
     } = args;
     let path = crate::launch::resolve_scenario(scenario)?;
-    let s = Scenario::load(&path, &Overrides::default())?;
+    // The check `up` makes: a file design reports on is one up would run.
+    let Accepted {
+        scenario: s,
+        design,
+    } = acceptance::accept(
+        &path,
+        &Overrides::default(),
+        flexloop_runtime::realtime::online_cpus(),
+    )?;
     // The mass the thesis report is about, and whether the sensor sits on
     // it (a scanned sensor has no one mass: only its own loop is reported).
     let thesis_output =
@@ -56,14 +64,11 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
     }
     let loop_part = match thesis_output {
         Some((_, true)) => None,
-        _ => {
-            let d = LoopDesign::from_scenario(&s)?;
-            Some(
-                loop_report(&s, &d)
-                    .map_err(anyhow::Error::msg)
-                    .with_context(|| path.display().to_string())?,
-            )
-        }
+        _ => Some(
+            loop_report(&s, &design)
+                .map_err(anyhow::Error::msg)
+                .with_context(|| path.display().to_string())?,
+        ),
     };
     let thesis_part = match thesis_output {
         Some((output, _)) => {

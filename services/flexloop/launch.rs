@@ -8,7 +8,6 @@ use crate::conductor::{Conductor, Switch};
 use crate::supervisor::{LaunchPlan, Outcome, RunningLoop};
 use crate::{progress, registry, supervisor};
 use anyhow::{Context, anyhow, bail};
-use flexloop_design::LoopDesign;
 use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::RunDir;
 use flexloop_scenario::{Mode, Overrides, Scenario};
@@ -108,14 +107,29 @@ impl Prepared {
 /// Validates the scenario and designs it before anything starts, then makes
 /// the run directory.
 pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
-    let scenario = Scenario::load(&args.scenario, &args.overrides)?;
-    scenario.check_machine(flexloop_runtime::realtime::online_cpus())?;
-    LoopDesign::from_scenario(&scenario)?;
+    let scenario = flexloop_design::acceptance::accept(
+        &args.scenario,
+        &args.overrides,
+        flexloop_runtime::realtime::online_cpus(),
+    )?
+    .scenario;
     let run_dir = match &args.run_dir {
         Some(d) => d.clone(),
         None => stamped_run_dir(&scenario.name),
     };
     let in_run_dir = || format!("run directory {}", run_dir.display());
+    let earlier = RunDir::new(&run_dir).earlier_run_files();
+    if !earlier.is_empty() {
+        bail!(
+            "run directory {} holds the files of an earlier run ({}): a new run there would \
+             mix them into its own; give another --run-dir or remove them",
+            run_dir.display(),
+            match earlier.len() {
+                n @ 5.. => format!("{} and {} more", earlier[..4].join(", "), n - 4),
+                _ => earlier.join(", "),
+            }
+        );
+    }
     std::fs::create_dir_all(&run_dir).with_context(in_run_dir)?;
     let probe = run_dir.join(".writable");
     std::fs::write(&probe, b"")

@@ -24,6 +24,17 @@ pub struct PrefixArg {
     pub prefix: Option<String>,
 }
 
+/// `down [--prefix P | --all]`.
+#[derive(Debug, clap::Args)]
+pub struct DownArgs {
+    /// The loop's iceoryx2 prefix, as `flexloop status` shows it
+    #[arg(long, value_name = "P")]
+    pub prefix: Option<String>,
+    /// Stop every running loop (needed when more than one runs and no --prefix names one)
+    #[arg(long, conflicts_with = "prefix")]
+    pub all: bool,
+}
+
 /// `swap controller|observer SCENARIO [--prefix P]`.
 #[derive(Debug, clap::Args)]
 pub struct SwapArgs {
@@ -78,13 +89,14 @@ fn grid_verdict(run_dir: &RunDir) -> i32 {
     }
 }
 
-pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
+pub fn down(args: DownArgs) -> anyhow::Result<i32> {
     say_finished_dead_loops("down");
-    let loops = registry::matching(prefix.as_deref());
+    let loops = registry::matching(args.prefix.as_deref());
     if loops.is_empty() {
         println!("flexloop: no loop running");
         return Ok(0);
     }
+    let loops = loops_to_stop(loops, &args)?;
     let mut code = 0;
     for entry in loops {
         if registry::stop(&entry, Duration::from_secs(15)) {
@@ -99,6 +111,34 @@ pub fn down(prefix: Option<String>) -> anyhow::Result<i32> {
         }
     }
     Ok(code)
+}
+
+/// The running `loops` (those `--prefix` matched) that `down` stops: with
+/// several and neither `--prefix` nor `--all`, none but an error that names
+/// them (stopping someone else's loop by accident costs a run).
+fn loops_to_stop(
+    loops: Vec<registry::Entry>,
+    args: &DownArgs,
+) -> anyhow::Result<Vec<registry::Entry>> {
+    if loops.len() <= 1 || args.prefix.is_some() || args.all {
+        return Ok(loops);
+    }
+    let running: Vec<String> = loops
+        .iter()
+        .map(|e| {
+            format!(
+                "  --prefix {}  {} ({})",
+                e.prefix,
+                e.scenario,
+                e.run_dir.display()
+            )
+        })
+        .collect();
+    bail!(
+        "{} loops are running; name one with --prefix or stop them all with --all:\n{}",
+        loops.len(),
+        running.join("\n")
+    )
 }
 
 pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
@@ -253,6 +293,54 @@ fn print_events(run_dir: &RunDir) {
             last.generation
                 .map_or("null".to_string(), |g| g.to_string()),
             last.t_s
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(prefix: &str) -> registry::Entry {
+        registry::Entry {
+            prefix: prefix.into(),
+            supervisor_pid: 1,
+            run_dir: format!("runs/{prefix}").into(),
+            scenario: "default".into(),
+        }
+    }
+
+    fn args(prefix: Option<&str>, all: bool) -> DownArgs {
+        DownArgs {
+            prefix: prefix.map(String::from),
+            all,
+        }
+    }
+
+    #[test]
+    fn a_bare_down_stops_one_loop_but_not_several() {
+        let one = loops_to_stop(vec![entry("flx1_")], &args(None, false)).unwrap();
+        assert_eq!(one.len(), 1);
+        let several = || vec![entry("flx1_"), entry("flx2_")];
+        let e = loops_to_stop(several(), &args(None, false)).unwrap_err();
+        let message = e.to_string();
+        assert!(
+            message.contains("2 loops are running")
+                && message.contains("--prefix flx1_")
+                && message.contains("--prefix flx2_")
+                && message.contains("--all"),
+            "{message}"
+        );
+        assert_eq!(
+            loops_to_stop(several(), &args(None, true)).unwrap().len(),
+            2
+        );
+        // --prefix chose these (registry::matching): all of them go.
+        assert_eq!(
+            loops_to_stop(several(), &args(Some("flx"), false))
+                .unwrap()
+                .len(),
+            2
         );
     }
 }

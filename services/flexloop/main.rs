@@ -54,8 +54,8 @@ enum Command {
     Positions(positions::PositionsArgs),
     /// A run's sample file as one CSV per channel.
     Export(export::ExportArgs),
-    /// Stop running loops.
-    Down(live::PrefixArg),
+    /// Stop a running loop (with several running: --prefix P, or --all).
+    Down(live::DownArgs),
     /// Live counters and latency percentiles of a running loop.
     Status(live::PrefixArg),
     /// Replace a running loop's controller or observer by one designed from SCENARIO.
@@ -112,7 +112,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Design(args) => design::design(args),
         Command::Positions(args) => positions::positions(args),
         Command::Export(args) => export::export(args),
-        Command::Down(args) => live::down(args.prefix),
+        Command::Down(args) => live::down(args),
         Command::Status(args) => live::status(args.prefix),
         Command::Swap(args) => live::swap(args),
         Command::Bench(args) => bench::dispatch(args),

@@ -86,6 +86,8 @@ pub struct RunReport {
     pub grid: GridCounts,
     /// Why the figures are not the design's; empty when they are.
     pub invalid_reasons: Vec<String>,
+    /// What of the sample file could not be read (a torn or damaged tail).
+    pub unread: Option<String>,
 }
 
 impl RunReport {
@@ -103,6 +105,17 @@ impl RunReport {
         // Every logger generation's file, in order.
         let joined = JoinedLog::open(run_dir.path())?;
         let trace = RunTrace::from_log(&joined.log, design.ts);
+        // A torn or damaged file is read up to its last intact chunk: say so.
+        let unread = (!joined.torn.is_empty()).then(|| {
+            joined
+                .torn
+                .iter()
+                .map(|(path, e)| {
+                    format!("{}: read up to its last intact chunk: {e}", path.display())
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        });
         let end_s = trace.rows.last().map(|r| trace.time(r)).unwrap_or_default();
         let windows = design.reference.scan_windows(end_s);
         let metrics = ControlMetrics::compute(&trace, &windows, &MetricsOptions::default());
@@ -133,6 +146,7 @@ impl RunReport {
             outages: joined.outages,
             grid,
             invalid_reasons,
+            unread,
         })
     }
 

@@ -243,3 +243,61 @@ fn a_mimo_trajectory_beyond_an_actuator_is_refused() {
     );
     refused(&dir, &path, "plant.input_limit", &["0.001 A"]);
 }
+
+/// `flexloop design` accepts exactly what `flexloop up` accepts: the files
+/// design printed a report for and up refused, and a name that would have
+/// put the run outside runs/, are refused by both with the same message.
+#[test]
+fn design_and_up_refuse_the_same_files_with_the_same_message() {
+    let dir = temp_dir("design-up");
+    for (from, to, field) in [
+        (
+            "design = \"kalman\"",
+            "design = \"magic\"",
+            "observer.design",
+        ),
+        ("shape = \"scan\"", "shape = \"square\"", "reference.shape"),
+        (
+            "bandwidth_hz = 77.5",
+            "bandwidth_hz = 4999",
+            "controller.bandwidth_hz",
+        ),
+        (
+            "name = \"default\"",
+            "name = \"x/../../../escaped\"",
+            "name",
+        ),
+    ] {
+        let path = variant_of(&dir, "default", from, to);
+        let mut design = flexloop();
+        design.arg("design").arg(&path);
+        let design = run_bounded(design, Duration::from_secs(60));
+        // Without --run-dir: the name would choose the directory.
+        let mut up = flexloop();
+        up.arg("up")
+            .arg(&path)
+            .args(["--no-realtime", "--duration", "0.1"]);
+        let up = run_bounded(up, Duration::from_secs(60));
+        for out in [&design, &up] {
+            assert_eq!(out.status.code(), Some(2), "{field}: {}", describe(out));
+        }
+        let (design_err, up_err) = (
+            String::from_utf8_lossy(&design.stderr),
+            String::from_utf8_lossy(&up.stderr),
+        );
+        assert_eq!(design_err, up_err);
+        assert!(
+            design_err.contains("bad-default.toml") && design_err.contains(field),
+            "{field}: {design_err}"
+        );
+    }
+    // runs/<stamp>-x/../../../escaped-<pid> is beside the checkout.
+    let beside = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let escaped: Vec<_> = std::fs::read_dir(beside)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("escaped-"))
+        .map(|e| e.path())
+        .collect();
+    assert!(escaped.is_empty(), "{escaped:?}");
+}

@@ -179,6 +179,52 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
     assert!(err.contains(samples), "{err}");
     assert!(!corrupt_log.join("report").exists(), "no half report");
 
+    // A damaged sample file: the report says what it could not read, and
+    // fails when nothing of the run could be read.
+    let bytes = std::fs::read(dir.join(samples)).unwrap();
+    let half = bytes.len() / 2;
+    let mut crc_damaged = bytes.clone();
+    crc_damaged[half] ^= 0xff;
+    let mut zero_tail = bytes.clone();
+    zero_tail[half..].fill(0);
+    for (case, damaged, readable) in [
+        ("truncated", bytes[..half].to_vec(), true),
+        ("crc", crc_damaged, true),
+        ("zero-tail", zero_tail, true),
+        ("header-only", bytes[..100].to_vec(), false),
+        ("zeroed", vec![0; bytes.len()], false),
+    ] {
+        let broken = temp_dir(&format!("report-{case}"));
+        copy_run(&dir, &broken);
+        std::fs::write(broken.join(samples), damaged).unwrap();
+        let out = report(&broken, &[]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(samples), "{case}: {err}");
+        assert_eq!(out.status.success(), readable, "{case}: {}", describe(&out));
+        if readable {
+            assert!(
+                err.contains("read up to its last intact chunk") && err.contains("covers the"),
+                "{case}: {err}"
+            );
+        }
+    }
+
+    // A second run into the same directory would mix the two: refused,
+    // naming the directory, before anything starts.
+    let mut again = flexloop();
+    again
+        .arg("run")
+        .arg(scenario("thesis-mc-ad-redesigned"))
+        .args(["--mode", "lockstep", "--no-realtime", "--run-dir"])
+        .arg(&*dir);
+    let out = run_bounded(again, Duration::from_secs(60));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        err.contains(&dir.display().to_string()) && err.contains("earlier run"),
+        "{err}"
+    );
+
     let corrupt_hlog = temp_dir("report-corrupt-hlog");
     copy_run(&dir, &corrupt_hlog);
     std::fs::write(corrupt_hlog.join("latency.hlog"), "#comment\ngarbage\n").unwrap();

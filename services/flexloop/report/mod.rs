@@ -11,7 +11,7 @@ mod document;
 mod figures;
 
 use crate::run::RunReport;
-use anyhow::{Context, anyhow};
+use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::flexible::{FlexibleComparison, NoComparison};
 use flexloop_analysis::latency_log::LatencyLog;
 use flexloop_runfiles::RunDir;
@@ -129,6 +129,21 @@ pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
     let data = RunData::load(&run_dir)?;
     if let Some(joined) = &data.run.joined {
         println!("report: {joined}");
+    }
+    let ticks = data.run.trace.rows.len();
+    if let Some(unread) = &data.run.unread {
+        if ticks == 0 {
+            bail!("{unread}; no sample of the run could be read: nothing to report");
+        }
+        eprintln!(
+            "flexloop: {unread}; the report covers the {ticks} ticks before it, of the run's {}",
+            data.run.summary.ticks
+        );
+    } else if ticks == 0 {
+        bail!(
+            "{}: holds no sample of the run: nothing to report",
+            RunDir::new(&run_dir).samples(0).display()
+        );
     }
     let doc = content::document(&data);
     write_report(&out_dir, &doc)?;

@@ -5,6 +5,7 @@
 //! the step after it, scenario → blocks, so the layering shows in the crate
 //! graph (the scenario crate needs no control maths).
 //!
+//! - [`acceptance`]: the one check of a scenario every command makes.
 //! - [`loop_design`]: [`LoopDesign`], everything the four processes run, and
 //!   its design from a scenario, step by step.
 //! - [`plants`]: the plant models and what each brings (observer, feedback
@@ -18,6 +19,7 @@
 //! - [`sensor_scan`]: a sensor the structure scans past, and the observer
 //!   scheduled on its position.
 
+pub mod acceptance;
 pub mod checks;
 pub mod feedback;
 pub mod feedforward;

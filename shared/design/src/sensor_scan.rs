@@ -132,7 +132,8 @@ pub fn design_sensor_scan(
     // Frozen at every grid point and halfway between: a stable loop.
     let zero_observer = empty_observer(ts, 1, 1, extra_delay).map_err(|e| err(e.to_string()))?;
     for i in 0..2 * points - 1 {
-        let p = lo + (hi - lo) * i as f64 / (2 * (points - 1)) as f64;
+        // Clamped: rounding may carry the last point past the scan's end.
+        let p = (lo + (hi - lo) * i as f64 / (2 * (points - 1)) as f64).min(hi);
         let plant = plant_at(p)?;
         let block = match &scan.observer {
             Some(o) => frozen_block(o, p).map_err(|e| err(format!("at position {p}: {e}")))?,
@@ -170,9 +171,12 @@ fn scheduled_observer(
     let err = |reason: String| ScenarioError::new(&s.source, Some(field), reason);
     let keep = flexible_modes_kept(s, 3, 7)?;
     let compensate: Vec<usize> = (1 + keep..7).collect();
+    // A grid position past the scan's end by rounding is its end.
+    let [from, to] = s.plant.sensor_scan.unwrap_or([grid.start(), grid.end()]);
+    let (lo, hi) = (from.min(to), from.max(to));
     let reduced_at = |p: f64| -> Result<ReducedModel, ScenarioError> {
         chain
-            .with_sensor_positions(&[p])
+            .with_sensor_positions(&[p.clamp(lo, hi)])
             .and_then(|m| m.truncate(1 + keep, &compensate))
             .map_err(|e| err(e.to_string()))
     };

@@ -139,6 +139,22 @@ impl RunDir {
         found
     }
 
+    /// The files of an earlier run in this directory (sorted names): a new
+    /// run there would mix them into its own (its report would read the old
+    /// `samples.g2.mcap`, its events the old crashes).
+    pub fn earlier_run_files(&self) -> Vec<String> {
+        let Ok(entries) = std::fs::read_dir(&self.0) else {
+            return Vec::new();
+        };
+        let mut found: Vec<String> = entries
+            .flatten()
+            .filter_map(|e| e.file_name().into_string().ok())
+            .filter(|name| is_run_file(name))
+            .collect();
+        found.sort();
+        found
+    }
+
     /// The logger's summary, typed; the error names the file.
     pub fn read_summary(&self) -> Result<RunSummary, FileError> {
         read_json(&self.summary())
@@ -191,6 +207,33 @@ pub fn is_sample_file(name: &str) -> bool {
     name.starts_with("samples") && name.ends_with(".mcap")
 }
 
+/// Whether `name` is a file a run writes into its directory (any logger
+/// generation, any role's stderr).
+pub fn is_run_file(name: &str) -> bool {
+    let generational = |file: &str| {
+        let (stem, ext) = file.rsplit_once('.').unwrap_or((file, ""));
+        name == file
+            || name
+                .strip_prefix(&format!("{stem}.g"))
+                .and_then(|rest| rest.strip_suffix(&format!(".{ext}")))
+                .is_some_and(|g| !g.is_empty() && g.bytes().all(|b| b.is_ascii_digit()))
+    };
+    [
+        RunDir::SCENARIO_COPY,
+        RunDir::SUMMARY,
+        RunDir::PLANT_LATENCY,
+        RunDir::EVENTS,
+        RunDir::PROCESSES,
+        RunDir::REQUESTS,
+        RunDir::METRICS,
+        RunDir::BENCH,
+    ]
+    .contains(&name)
+        || is_sample_file(name)
+        || generational(RunDir::HISTOGRAM_LOG)
+        || name.ends_with(".stderr")
+}
+
 /// The stderr file name of a role's instance of `generation`.
 pub fn stderr_name(role: &str, generation: u32) -> String {
     if generation == 0 {
@@ -219,5 +262,22 @@ mod tests {
         assert_eq!(dir.generation_summary(2), Path::new("r/summary.g2.json"));
         assert_eq!(dir.stderr("observer", 0), Path::new("r/observer.stderr"));
         assert_eq!(dir.stderr("observer", 4), Path::new("r/observer.g4.stderr"));
+    }
+
+    #[test]
+    fn a_run_file_is_told_from_a_users_file() {
+        for name in [
+            "samples.g2.mcap",
+            "latency.g3.hlog",
+            "latency.hlog",
+            "events.jsonl",
+            "scenario.toml",
+            "plant.stderr",
+        ] {
+            assert!(is_run_file(name), "{name}");
+        }
+        for name in ["notes.txt", "latency.gx.hlog", "my.toml", "report.md"] {
+            assert!(!is_run_file(name), "{name}");
+        }
     }
 }

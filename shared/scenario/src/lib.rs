@@ -5,10 +5,12 @@
 //! - [`schema`]: the file format, field by field (unknown fields are refused).
 //! - `load`: reading and parsing a file, then the command line's overrides.
 //! - `validate`: ranges, consistency, and the machine's fitness for the profile.
+//! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`error`]: errors that name the file, the field and the reason.
 
 pub mod error;
+pub mod limits;
 mod load;
 pub mod schema;
 pub mod swap;

@@ -4,6 +4,7 @@
 
 use crate::ScenarioError;
 use crate::schema::{Overrides, Scenario};
+use std::collections::BTreeSet;
 use std::path::Path;
 
 impl Scenario {
@@ -11,7 +12,17 @@ impl Scenario {
     pub fn load(path: &Path, overrides: &Overrides) -> Result<Self, ScenarioError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| ScenarioError::new(path, None, format!("cannot read: {e}")))?;
-        let mut scenario = Self::parse(path, &text)?;
+        Self::from_text(path, &text, overrides)
+    }
+
+    /// What [`load`](Self::load) does once the file is read: parses `text`
+    /// as if read from `path`, applies `overrides` and validates.
+    pub fn from_text(
+        path: &Path,
+        text: &str,
+        overrides: &Overrides,
+    ) -> Result<Self, ScenarioError> {
+        let mut scenario = Self::parse(path, text)?;
         scenario.apply(overrides);
         scenario.validate()?;
         Ok(scenario)
@@ -19,24 +30,15 @@ impl Scenario {
 
     /// Parses `text` as if read from `path` (no validation).
     pub fn parse(path: &Path, text: &str) -> Result<Self, ScenarioError> {
-        let mut scenario: Scenario = toml::from_str(text).map_err(|e| {
-            let (line, col) = e
-                .span()
-                .map(|span| line_col(text, span.start))
-                .unwrap_or((0, 0));
-            let field = field_in_message(e.message())
-                .or_else(|| e.span().and_then(|span| key_at(text, span.start)));
-            ScenarioError::new(
-                path,
-                field.as_deref(),
-                format!("{} (line {line}, column {col})", e.message().trim()),
-            )
-        })?;
+        let mut scenario: Scenario =
+            toml::from_str(text).map_err(|e| parse_error(path, text, &e))?;
         scenario.source = path.to_path_buf();
-        scenario.plant.output_given = toml::from_str::<toml::Table>(text)
-            .ok()
-            .and_then(|t| t.get("plant")?.as_table()?.get("output").cloned())
-            .is_some();
+        let mut given = BTreeSet::new();
+        if let Ok(table) = toml::from_str::<toml::Table>(text) {
+            dotted_keys("", &table, &mut given);
+        }
+        scenario.plant.output_given = given.contains("plant.output");
+        scenario.given = given;
         Ok(scenario)
     }
 
@@ -70,6 +72,176 @@ impl Scenario {
             self.realtime.lock_memory = false;
         }
     }
+}
+
+/// The parser's error as file, field and reason: the field qualified by
+/// its table (`plant.mas_kg`), the position as line and column.
+fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> ScenarioError {
+    let message = readable_numbers(e.message().trim());
+    let message = message.as_str();
+    let Some(at) = e.span().map(|span| span.start) else {
+        // The parser's nesting limit comes without a position: find the line.
+        if message.contains("recursion") {
+            let (line, key) = deepest_line(text);
+            return ScenarioError::new(
+                path,
+                Some(&key),
+                format!(
+                    "nested too deeply (line {line}): the format's tables go at most three \
+                     levels deep"
+                ),
+            );
+        }
+        let field = field_in_message(message);
+        return ScenarioError::new(path, field.as_deref(), message.to_string());
+    };
+    let (line, col) = line_col(text, at);
+    if let Some(name) = array_of_tables_at(text, at) {
+        return ScenarioError::new(
+            path,
+            Some(&name),
+            format!(
+                "`[[{name}]]` is an array of tables; the format has one `[{name}]` table \
+                 (line {line})"
+            ),
+        );
+    }
+    let table = table_at(text, at);
+    let field = field_in_message(message)
+        .or_else(|| key_at(text, at))
+        .map(|key| match &table {
+            Some(table) if !key.starts_with(&format!("{table}.")) && key != *table => {
+                format!("{table}.{key}")
+            }
+            _ => key,
+        })
+        .or(table);
+    ScenarioError::new(
+        path,
+        field.as_deref(),
+        format!("{message} (line {line}, column {col})"),
+    )
+}
+
+/// `message` with every long run of digits (the parser prints 1e300 as
+/// three hundred of them) in exponent form.
+fn readable_numbers(message: &str) -> String {
+    let mut out = String::with_capacity(message.len());
+    let mut rest = message;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        let len = rest[start..]
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(rest.len() - start);
+        let run = &rest[start..start + len];
+        out.push_str(&rest[..start]);
+        match run.parse::<f64>() {
+            Ok(v) if run.len() > 20 => out.push_str(&crate::error::number(v)),
+            _ => out.push_str(run),
+        }
+        rest = &rest[start + len..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// Every dotted key of `table` that holds a value (tables are walked into).
+fn dotted_keys(prefix: &str, table: &toml::Table, out: &mut BTreeSet<String>) {
+    for (key, value) in table {
+        let dotted = if prefix.is_empty() {
+            key.clone()
+        } else {
+            format!("{prefix}.{key}")
+        };
+        match value {
+            toml::Value::Table(inner) => dotted_keys(&dotted, inner, out),
+            _ => {
+                out.insert(dotted);
+            }
+        }
+    }
+}
+
+/// The `[table]` header in force at byte `at`, if any.
+fn table_at(text: &str, at: usize) -> Option<String> {
+    let line_end = text[at.min(text.len())..]
+        .find('\n')
+        .map_or(text.len(), |i| at + i);
+    text[..line_end].lines().rev().find_map(header)
+}
+
+/// `name` of a `[name]` or `[[name]]` line.
+fn header(line: &str) -> Option<String> {
+    let line = line.trim();
+    if !line.starts_with('[') {
+        return None;
+    }
+    let inner = line.trim_start_matches('[');
+    let name = inner[..inner.find(']')?].trim();
+    (!name.is_empty()).then(|| name.to_string())
+}
+
+/// The name of the `[[name]]` header on the line of byte `at`, or of the
+/// one in force there: the format has no arrays of tables.
+fn array_of_tables_at(text: &str, at: usize) -> Option<String> {
+    let line_end = text[at.min(text.len())..]
+        .find('\n')
+        .map_or(text.len(), |i| at + i);
+    let line = text[..line_end]
+        .lines()
+        .rev()
+        .find(|l| l.trim_start().starts_with('['))?;
+    line.trim_start()
+        .starts_with("[[")
+        .then(|| header(line))
+        .flatten()
+}
+
+/// The line that nests deepest (a dotted header, or brackets and braces in
+/// a value) and its key, for the parser's nesting limit.
+fn deepest_line(text: &str) -> (usize, String) {
+    let depth = |line: &str| -> usize {
+        let line = line.trim();
+        if let Some(name) = header(line) {
+            return name.split('.').count();
+        }
+        let (mut depth, mut deepest) = (0usize, 0usize);
+        for c in line.chars() {
+            match c {
+                '[' | '{' => {
+                    depth += 1;
+                    deepest = deepest.max(depth);
+                }
+                ']' | '}' => depth = depth.saturating_sub(1),
+                _ => {}
+            }
+        }
+        deepest
+    };
+    let (index, line) = text
+        .lines()
+        .enumerate()
+        .max_by_key(|(i, l)| (depth(l), usize::MAX - i))
+        .unwrap_or((0, ""));
+    let key = match header(line) {
+        Some(name) => name
+            .split('.')
+            .next()
+            .unwrap_or_default()
+            .trim()
+            .to_string(),
+        None => line
+            .split('=')
+            .next()
+            .unwrap_or_default()
+            .trim()
+            .to_string(),
+    };
+    let key = if key.is_empty() {
+        "(top level)".into()
+    } else {
+        key
+    };
+    (index + 1, key)
 }
 
 fn line_col(text: &str, offset: usize) -> (usize, usize) {

@@ -4,7 +4,8 @@
 //! silently ignored setting. Defaults are the values a control engineer would
 //! pick for the model at hand; `scenarios/README.md` documents each field.
 
-use serde::Deserialize;
+use serde::{Deserialize, Deserializer};
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 /// How the plant paces the loop.
@@ -57,6 +58,10 @@ pub struct Scenario {
     /// The file it was read from (not part of the format).
     #[serde(skip)]
     pub source: PathBuf,
+    /// The dotted fields the file wrote (`plant.mass_kg`), defaults aside:
+    /// a field given where it does not act is refused (not part of the format).
+    #[serde(skip)]
+    pub given: BTreeSet<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -110,7 +115,9 @@ pub struct PlantSection {
     /// at the first position (node units) when the scan's reference is at
     /// its start, at the second when it is at its end, linearly in between
     /// (docs/control.md §1.4). Plant and observer follow it every tick; the
-    /// observer schedules its Kalman gain (`observer.scheduling`).
+    /// observer schedules its Kalman gain (`observer.scheduling`). Exactly
+    /// two positions: a third is an error, not dropped.
+    #[serde(default, deserialize_with = "two_positions")]
     pub sensor_scan: Option<[f64; 2]>,
     /// Whether the file named `output` (not part of the format): `output`
     /// has a default, so only the text tells a given one from the default.
@@ -167,6 +174,19 @@ impl PlantSection {
         self.encoders
             .clone()
             .unwrap_or_else(|| DEFAULT_ENCODERS.to_vec())
+    }
+}
+
+/// `[from, to]`, refusing any other length (a fixed-size array would
+/// silently drop a third value).
+fn two_positions<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+    let positions = Vec::<f64>::deserialize(d)?;
+    match positions[..] {
+        [from, to] => Ok(Some([from, to])),
+        _ => Err(serde::de::Error::invalid_length(
+            positions.len(),
+            &"two positions [from, to]",
+        )),
     }
 }
 

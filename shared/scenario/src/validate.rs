@@ -2,8 +2,9 @@
 //! whether this machine can run its real-time profile. The design step
 //! (flexloop-design) checks the maths.
 
-use crate::ScenarioError;
+use crate::error::number;
 use crate::schema::{DEDICATED_CORES_MIN_CPUS, MODELS, Profile, SENSOR_POSITION_MAX, Scenario};
+use crate::{ScenarioError, limits};
 
 impl Scenario {
     fn err(&self, field: &str, reason: impl Into<String>) -> ScenarioError {
@@ -12,30 +13,68 @@ impl Scenario {
 
     /// Checks ranges and consistency; the design step checks the maths.
     pub fn validate(&self) -> Result<(), ScenarioError> {
-        let positive = |field: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(self.err(field, format!("must be a positive finite number, got {v}")))
-            }
-        };
-        let non_negative = |field: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(self.err(field, format!("must be zero or positive, got {v}")))
-            }
-        };
-        positive("loop.rate_hz", self.timing.rate_hz)?;
-        if self.timing.rate_hz > 100_000.0 {
-            return Err(self.err("loop.rate_hz", "above 100 kHz the tick grid is below 10 µs"));
+        self.validate_name()?;
+        let (rate_min, rate_max) = limits::RATE_HZ;
+        self.within(
+            "loop.rate_hz",
+            self.timing.rate_hz,
+            rate_min,
+            rate_max,
+            "Hz",
+        )?;
+        self.within(
+            "loop.duration_s",
+            self.timing.duration_s,
+            0.0,
+            limits::DURATION_S_MAX,
+            "s (0 runs until stopped)",
+        )?;
+        if !MODELS.contains(&self.plant.model.as_str()) {
+            return Err(self.err(
+                "plant.model",
+                format!(
+                    "unknown model `{}` (expected one of {})",
+                    self.plant.model,
+                    MODELS.join(", ")
+                ),
+            ));
         }
-        non_negative("loop.duration_s", self.timing.duration_s)?;
-        positive("plant.mass_kg", self.plant.mass_kg)?;
-        positive("plant.input_limit", self.plant.input_limit)?;
-        non_negative("plant.force_noise", self.plant.force_noise)?;
-        non_negative("plant.sensor_noise", self.plant.sensor_noise)?;
-        non_negative("plant.reference_noise", self.plant.reference_noise)?;
+        self.validate_names()?;
+        self.validate_applicability()?;
+        let (mass_min, mass_max) = limits::MASS_KG;
+        self.within(
+            "plant.mass_kg",
+            self.plant.mass_kg,
+            mass_min,
+            mass_max,
+            "kg",
+        )?;
+        self.positive_up_to(
+            "plant.input_limit",
+            self.plant.input_limit,
+            limits::INPUT_LIMIT_MAX,
+        )?;
+        self.within(
+            "plant.force_noise",
+            self.plant.force_noise,
+            0.0,
+            limits::FORCE_NOISE_MAX,
+            "N",
+        )?;
+        self.within(
+            "plant.sensor_noise",
+            self.plant.sensor_noise,
+            0.0,
+            limits::SENSOR_NOISE_MAX,
+            "m",
+        )?;
+        self.within(
+            "plant.reference_noise",
+            self.plant.reference_noise,
+            0.0,
+            limits::SENSOR_NOISE_MAX,
+            "m",
+        )?;
         for (field, ticks) in [
             (
                 "supervision.command_watchdog_ticks",
@@ -46,17 +85,43 @@ impl Scenario {
                 self.supervision.estimate_watchdog_ticks,
             ),
         ] {
-            if ticks == 0 {
-                return Err(self.err(field, "must be at least 1 tick"));
+            if !(1..=limits::WATCHDOG_TICKS_MAX).contains(&ticks) {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "must lie in 1..={} ticks, got {ticks}",
+                        limits::WATCHDOG_TICKS_MAX
+                    ),
+                ));
             }
         }
-        if !MODELS.contains(&self.plant.model.as_str()) {
+        if self.supervision.max_restarts > limits::MAX_RESTARTS_MAX {
             return Err(self.err(
-                "plant.model",
+                "supervision.max_restarts",
                 format!(
-                    "unknown model `{}` (expected one of {})",
-                    self.plant.model,
-                    MODELS.join(", ")
+                    "at most {}, got {}",
+                    limits::MAX_RESTARTS_MAX,
+                    self.supervision.max_restarts
+                ),
+            ));
+        }
+        if self.supervision.restart_backoff_ms > limits::RESTART_BACKOFF_MS_MAX {
+            return Err(self.err(
+                "supervision.restart_backoff_ms",
+                format!(
+                    "at most {} ms, got {}",
+                    limits::RESTART_BACKOFF_MS_MAX,
+                    self.supervision.restart_backoff_ms
+                ),
+            ));
+        }
+        if self.realtime.timer_slack_ns > limits::TIMER_SLACK_NS_MAX {
+            return Err(self.err(
+                "realtime.timer_slack_ns",
+                format!(
+                    "at most {} ns (a slack beyond the tick defeats the clock), got {}",
+                    limits::TIMER_SLACK_NS_MAX,
+                    self.realtime.timer_slack_ns
                 ),
             ));
         }
@@ -83,29 +148,60 @@ impl Scenario {
                 return Err(self.err(
                     field,
                     format!(
-                        "must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {p}"
+                        "must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {}",
+                        number(p)
                     ),
                 ));
             }
         }
         if let Some(q) = self.observer.q_nu {
-            non_negative("observer.q_nu", q)?;
+            self.within("observer.q_nu", q, 0.0, limits::Q_NU_MAX, "")?;
         }
         self.validate_sensor_scan()?;
         self.validate_profile()?;
-        non_negative("observer.damping_increase", self.observer.damping_increase)?;
+        self.within(
+            "observer.damping_increase",
+            self.observer.damping_increase,
+            0.0,
+            1.0,
+            "",
+        )?;
         if let Some(z) = self.observer.damping_target
             && !(z.is_finite() && z > 0.0 && z < 1.0)
         {
             return Err(self.err(
                 "observer.damping_target",
-                format!("a modal damping ratio must lie in (0, 1), got {z}"),
+                format!(
+                    "a modal damping ratio must lie in (0, 1), got {}",
+                    number(z)
+                ),
             ));
         }
-        non_negative("observer.bandpass_q", self.observer.bandpass_q)?;
-        positive("controller.bandwidth_hz", self.controller.bandwidth_hz)?;
+        self.within(
+            "observer.bandpass_q",
+            self.observer.bandpass_q,
+            0.0,
+            limits::BANDPASS_Q_MAX,
+            "",
+        )?;
+        let nyquist = self.timing.rate_hz / 2.0;
+        self.positive_up_to(
+            "controller.bandwidth_hz",
+            self.controller.bandwidth_hz,
+            f64::MAX,
+        )?;
+        if self.controller.notches_hz.len() > limits::NOTCHES_MAX {
+            return Err(self.err(
+                "controller.notches_hz",
+                format!(
+                    "at most {} notches, got {}",
+                    limits::NOTCHES_MAX,
+                    self.controller.notches_hz.len()
+                ),
+            ));
+        }
         for (i, hz) in self.controller.notches_hz.iter().enumerate() {
-            positive(&format!("controller.notches_hz[{i}]"), *hz)?;
+            self.positive_up_to(&format!("controller.notches_hz[{i}]"), *hz, f64::MAX)?;
         }
         if let Some(ff) = &self.controller.feedforward {
             for (field, v) in [
@@ -114,22 +210,39 @@ impl Scenario {
                 ("controller.feedforward.acc", ff.acc),
                 ("controller.feedforward.vel", ff.vel),
             ] {
-                if !v.is_finite() {
-                    return Err(self.err(field, format!("must be finite, got {v}")));
-                }
+                let max = limits::FEEDFORWARD_GAIN_MAX;
+                self.within(field, v.abs(), 0.0, max, "in absolute value")
+                    .map_err(|_| {
+                        self.err(
+                            field,
+                            format!(
+                                "must lie in [-{}, {}], got {}",
+                                number(max),
+                                number(max),
+                                number(v)
+                            ),
+                        )
+                    })?;
             }
         }
-        positive(
-            "observer.observer_bandwidth_hz",
-            self.observer.observer_bandwidth_hz,
-        )?;
-        positive(
-            "observer.feedback_bandwidth_hz",
-            self.observer.feedback_bandwidth_hz,
-        )?;
-        positive("observer.observer_damping", self.observer.observer_damping)?;
-        positive("observer.feedback_damping", self.observer.feedback_damping)?;
-        let nyquist = self.timing.rate_hz / 2.0;
+        for (field, v) in [
+            (
+                "observer.observer_bandwidth_hz",
+                self.observer.observer_bandwidth_hz,
+            ),
+            (
+                "observer.feedback_bandwidth_hz",
+                self.observer.feedback_bandwidth_hz,
+            ),
+        ] {
+            self.positive_up_to(field, v, f64::MAX)?;
+        }
+        for (field, v) in [
+            ("observer.observer_damping", self.observer.observer_damping),
+            ("observer.feedback_damping", self.observer.feedback_damping),
+        ] {
+            self.positive_up_to(field, v, limits::POLE_DAMPING_MAX)?;
+        }
         let notches = self
             .controller
             .notches_hz
@@ -145,6 +258,7 @@ impl Scenario {
                 self.observer.feedback_bandwidth_hz,
             ),
             ("controller.bandwidth_hz", self.controller.bandwidth_hz),
+            ("reference.frequency_hz", self.reference.frequency_hz),
         ]
         .into_iter()
         .chain(notches)
@@ -152,23 +266,66 @@ impl Scenario {
             if hz >= nyquist {
                 return Err(self.err(
                     field,
-                    format!("{hz} Hz is not below the Nyquist frequency {nyquist} Hz"),
+                    format!(
+                        "{} Hz is not below the Nyquist frequency {} Hz",
+                        number(hz),
+                        number(nyquist)
+                    ),
                 ));
             }
         }
         if self.controller.extra_delay_samples > 1 {
             return Err(self.err("controller.extra_delay_samples", "must be 0 or 1"));
         }
-        non_negative("reference.amplitude", self.reference.amplitude.abs())?;
-        positive("reference.frequency_hz", self.reference.frequency_hz)?;
-        non_negative("reference.start_s", self.reference.start_s)?;
-        non_negative("reference.repeat_s", self.reference.repeat_s)?;
+        let amplitude = self.reference.amplitude;
+        if !(amplitude.is_finite() && amplitude.abs() <= limits::AMPLITUDE_MAX) {
+            return Err(self.err(
+                "reference.amplitude",
+                format!(
+                    "must lie in [-{max}, {max}] m (or rad), got {}",
+                    number(amplitude),
+                    max = limits::AMPLITUDE_MAX
+                ),
+            ));
+        }
+        self.positive_up_to(
+            "reference.frequency_hz",
+            self.reference.frequency_hz,
+            f64::MAX,
+        )?;
+        self.within(
+            "reference.start_s",
+            self.reference.start_s,
+            0.0,
+            limits::DURATION_S_MAX,
+            "s",
+        )?;
+        self.within(
+            "reference.repeat_s",
+            self.reference.repeat_s,
+            0.0,
+            limits::DURATION_S_MAX,
+            "s",
+        )?;
         if let Some(direction) = &self.reference.direction {
-            if let Some((i, v)) = direction.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            if direction.len() > flexloop_protocol::MAX_OUTPUTS {
                 return Err(self.err(
-                    &format!("reference.direction[{i}]"),
-                    format!("must be finite, got {v}"),
+                    "reference.direction",
+                    format!(
+                        "has {} entries; the loop carries at most {} outputs",
+                        direction.len(),
+                        flexloop_protocol::MAX_OUTPUTS
+                    ),
                 ));
+            }
+            for (i, v) in direction.iter().enumerate() {
+                self.within(
+                    &format!("reference.direction[{i}]"),
+                    v.abs(),
+                    0.0,
+                    limits::DIRECTION_MAX,
+                    "in absolute value",
+                )?;
             }
             if direction.iter().all(|v| *v == 0.0) {
                 return Err(self.err(
@@ -178,19 +335,230 @@ impl Scenario {
             }
         }
         for (field, p) in [
-            ("realtime.plant.priority", &self.realtime.plant),
-            ("realtime.observer.priority", &self.realtime.observer),
-            ("realtime.controller.priority", &self.realtime.controller),
-            ("realtime.logger.priority", &self.realtime.logger),
+            ("realtime.plant", &self.realtime.plant),
+            ("realtime.observer", &self.realtime.observer),
+            ("realtime.controller", &self.realtime.controller),
+            ("realtime.logger", &self.realtime.logger),
         ] {
             if let Some(prio) = p.priority
                 && !(1..=99).contains(&prio)
             {
                 return Err(self.err(
-                    field,
+                    &format!("{field}.priority"),
                     format!("SCHED_FIFO priority must be 1..=99, got {prio}"),
                 ));
             }
+            if let Some(cpu) = p.cpu
+                && cpu > limits::CPU_MAX
+            {
+                return Err(self.err(
+                    &format!("{field}.cpu"),
+                    format!("CPUs are numbered 0..={}, got {cpu}", limits::CPU_MAX),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The named choices are known ones (before the fields they govern are
+    /// judged by them).
+    fn validate_names(&self) -> Result<(), ScenarioError> {
+        for (field, value, known) in [
+            (
+                "observer.design",
+                self.observer.design.as_str(),
+                &["state-feedback", "kalman", "none"][..],
+            ),
+            (
+                "controller.feedback",
+                self.controller.feedback.as_str(),
+                &["pid", "none"][..],
+            ),
+            (
+                "controller.feedforward_form",
+                self.controller.feedforward_form.as_str(),
+                &["plain", "modified"][..],
+            ),
+            (
+                "reference.shape",
+                self.reference.shape.as_str(),
+                &["hold", "step", "sine", "scan"][..],
+            ),
+        ] {
+            if !known.contains(&value) {
+                return Err(self.err(
+                    field,
+                    format!("unknown `{value}` (expected one of {})", known.join(", ")),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// `v` in [lo, hi] and finite, else an error naming the range.
+    fn within(
+        &self,
+        field: &str,
+        v: f64,
+        lo: f64,
+        hi: f64,
+        unit: &str,
+    ) -> Result<(), ScenarioError> {
+        if v.is_finite() && (lo..=hi).contains(&v) {
+            return Ok(());
+        }
+        let unit = if unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {unit}")
+        };
+        Err(self.err(
+            field,
+            format!(
+                "must lie in [{}, {}]{unit}, got {}",
+                number(lo),
+                number(hi),
+                number(v)
+            ),
+        ))
+    }
+
+    /// `v` in (0, hi] and finite.
+    fn positive_up_to(&self, field: &str, v: f64, hi: f64) -> Result<(), ScenarioError> {
+        if v.is_finite() && v > 0.0 && v <= hi {
+            return Ok(());
+        }
+        let reason = if hi == f64::MAX {
+            format!("must be a positive finite number, got {}", number(v))
+        } else {
+            format!("must lie in (0, {}], got {}", number(hi), number(v))
+        };
+        Err(self.err(field, reason))
+    }
+
+    /// The name names the run directory: one plain path component.
+    fn validate_name(&self) -> Result<(), ScenarioError> {
+        let name = &self.name;
+        let plain = !name.is_empty()
+            && name != "."
+            && name != ".."
+            && name.len() <= limits::NAME_BYTES_MAX
+            && !name
+                .chars()
+                .any(|c| c == '/' || c == '\\' || c.is_control());
+        if plain {
+            return Ok(());
+        }
+        Err(self.err(
+            "name",
+            format!(
+                "names the run directory: one plain path component of 1 to {} bytes, \
+                 without `/`, `\\` or control characters, not `.` or `..`; got {name:?}",
+                limits::NAME_BYTES_MAX
+            ),
+        ))
+    }
+
+    /// A field the file gives must act: one that the model, the observer's
+    /// design, the feedback, the reference's shape or the restart policy at
+    /// hand does not use is refused, naming it (a setting silently ignored
+    /// would make the run something other than the file says).
+    fn validate_applicability(&self) -> Result<(), ScenarioError> {
+        let model = self.plant.model.as_str();
+        let o = &self.observer;
+        let kalman = o.design == "kalman";
+        let shape = self.reference.shape.as_str();
+        let rules: [(&[&str], bool, String); 9] = [
+            (
+                &["plant.mass_kg"],
+                model == "double-integrator",
+                format!("only the double integrator has a mass to give; `{model}` brings its own"),
+            ),
+            (
+                &["plant.output"],
+                model != "double-integrator",
+                "the double integrator has one output; there is none to choose".into(),
+            ),
+            (
+                &[
+                    "observer.observer_bandwidth_hz",
+                    "observer.observer_damping",
+                    "observer.feedback_bandwidth_hz",
+                    "observer.feedback_damping",
+                ],
+                o.design == "state-feedback",
+                format!(
+                    "poles of the `state-feedback` design; the observer is `{}`",
+                    o.design
+                ),
+            ),
+            (
+                &["observer.mc", "observer.ad", "observer.flexible_modes"],
+                kalman,
+                format!(
+                    "acts on a `kalman` observer; the observer is `{}`",
+                    o.design
+                ),
+            ),
+            (
+                &["observer.q_nu"],
+                kalman && o.mc,
+                "the noise model is part of MC: it needs design = \"kalman\" and mc = true".into(),
+            ),
+            (
+                &[
+                    "observer.damping_increase",
+                    "observer.damping_target",
+                    "observer.bandpass_q",
+                ],
+                kalman && o.ad,
+                "tunes active damping: it needs design = \"kalman\" and ad = true".into(),
+            ),
+            (
+                &["observer.scheduling", "observer.scheduling_step"],
+                self.plant.sensor_scan.is_some(),
+                "schedules the observer on a scanned sensor: it needs plant.sensor_scan".into(),
+            ),
+            (
+                &["controller.bandwidth_hz", "controller.notches_hz"],
+                self.controller.feedback == "pid",
+                format!(
+                    "tunes the PID; controller.feedback is `{}`",
+                    self.controller.feedback
+                ),
+            ),
+            (
+                &["supervision.max_restarts", "supervision.restart_backoff_ms"],
+                self.supervision.restart == crate::schema::RestartPolicy::OnCrash,
+                "acts on restarts; supervision.restart is `never`".into(),
+            ),
+        ];
+        for (fields, applies, why) in rules {
+            if let Some(field) = fields.iter().find(|f| !applies && self.given.contains(**f)) {
+                return Err(self.err(field, format!("does not apply: {why}")));
+            }
+        }
+        let reference = [
+            ("reference.amplitude", shape != "hold"),
+            ("reference.start_s", shape != "hold"),
+            ("reference.direction", shape != "hold"),
+            ("reference.frequency_hz", shape == "sine"),
+            ("reference.repeat_s", shape == "scan"),
+        ];
+        if let Some((field, _)) = reference
+            .iter()
+            .find(|(f, applies)| !applies && self.given.contains(*f))
+        {
+            return Err(self.err(
+                field,
+                format!("does not apply to reference.shape `{shape}`"),
+            ));
+        }
+        if o.damping_target.is_some() && self.given.contains("observer.damping_increase") {
+            return Err(self.err(
+                "observer.damping_increase",
+                "does not apply: observer.damping_target replaces it; give one of the two",
+            ));
         }
         Ok(())
     }
@@ -237,7 +605,10 @@ impl Scenario {
     /// processes would starve everything else, the logger and the kernel's
     /// own threads included) and on CPUs it does not have.
     pub fn check_machine(&self, online_cpus: usize) -> Result<(), ScenarioError> {
-        if self.realtime.profile != Profile::DedicatedCores {
+        let rt = &self.realtime;
+        // Under shared-cores a pin is best effort (a process reports a CPU
+        // it could not have and runs anywhere).
+        if rt.profile != Profile::DedicatedCores {
             return Ok(());
         }
         if online_cpus < DEDICATED_CORES_MIN_CPUS {
@@ -250,7 +621,6 @@ impl Scenario {
                 ),
             ));
         }
-        let rt = &self.realtime;
         for (field, p) in [
             ("realtime.plant.cpu", &rt.plant),
             ("realtime.observer.cpu", &rt.observer),
@@ -280,12 +650,14 @@ impl Scenario {
                 ),
             ));
         }
-        if !(o.scheduling_step.is_finite() && o.scheduling_step > 0.0 && o.scheduling_step <= 7.0) {
-            return Err(self.err(
-                "observer.scheduling_step",
-                format!("must lie in (0, 7] node units, got {}", o.scheduling_step),
-            ));
-        }
+        let (step_min, step_max) = limits::SCHEDULING_STEP;
+        self.within(
+            "observer.scheduling_step",
+            o.scheduling_step,
+            step_min,
+            step_max,
+            "node units",
+        )?;
         let Some([from, to]) = self.plant.sensor_scan else {
             return Ok(());
         };
@@ -310,7 +682,8 @@ impl Scenario {
                 return Err(self.err(
                     field,
                     format!(
-                        "positions must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {p}"
+                        "positions must lie in [0, {SENSOR_POSITION_MAX}] (0 = ma, 1..7 = m1..m7), got {}",
+                        number(p)
                     ),
                 ));
             }

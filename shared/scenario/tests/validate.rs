@@ -32,7 +32,7 @@ fn shipped_text(name: &str) -> String {
 fn unknown_field_is_refused_with_its_name_and_line() {
     let text = LECTURE.replace("[plant]\n", "[plant]\nmas_kg = 2.0\n");
     let err = Scenario::parse(Path::new("t.toml"), &text).unwrap_err();
-    assert_eq!(err.field.as_deref(), Some("mas_kg"));
+    assert_eq!(err.field.as_deref(), Some("plant.mas_kg"));
     assert!(err.reason.contains("line 6"), "{}", err.reason);
 }
 
@@ -101,4 +101,207 @@ fn out_of_range_values_name_the_field() {
     s.observer.observer_bandwidth_hz = 6000.0;
     let err = s.validate().unwrap_err();
     assert_eq!(err.field.as_deref(), Some("observer.observer_bandwidth_hz"));
+}
+
+/// `validated(text)`'s error: its field and its message.
+fn refusal(text: &str) -> (String, String) {
+    let e = validated(text).expect_err("accepted");
+    let message = e.to_string();
+    assert!(message.contains("t.toml"), "{message}");
+    (e.field.unwrap_or_default(), message)
+}
+
+#[test]
+fn a_third_scan_position_is_an_error_not_dropped() {
+    let text = shipped_text("thesis-sensor-scan-ad")
+        .replace("sensor_scan = [0.0, 7.0]", "sensor_scan = [1.0, 2.0, 3.0]");
+    let (field, message) = refusal(&text);
+    assert_eq!(field, "plant.sensor_scan", "{message}");
+    assert!(message.contains("invalid length 3"), "{message}");
+}
+
+#[test]
+fn fields_that_do_not_apply_are_refused_by_name() {
+    let default = shipped_text("default");
+    let original = shipped_text("thesis-original");
+    let scan = shipped_text("thesis-sensor-scan-ad");
+    for (text, field) in [
+        // The chain brings its own masses.
+        (
+            default.replace(
+                "model = \"thesis-chain\"",
+                "model = \"thesis-chain\"\nmass_kg = 20.0",
+            ),
+            "plant.mass_kg",
+        ),
+        // No Kalman observer, no flexible modes to keep.
+        (
+            original.replace(
+                "design = \"none\"",
+                "design = \"none\"\nflexible_modes = 100",
+            ),
+            "observer.flexible_modes",
+        ),
+        // The double integrator has one output.
+        (
+            LECTURE.replace("[plant]\n", "[plant]\noutput = 3\n"),
+            "plant.output",
+        ),
+        // Pole bandwidths belong to the state-feedback design.
+        (
+            default.replace(
+                "design = \"kalman\"",
+                "design = \"kalman\"\nobserver_bandwidth_hz = 100",
+            ),
+            "observer.observer_bandwidth_hz",
+        ),
+        // The noise model is MC's, the band-pass AD's.
+        (
+            scan.replace("ad = true", "ad = true\nq_nu = 3.0"),
+            "observer.q_nu",
+        ),
+        (
+            scan.replace("ad = true", "ad = false"),
+            "observer.damping_increase",
+        ),
+        // No scanned sensor, no scheduling.
+        (
+            default.replace("mc = true", "mc = true\nscheduling_step = 0.5"),
+            "observer.scheduling_step",
+        ),
+        // A sine's frequency on a scan, a scan's repeat on a sine.
+        (
+            default.replace("start_s = 0.01", "start_s = 0.01\nfrequency_hz = 3"),
+            "reference.frequency_hz",
+        ),
+        (
+            LECTURE.to_string()
+                + "[reference]\nshape = \"sine\"\namplitude = 0.001\nrepeat_s = 1\n",
+            "reference.repeat_s",
+        ),
+        // No PID, no PID bandwidth.
+        (
+            LECTURE.to_string() + "[controller]\nbandwidth_hz = 30\n",
+            "controller.bandwidth_hz",
+        ),
+        // No restarts, no back-off.
+        (
+            LECTURE.to_string() + "[supervision]\nrestart = \"never\"\nrestart_backoff_ms = 10\n",
+            "supervision.restart_backoff_ms",
+        ),
+    ] {
+        let (got, message) = refusal(&text);
+        assert_eq!(got, field, "{message}");
+        assert!(message.contains("does not apply"), "{message}");
+    }
+}
+
+#[test]
+fn every_shipped_scenario_gives_only_fields_that_act() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios");
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            if let Err(e) = Scenario::from_text(&path, &text, &Overrides::default()) {
+                panic!("{e}");
+            }
+        }
+    }
+}
+
+#[test]
+fn sizes_that_drive_the_design_cost_are_bounded() {
+    let scan = shipped_text("thesis-sensor-scan-ad");
+    // A 1e-9 grid was a 280 GB allocation.
+    let (field, message) =
+        refusal(&scan.replace("scheduling_step = 0.25", "scheduling_step = 1e-9"));
+    assert_eq!(field, "observer.scheduling_step", "{message}");
+    assert!(
+        message.contains("[0.05, 7]") && message.contains("1e-9"),
+        "{message}"
+    );
+    // 1 999 notches hung the design.
+    let notches: Vec<String> = (0..1999).map(|i| format!("{}", 100 + i)).collect();
+    let text = shipped_text("default").replace(
+        "bandwidth_hz = 77.5",
+        &format!("bandwidth_hz = 77.5\nnotches_hz = [{}]", notches.join(", ")),
+    );
+    let (field, message) = refusal(&text);
+    assert_eq!(field, "controller.notches_hz", "{message}");
+    assert!(message.contains("at most 8 notches, got 1999"), "{message}");
+}
+
+#[test]
+fn absurd_magnitudes_are_refused_and_printed_readably() {
+    let default = shipped_text("default");
+    for (from, to, field) in [
+        (
+            "force_noise = 0.0",
+            "force_noise = 1e300",
+            "plant.force_noise",
+        ),
+        (
+            "sensor_noise = 0.0",
+            "sensor_noise = 1e300",
+            "plant.sensor_noise",
+        ),
+        (
+            "snap = 1.6681987210371764e-6",
+            "snap = 1e300",
+            "controller.feedforward.snap",
+        ),
+        (
+            "input_limit = 2000.0",
+            "input_limit = 1e300",
+            "plant.input_limit",
+        ),
+    ] {
+        assert!(default.contains(from), "{from}");
+        let text = default.replacen(from, to, 1);
+        let (got, message) = refusal(&text);
+        assert_eq!(got, field, "{message}");
+        assert!(
+            message.contains("1e300") && !message.contains("00000000"),
+            "{message}"
+        );
+    }
+}
+
+#[test]
+fn vague_errors_name_the_field_and_line() {
+    let default = shipped_text("default");
+    // An array of tables where the format has one table.
+    let e = Scenario::parse(
+        Path::new("t.toml"),
+        &default.replacen("[loop]", "[[loop]]", 1),
+    )
+    .unwrap_err();
+    assert_eq!(e.field.as_deref(), Some("loop"), "{e}");
+    assert!(
+        e.reason.contains("[[loop]]") && e.reason.contains("one `[loop]` table"),
+        "{e}"
+    );
+    // Tables nested beyond the parser's limit: the line and the key.
+    let deep = format!("{default}\n[{}]\n", vec!["a"; 300].join("."));
+    let e = Scenario::parse(Path::new("t.toml"), &deep).unwrap_err();
+    assert_eq!(e.field.as_deref(), Some("a"), "{e}");
+    assert!(
+        e.reason.contains("nested too deeply") && !e.reason.contains("line 0"),
+        "{e}"
+    );
+    // A rate too small to be a rate names the rate, not a bandwidth above its Nyquist.
+    let (field, message) = refusal(&default.replacen("rate_hz = 10000", "rate_hz = 5e-324", 1));
+    assert_eq!(field, "loop.rate_hz", "{message}");
+    assert!(message.contains("5e-324"), "{message}");
+}
+
+#[test]
+fn a_name_that_is_not_one_plain_path_component_is_refused() {
+    for name in ["x/../../../escaped", "..", ".", "", "a\\b", "tab\there"] {
+        let text = LECTURE.replace("name = \"t\"", &format!("name = {name:?}"));
+        let (field, message) = refusal(&text);
+        assert_eq!(field, "name", "{message}");
+    }
+    assert!(validated(&LECTURE.replace("name = \"t\"", "name = \"my run-2\"")).is_ok());
 }
