@@ -372,6 +372,16 @@ fn a_full_disk_stops_the_recording_not_the_loop() {
     if indexed {
         assert_python_agrees(&python(), &file, &log);
     }
+    // The report says that the recording stopped, and when.
+    let mut report = flexloop();
+    report.arg("report").arg(&*dir);
+    let out = run_bounded(report, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("the recording stopped at t = ") && err.contains("File too large"),
+        "{err}"
+    );
     assert_clean(&dir);
 }
 

@@ -145,6 +145,15 @@ pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
             RunDir::new(&run_dir).samples(0).display()
         );
     }
+    let recording = &data.run.summary.recording.sample_file;
+    if recording.stopped() {
+        let trace = &data.run.trace;
+        let until_s = trace.rows.last().map_or(0.0, |r| trace.time(r));
+        eprintln!(
+            "flexloop: the recording stopped at t = {until_s:.3} s ({}): the report covers the run up to then",
+            recording.error.as_deref().unwrap_or("a write failed")
+        );
+    }
     let doc = content::document(&data);
     write_report(&out_dir, &doc)?;
     println!(

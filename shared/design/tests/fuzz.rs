@@ -119,18 +119,27 @@ fn mutate(rng: &mut Rng, table: &mut Table) -> String {
         return format!("nothing at {dotted}");
     };
     let key = path.last().unwrap().clone();
-    match rng.below(7) {
-        // Extremes of the value's own type, so that most reach validation.
-        0 if !matches!(holder.get(&key), Some(Value::Integer(_))) => {
-            let v = *rng.pick(&EXTREMES);
-            holder.insert(key, Value::Float(v));
-            format!("{dotted} = {v}")
-        }
-        0 | 1 => {
-            let v = *rng.pick(&[0, -1, i64::MAX, i64::MIN, 1 << 40, 3, 100]);
-            holder.insert(key, Value::Integer(v));
-            format!("{dotted} = {v}")
-        }
+    // Numbers weigh most: they reach validation, the other kinds mostly the parser.
+    match *rng.pick(&[0, 0, 0, 1, 1, 2, 3, 4, 5, 6]) {
+        // Extremes of the value's own type (a name gets an unknown one), so
+        // that most reach validation; kind 1 keeps an integer an integer.
+        kind @ (0 | 1) => match holder.get(&key) {
+            Some(Value::String(_)) if kind == 0 => {
+                let v = *rng.pick(&["magic", "", "x/../../y", "square"]);
+                holder.insert(key, Value::String(v.into()));
+                format!("{dotted} = {v:?}")
+            }
+            Some(Value::Integer(_)) | Some(Value::String(_)) => {
+                let v = *rng.pick(&[0, -1, i64::MAX, i64::MIN, 1 << 40, 3, 100]);
+                holder.insert(key, Value::Integer(v));
+                format!("{dotted} = {v}")
+            }
+            _ => {
+                let v = *rng.pick(&EXTREMES);
+                holder.insert(key, Value::Float(v));
+                format!("{dotted} = {v:?}")
+            }
+        },
         2 => {
             let n = *rng.pick(&[3, 100, 5000]);
             let item = match holder.get(&key) {
@@ -193,8 +202,14 @@ enum Outcome {
 fn class(message: &str) -> &'static str {
     if message.contains("does not apply") {
         "field does not apply"
+    } else if message.contains("unknown field") {
+        "parse: unknown field"
+    } else if message.contains("missing field") {
+        "parse: missing field"
+    } else if message.contains("array of tables") {
+        "parse: table doubled"
     } else if message.contains("(line ") || message.contains("nested too deeply") {
-        "parse: type, unknown or missing field"
+        "parse: wrong type"
     } else if message.contains("must lie in")
         || message.contains("must be")
         || message.contains("at most")
@@ -225,7 +240,12 @@ fn mutated_scenarios_are_accepted_or_refused_by_field_without_panic_or_hang() {
     for case in 0..cases {
         let (name, text) = &files[case % files.len()];
         let mut table: Table = toml::from_str(text).unwrap();
-        let edits: Vec<String> = (0..1 + rng.below(3))
+        let mutations = if rng.below(2) == 0 {
+            1
+        } else {
+            2 + rng.below(2)
+        };
+        let edits: Vec<String> = (0..mutations)
             .map(|_| mutate(&mut rng, &mut table))
             .collect();
         let mutated = toml::to_string(&table).unwrap_or_else(|_| text.clone());

@@ -77,8 +77,7 @@ impl Scenario {
 /// The parser's error as file, field and reason: the field qualified by
 /// its table (`plant.mas_kg`), the position as line and column.
 fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> ScenarioError {
-    let message = readable_numbers(e.message().trim());
-    let message = message.as_str();
+    let message = e.message().trim();
     let Some(at) = e.span().map(|span| span.start) else {
         // The parser's nesting limit comes without a position: find the line.
         if message.contains("recursion") {
@@ -121,27 +120,6 @@ fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> ScenarioError {
         field.as_deref(),
         format!("{message} (line {line}, column {col})"),
     )
-}
-
-/// `message` with every long run of digits (the parser prints 1e300 as
-/// three hundred of them) in exponent form.
-fn readable_numbers(message: &str) -> String {
-    let mut out = String::with_capacity(message.len());
-    let mut rest = message;
-    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
-        let len = rest[start..]
-            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .unwrap_or(rest.len() - start);
-        let run = &rest[start..start + len];
-        out.push_str(&rest[..start]);
-        match run.parse::<f64>() {
-            Ok(v) if run.len() > 20 => out.push_str(&crate::error::number(v)),
-            _ => out.push_str(run),
-        }
-        rest = &rest[start + len..];
-    }
-    out.push_str(rest);
-    out
 }
 
 /// Every dotted key of `table` that holds a value (tables are walked into).

@@ -554,6 +554,31 @@ impl Scenario {
                 format!("does not apply to reference.shape `{shape}`"),
             ));
         }
+        let p = &self.plant;
+        let noisy = p.force_noise != 0.0 || p.sensor_noise != 0.0 || p.reference_noise != 0.0;
+        if !noisy && self.given.contains("plant.seed") {
+            return Err(self.err(
+                "plant.seed",
+                "does not apply: it seeds the disturbances, and every noise is 0",
+            ));
+        }
+        let gains = ["snap", "jerk", "acc", "vel"].map(|g| format!("controller.feedforward.{g}"));
+        if shape == "hold"
+            && let Some(field) = gains.iter().find(|f| self.given.contains(*f))
+        {
+            return Err(self.err(
+                field,
+                "does not apply: the feedforward acts on the reference's derivatives, and \
+                 reference.shape `hold` has none",
+            ));
+        }
+        if !self.logger.enabled
+            && let Some(field) = ["realtime.logger.priority", "realtime.logger.cpu"]
+                .iter()
+                .find(|f| self.given.contains(**f))
+        {
+            return Err(self.err(field, "does not apply: logger.enabled is false"));
+        }
         if o.damping_target.is_some() && self.given.contains("observer.damping_increase") {
             return Err(self.err(
                 "observer.damping_increase",

@@ -184,6 +184,19 @@ fn fields_that_do_not_apply_are_refused_by_name() {
             LECTURE.to_string() + "[controller]\nbandwidth_hz = 30\n",
             "controller.bandwidth_hz",
         ),
+        // No noise, nothing to seed.
+        (
+            LECTURE.replace("[plant]\n", "[plant]\nseed = 7\n"),
+            "plant.seed",
+        ),
+        // No motion, no feedforward.
+        (
+            default
+                .replace("shape = \"scan\"", "shape = \"hold\"")
+                .replace("start_s = 0.01\n", "")
+                .replace("repeat_s = 0.25\n", ""),
+            "controller.feedforward.snap",
+        ),
         // No restarts, no back-off.
         (
             LECTURE.to_string() + "[supervision]\nrestart = \"never\"\nrestart_backoff_ms = 10\n",
