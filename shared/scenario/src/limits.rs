@@ -40,7 +40,7 @@ pub const CPU_MAX: usize = 1023;
 /// `supervision.command_watchdog_ticks`, `supervision.estimate_watchdog_ticks`.
 pub const WATCHDOG_TICKS_MAX: u32 = 100_000;
 /// `supervision.max_restarts`.
-pub const MAX_RESTARTS_MAX: u32 = 1_000;
+pub const MAX_RESTARTS_MAX: u32 = 1_000_000;
 /// `supervision.restart_backoff_ms`.
 pub const RESTART_BACKOFF_MS_MAX: u64 = 60_000;
 /// `name`: it names the run directory.
