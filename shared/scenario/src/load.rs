@@ -43,10 +43,20 @@ impl Scenario {
     }
 
     /// Puts the thesis chain's world-fixed sensor at `position` (node units),
-    /// in place of whatever output the file named; `validate` checks the range.
+    /// in place of whatever output or scan the file named (the scan's
+    /// scheduling settings go with it); `validate` checks the range.
     pub fn set_sensor_position(&mut self, position: f64) {
         self.plant.sensor_position = Some(position);
         self.plant.output_given = false;
+        self.plant.sensor_scan = None;
+        for field in [
+            "plant.output",
+            "plant.sensor_scan",
+            "observer.scheduling",
+            "observer.scheduling_step",
+        ] {
+            self.given.remove(field);
+        }
     }
 
     pub fn apply(&mut self, overrides: &Overrides) {
