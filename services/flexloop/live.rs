@@ -307,6 +307,7 @@ mod tests {
             supervisor_pid: 1,
             run_dir: format!("runs/{prefix}").into(),
             scenario: "default".into(),
+            cpus: Vec::new(),
         }
     }
 
