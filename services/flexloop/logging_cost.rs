@@ -44,35 +44,17 @@ impl Options {
     }
 }
 
-/// The scenario text with `[logger] enabled = false` (an existing
-/// `enabled` line of that table is replaced).
-fn without_logger(text: &str) -> String {
-    let mut out = String::with_capacity(text.len() + 32);
-    let mut in_logger = false;
-    let mut had_table = false;
-    for line in text.lines() {
-        let trimmed = line.trim_start();
-        if trimmed.starts_with('[') {
-            in_logger = trimmed.trim_end() == "[logger]";
-            out.push_str(line);
-            out.push('\n');
-            if in_logger {
-                had_table = true;
-                out.push_str("enabled = false\n");
-            }
-            continue;
-        }
-        let key = trimmed.split('=').next().unwrap_or("").trim();
-        if in_logger && key == "enabled" {
-            continue;
-        }
-        out.push_str(line);
-        out.push('\n');
+/// The scenario with `[logger] enabled = false` and no other logger setting
+/// (none applies to a loop without one: the scenario check refuses them).
+fn without_logger(text: &str) -> anyhow::Result<String> {
+    let mut table: toml::Table = toml::from_str(text)?;
+    let mut logger = toml::Table::new();
+    logger.insert("enabled".into(), false.into());
+    table.insert("logger".into(), logger.into());
+    if let Some(realtime) = table.get_mut("realtime").and_then(|v| v.as_table_mut()) {
+        realtime.remove("logger");
     }
-    if !had_table {
-        out.push_str("\n[logger]\nenabled = false\n");
-    }
-    out
+    Ok(toml::to_string(&table)?)
 }
 
 /// One run; the plant's own figures.
@@ -101,7 +83,8 @@ pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
         .unwrap_or_else(|| stamped_run_dir("logging-cost"));
     std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
     let silent = root.join("without-logger.toml");
-    std::fs::write(&silent, without_logger(&text)).with_context(|| silent.display().to_string())?;
+    let silent_text = without_logger(&text).with_context(|| scenario.display().to_string())?;
+    std::fs::write(&silent, silent_text).with_context(|| silent.display().to_string())?;
     eprintln!(
         "flexloop bench --logging-cost: {} for {} s with the logger, then {} s without; runs in {}",
         scenario.display(),
@@ -168,13 +151,17 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_copy_turns_the_logger_off_with_or_without_its_table() {
+    fn the_copy_turns_the_logger_off_and_drops_its_settings() {
         let plain = "name = \"x\"\n[loop]\nrate_hz = 1000\n";
-        let off = without_logger(plain);
-        assert!(off.ends_with("[logger]\nenabled = false\n"), "{off}");
-        let with_table = "name = \"x\"\n[logger]\nenabled = true\n[loop]\nrate_hz = 1000\n";
-        let off = without_logger(with_table);
-        assert_eq!(off.matches("enabled").count(), 1, "{off}");
-        assert!(off.contains("[logger]\nenabled = false\n[loop]"), "{off}");
+        let off: toml::Table = toml::from_str(&without_logger(plain).unwrap()).unwrap();
+        assert_eq!(off["logger"]["enabled"].as_bool(), Some(false));
+        let with_tables = "name = \"x\"\n[logger]\nenabled = true\n[loop]\nrate_hz = 1000\n\
+                           [realtime.logger]\npriority = 10\n[realtime.plant]\npriority = 80\n";
+        let off: toml::Table = toml::from_str(&without_logger(with_tables).unwrap()).unwrap();
+        assert_eq!(off["logger"].as_table().unwrap().len(), 1);
+        assert_eq!(off["logger"]["enabled"].as_bool(), Some(false));
+        assert!(off["realtime"].get("logger").is_none());
+        assert_eq!(off["realtime"]["plant"]["priority"].as_integer(), Some(80));
+        assert_eq!(off["loop"]["rate_hz"].as_integer(), Some(1000));
     }
 }
