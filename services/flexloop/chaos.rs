@@ -423,23 +423,7 @@ struct Recorded {
 }
 
 fn recorded_ticks(loop_dir: &RunDir) -> Result<Recorded> {
-    let mut files: Vec<(u32, PathBuf)> = std::fs::read_dir(loop_dir.path())
-        .with_context(|| format!("cannot read {}", loop_dir.path().display()))?
-        .flatten()
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let generation = match name.as_str() {
-                "samples.mcap" => 0,
-                _ => name
-                    .strip_prefix("samples.g")?
-                    .strip_suffix(".mcap")?
-                    .parse()
-                    .ok()?,
-            };
-            Some((generation, e.path()))
-        })
-        .collect();
-    files.sort();
+    let files = loop_dir.sample_files();
     let mut ticks = Vec::new();
     let (mut newest, mut misses, mut stalled_ticks) = (None, 0, 0);
     for (_, path) in files {

@@ -97,15 +97,7 @@ impl RunData {
         let period_ns = run.summary.period_ns;
         let lockstep = run.summary.mode == "lockstep";
         let joined_files = if run.files.len() > 1 {
-            run.files
-                .iter()
-                .map(|p| {
-                    p.file_name()
-                        .unwrap_or_default()
-                        .to_string_lossy()
-                        .into_owned()
-                })
-                .collect()
+            flexloop_analysis::run_log::file_names(&run.files)
         } else {
             Vec::new()
         };

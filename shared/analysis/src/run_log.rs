@@ -388,16 +388,7 @@ impl JoinedLog {
         if self.files.len() < 2 && self.outages.is_empty() && self.unreported.total() == 0 {
             return None;
         }
-        let names: Vec<String> = self
-            .files
-            .iter()
-            .map(|p| {
-                p.file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .into_owned()
-            })
-            .collect();
+        let names = file_names(&self.files);
         let unreported = if self.unreported.total() == 0 {
             String::new()
         } else {
@@ -643,6 +634,19 @@ fn joined_latencies(
         );
     }
     out
+}
+
+/// The files' names without their directory, for the user.
+pub fn file_names(files: &[PathBuf]) -> Vec<String> {
+    files
+        .iter()
+        .map(|p| {
+            p.file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .collect()
 }
 
 #[cfg(test)]
