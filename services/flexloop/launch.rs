@@ -140,6 +140,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
     std::fs::copy(&args.scenario, RunDir::new(&run_dir).scenario_copy())
         .context("cannot copy the scenario")
         .with_context(in_run_dir)?;
+    copy_model_file(&scenario, &run_dir).with_context(in_run_dir)?;
     report_dead_prefixes();
     let prefix = format!("flx{}_", std::process::id());
     Ok(Prepared {
@@ -154,6 +155,29 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
         scenario,
         overrides: args.overrides.clone(),
     })
+}
+
+/// The plant's model file beside the run's copy of the scenario, where the
+/// copy's relative `plant.file` finds it (`run`, `report` and `tune-ff`
+/// design the run again from the copy). An absolute path, or one leaving the
+/// scenario's directory, is read where it is.
+fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {
+    let (Some(file), Some(from)) = (&scenario.plant.file, scenario.plant_file_path()) else {
+        return Ok(());
+    };
+    let inside = file
+        .components()
+        .all(|c| matches!(c, std::path::Component::Normal(_)));
+    if !inside {
+        return Ok(());
+    }
+    let to = run_dir.join(file);
+    if let Some(dir) = to.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::copy(&from, &to)
+        .with_context(|| format!("cannot copy the model file {}", from.display()))?;
+    Ok(())
 }
 
 /// A loop that ran to its end.

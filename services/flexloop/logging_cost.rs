@@ -46,8 +46,9 @@ impl Options {
 
 /// The scenario with `[logger] enabled = false` and no other logger setting
 /// (none applies to a loop without one: the scenario check refuses them).
-fn without_logger(text: &str) -> anyhow::Result<String> {
+fn without_logger(text: &str, scenario: &Path) -> anyhow::Result<String> {
     let mut table: toml::Table = toml::from_str(text)?;
+    flexloop_scenario::plant_description::anchor_model_file(&mut table, scenario);
     let mut logger = toml::Table::new();
     logger.insert("enabled".into(), false.into());
     table.insert("logger".into(), logger.into());
@@ -83,7 +84,8 @@ pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
         .unwrap_or_else(|| stamped_run_dir("logging-cost"));
     std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
     let silent = root.join("without-logger.toml");
-    let silent_text = without_logger(&text).with_context(|| scenario.display().to_string())?;
+    let silent_text =
+        without_logger(&text, &scenario).with_context(|| scenario.display().to_string())?;
     std::fs::write(&silent, silent_text).with_context(|| silent.display().to_string())?;
     eprintln!(
         "flexloop bench --logging-cost: {} for {} s with the logger, then {} s without; runs in {}",
@@ -153,11 +155,13 @@ mod tests {
     #[test]
     fn the_copy_turns_the_logger_off_and_drops_its_settings() {
         let plain = "name = \"x\"\n[loop]\nrate_hz = 1000\n";
-        let off: toml::Table = toml::from_str(&without_logger(plain).unwrap()).unwrap();
+        let off: toml::Table =
+            toml::from_str(&without_logger(plain, Path::new("s.toml")).unwrap()).unwrap();
         assert_eq!(off["logger"]["enabled"].as_bool(), Some(false));
         let with_tables = "name = \"x\"\n[logger]\nenabled = true\n[loop]\nrate_hz = 1000\n\
                            [realtime.logger]\npriority = 10\n[realtime.plant]\npriority = 80\n";
-        let off: toml::Table = toml::from_str(&without_logger(with_tables).unwrap()).unwrap();
+        let off: toml::Table =
+            toml::from_str(&without_logger(with_tables, Path::new("s.toml")).unwrap()).unwrap();
         assert_eq!(off["logger"].as_table().unwrap().len(), 1);
         assert_eq!(off["logger"]["enabled"].as_bool(), Some(false));
         assert!(off["realtime"].get("logger").is_none());

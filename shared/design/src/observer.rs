@@ -62,7 +62,9 @@ pub fn modal_observer(
     let o = &s.observer;
     match o.design.as_str() {
         "kalman" => {
-            let (reduced, weights) = reduced()?;
+            let (reduced, model_weights) = reduced()?;
+            let weights =
+                scenario_weights(s, &reduced, ts, model_weights.as_ref())?.or(model_weights);
             let options = kalman_options(s, ts, extra_delay, &reduced, weights)?;
             let designed = design_modal_observer(&reduced, &options)
                 .map_err(|e| err("observer", format!("Kalman observer: {e}")))?;
@@ -100,6 +102,99 @@ pub fn modal_observer(
             ),
         )),
     }
+}
+
+/// The Kalman weights the scenario sets (None: the model's own, the
+/// thesis' σ_w, σ_v, σ_d unless the model brings others): the process noise
+/// enters as the force does (G = B of the reduced model under ZOH, per
+/// sample as the thesis' are, docs/control.md §4.1), Q = σ_w² I or the file's
+/// `kalman_q`; R = σ² I or `kalman_r`. Each half defaults to the noise the
+/// scenario gives the plant emulator, when it gives any, else to the
+/// model's own weights (`model`, when they have that form) or the thesis'.
+pub fn scenario_weights(
+    s: &Scenario,
+    reduced: &ReducedModel,
+    ts: f64,
+    model: Option<&KalmanWeights>,
+) -> Result<Option<KalmanWeights>, ScenarioError> {
+    let o = &s.observer;
+    let p = &s.plant;
+    let err = |field: &str, reason: String| ScenarioError::new(&s.source, Some(field), reason);
+    let (n_y, n_u) = (reduced.modal.outputs(), reduced.modal.inputs());
+    let square = |field: &str, rows: &Option<Vec<Vec<f64>>>, n: usize, what: &str| {
+        let Some(rows) = rows else {
+            return Ok(None);
+        };
+        let shape_ok = rows.len() == n && rows.iter().all(|r| r.len() == n);
+        if !shape_ok {
+            return Err(err(
+                field,
+                format!(
+                    "must be {n}×{n} ({what}), got {} rows of lengths {:?}",
+                    rows.len(),
+                    rows.iter().map(Vec::len).collect::<Vec<_>>()
+                ),
+            ));
+        }
+        let m = DMatrix::from_fn(n, n, |i, j| rows[i][j]);
+        if m.iter().any(|v| !v.is_finite()) {
+            return Err(err(field, "holds a non-finite number".into()));
+        }
+        if (&m - m.transpose()).amax() > 1e-12 * m.amax() {
+            return Err(err(field, "must be symmetric (a covariance)".into()));
+        }
+        // R must be positive definite (the filter inverts it), Q semi-definite.
+        let definite = field == "observer.kalman_r";
+        let eigen = m.clone().symmetric_eigenvalues();
+        let tolerance = 1e-12 * m.amax();
+        let bad = eigen
+            .iter()
+            .any(|&l| if definite { l <= 0.0 } else { l < -tolerance });
+        if bad {
+            return Err(err(
+                field,
+                format!(
+                    "must be positive {}definite (a covariance), its eigenvalues are {:?}",
+                    if definite { "" } else { "semi-" },
+                    eigen.as_slice()
+                ),
+            ));
+        }
+        Ok(Some(m))
+    };
+    let q = match square("observer.kalman_q", &o.kalman_q, n_u, "one row per input")? {
+        Some(q) => Some(q),
+        None => o
+            .process_noise
+            .or((p.force_noise > 0.0).then_some(p.force_noise))
+            .map(|sigma| DMatrix::identity(n_u, n_u) * (sigma * sigma)),
+    };
+    let r = match square("observer.kalman_r", &o.kalman_r, n_y, "one row per output")? {
+        Some(r) => Some(r),
+        None => match o.measurement_noise {
+            Some(sigma) => Some(DMatrix::identity(n_y, n_y) * (sigma * sigma)),
+            None => {
+                let variance =
+                    p.sensor_noise * p.sensor_noise + p.reference_noise * p.reference_noise;
+                (variance > 0.0).then(|| DMatrix::identity(n_y, n_y) * variance)
+            }
+        },
+    };
+    if q.is_none() && r.is_none() {
+        return Ok(None);
+    }
+    let base = flexloop_control::discretise::zoh(&reduced.state_space(), ts)
+        .map_err(|e| err("observer", format!("ZOH: {e}")))?;
+    // The half the scenario does not set keeps the model's value.
+    let fallback = match model {
+        Some(w) if w.g == base.b => w.clone(),
+        _ => KalmanWeights::thesis(&base),
+    };
+    Ok(Some(KalmanWeights {
+        g: base.b.clone(),
+        q: q.unwrap_or(fallback.q),
+        r: r.unwrap_or(fallback.r),
+    }))
 }
 
 /// The options of the scenario's Kalman observer on `reduced`.

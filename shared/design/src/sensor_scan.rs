@@ -8,8 +8,8 @@
 //! message. The design is checked frozen at every grid point and halfway
 //! between (the loop must be stable wherever the sensor is).
 
-use crate::observer::{empty_observer, flexible_modes_kept, kalman_options};
-use crate::plants::thesis_chain::sensor_field;
+use crate::observer::{empty_observer, flexible_modes_kept, kalman_options, scenario_weights};
+use crate::plants::thesis_chain::{chain_modal, sensor_field};
 use crate::reference::Reference;
 use flexloop_control::closed_loop::{LoopSpec, assemble_loop};
 use flexloop_control::design_error::DesignError;
@@ -18,7 +18,6 @@ use flexloop_control::kalman::{KalmanWeights, NoiseModel, with_noise_model};
 use flexloop_control::linalg;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::modal::{ModalModel, ReducedModel};
-use flexloop_control::models;
 use flexloop_control::observer_block::{
     ObserverBlock, ObserverDesign, compile_observer_block, design_modal_observer,
 };
@@ -94,7 +93,7 @@ pub fn design_sensor_scan(
     };
     let r_start = reference.sample(*start_s)[0];
     let r_end = reference.sample(start_s + setpoint.duration())[0];
-    let chain = models::thesis_chain_modal().map_err(|e| err(e.to_string()))?;
+    let chain = chain_modal(s)?;
     let shapes = chain
         .shapes
         .clone()
@@ -181,14 +180,23 @@ fn scheduled_observer(
             .map_err(|e| err(e.to_string()))
     };
     let start = reduced_at(grid.start())?;
-    let options = kalman_options(s, ts, extra_delay, &start, None)?;
+    // The scenario's Kalman weights (B, and so G, does not move with the sensor).
+    let weights_given = scenario_weights(s, &start, ts, None)?;
+    let options = kalman_options(s, ts, extra_delay, &start, weights_given.clone())?;
     // K(z) acts on the modal velocities through φ_a: the same at every position.
     let designed = design_modal_observer(&start, &options).map_err(|e| {
         ScenarioError::new(&s.source, Some("observer"), format!("Kalman observer: {e}"))
     })?;
     let augmented = |reduced: &ReducedModel| -> Result<(DiscreteStateSpace, KalmanWeights), ScheduledBlockError> {
         let base = zoh(&reduced.state_space(), ts).map_err(ScheduledBlockError::Sampling)?;
-        let weights = KalmanWeights::thesis(&base);
+        let weights = match &weights_given {
+            Some(w) => KalmanWeights {
+                g: base.b.clone(),
+                q: w.q.clone(),
+                r: w.r.clone(),
+            },
+            None => KalmanWeights::thesis(&base),
+        };
         match (options.mc, options.q_nu) {
             (true, Some(q)) => Ok(with_noise_model(
                 &base,

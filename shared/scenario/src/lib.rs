@@ -5,6 +5,8 @@
 //! - [`schema`]: the file format, field by field (unknown fields are refused).
 //! - `load`: reading and parsing a file, then the command line's overrides.
 //! - `validate`: ranges, consistency, and the machine's fitness for the profile.
+//! - [`plant_description`]: the plant a user brings (lumped networks, model
+//!   files, the chain's parameters, modal damping).
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`error`]: errors that name the file, the field and the reason.
@@ -12,9 +14,11 @@
 pub mod error;
 pub mod limits;
 mod load;
+pub mod plant_description;
 pub mod schema;
 pub mod swap;
 mod validate;
+mod validate_plant;
 
 pub use error::ScenarioError;
 pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, Profile, Scenario};

@@ -45,3 +45,13 @@ pub const MAX_RESTARTS_MAX: u32 = 1_000_000;
 pub const RESTART_BACKOFF_MS_MAX: u64 = 60_000;
 /// `name`: it names the run directory.
 pub const NAME_BYTES_MAX: usize = 100;
+/// `plant.stiffness_n_per_m` and lumped springs in N/m, dampers in N s/m.
+pub const STIFFNESS_MAX: f64 = 1e15;
+pub const DAMPER_MAX: f64 = 1e12;
+/// `plant.masses_kg`, lumped springs, dampers, forces and positions: list
+/// lengths (each mass is two states of the plant emulator; the loop carries
+/// at most 128 observer states).
+pub const LUMPED_MASSES_MAX: usize = 64;
+pub const LUMPED_ELEMENTS_MAX: usize = 1024;
+/// `plant.rayleigh` α (1/s) and β (s).
+pub const RAYLEIGH_MAX: f64 = 1e6;

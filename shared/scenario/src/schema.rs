@@ -4,6 +4,7 @@
 //! silently ignored setting. Defaults are the values a control engineer would
 //! pick for the model at hand; `scenarios/README.md` documents each field.
 
+pub use crate::plant_description::{Attachment, Damper, ModalZeta, OWN_MODELS, Rayleigh, Spring};
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -119,6 +120,43 @@ pub struct PlantSection {
     /// two positions: a third is an error, not dropped.
     #[serde(default, deserialize_with = "two_positions")]
     pub sensor_scan: Option<[f64; 2]>,
+    /// Thesis chain: the node masses [ma, m1, …, m7] in kg (Table 3.2 by
+    /// default). `lumped`: the masses of the network, numbered from 0.
+    pub masses_kg: Option<Vec<f64>>,
+    /// Thesis chain: the seven springs between consecutive nodes in N/m,
+    /// ma–m1 first (Table 3.2 by default).
+    pub stiffness_n_per_m: Option<Vec<f64>>,
+    /// Thesis chain: the node the force acts on (0 = ma, the default).
+    pub actuator_node: Option<usize>,
+    /// Modal damping of the flexible modes: one ζ, or one per flexible mode
+    /// in frequency order (thesis chain and uniform chain: 0.005 by
+    /// default; `lumped` and `second-order` without D: one of `zeta`,
+    /// `rayleigh` or dampers is required).
+    pub zeta: Option<ModalZeta>,
+    /// `lumped`, `second-order` without D: Rayleigh damping D = α M + β K.
+    pub rayleigh: Option<Rayleigh>,
+    /// `lumped`: springs `{ between = [i, j], stiffness = N/m }`, or
+    /// `{ at = i, … }` to the ground.
+    #[serde(default)]
+    pub springs: Vec<Spring>,
+    /// `lumped`: dampers `{ between = [i, j], damping = N s/m }` or to the
+    /// ground; the modal model keeps their diagonal (docs/own-plant.md).
+    #[serde(default)]
+    pub dampers: Vec<Damper>,
+    /// `lumped`: the inputs, one per entry: a force on a mass `{ at = i }`
+    /// or a force pair between two `{ between = [i, j] }` (+f on j, −f on i).
+    #[serde(default)]
+    pub forces: Vec<Attachment>,
+    /// `lumped`: the outputs, one per entry: a mass's position `{ at = i }`
+    /// or a relative one `{ between = [i, j] }` (q_j − q_i).
+    #[serde(default)]
+    pub positions: Vec<Attachment>,
+    /// `second-order`, `state-space`: the file holding the arrays (.npz or
+    /// .mat level 5), relative to the scenario's directory.
+    pub file: Option<PathBuf>,
+    /// `second-order`, `state-space`: the arrays inline, instead of a file
+    /// (rows as arrays of numbers).
+    pub arrays: Option<toml::Table>,
     /// Whether the file named `output` (not part of the format): `output`
     /// has a default, so only the text tells a given one from the default.
     #[serde(skip)]
@@ -144,13 +182,16 @@ pub struct PlantSection {
 pub const SENSOR_POSITION_MAX: f64 = 7.0;
 
 /// The built-in plant models.
-pub const MODELS: [&str; 6] = [
+pub const MODELS: [&str; 9] = [
     "double-integrator",
     "thesis-chain",
     "mimo-example",
     "oat-like",
     "two-inertia",
     "uniform-chain",
+    "lumped",
+    "second-order",
+    "state-space",
 ];
 
 /// OAT-like model: the encoders read when the file names none.
@@ -237,6 +278,23 @@ pub struct ObserverSection {
     /// given, it replaces `damping_increase` (each mode gets the increase
     /// from its own open-loop damping, none if it is already damped more).
     pub damping_target: Option<f64>,
+    /// Kalman weights: σ of the process noise w on every input (N, per
+    /// sample, entering as the force does); absent: `plant.force_noise`,
+    /// or the model's own (the thesis' 10 mN) when the plant has none.
+    pub process_noise: Option<f64>,
+    /// Kalman weights: σ of the measurement noise on every output (m);
+    /// absent: √(sensor_noise² + reference_noise²) of the plant, or the
+    /// model's own (the thesis' √2 nm) when the plant has none.
+    pub measurement_noise: Option<f64>,
+    /// Kalman weights given whole: Q (inputs × inputs, per sample, w
+    /// entering as the force does) and R (outputs × outputs), rows as arrays.
+    pub kalman_q: Option<Vec<Vec<f64>>>,
+    pub kalman_r: Option<Vec<Vec<f64>>>,
+    /// Own models (`lumped`, `second-order`, `state-space`): the reduced
+    /// model keeps the flexible modes up to this frequency (Hz); absent:
+    /// 0.15 of the sample rate (docs/own-plant.md). The discarded
+    /// modes enter as T_DC.
+    pub max_mode_hz: Option<f64>,
     /// Flexible modes the observer's reduced model keeps (the rest enter as
     /// T_DC); absent: the model's default (thesis chain 3, MIMO example 2,
     /// OAT-like 8, two-inertia 1). The thesis chain's mode 7 stays unknown.
@@ -573,6 +631,15 @@ pub struct Overrides {
 }
 
 impl Scenario {
+    /// `plant.file` resolved against the scenario's directory.
+    pub fn plant_file_path(&self) -> Option<PathBuf> {
+        let file = self.plant.file.as_ref()?;
+        Some(match self.source.parent() {
+            Some(dir) if file.is_relative() => dir.join(file),
+            _ => file.clone(),
+        })
+    }
+
     pub fn period_ns(&self) -> u64 {
         (1e9 / self.timing.rate_hz).round() as u64
     }

@@ -32,6 +32,11 @@ pub fn swap_conflicts(running: &Scenario, new: &Scenario, swapped: Swapped) -> V
     check("loop.mode", running.timing.mode != new.timing.mode);
     // (loop.duration_s is the plant's alone: it ends the run.)
     plant_conflicts(&running.plant, &new.plant, &mut check);
+    // The same file name next to another scenario is another file.
+    check(
+        "plant.file",
+        running.plant_file_path() != new.plant_file_path(),
+    );
     reference_conflicts(&running.reference, &new.reference, &mut check);
     // The loop delay: when each command applies, and so the tick the
     // feedforward is issued for and the observer's inputs.
@@ -69,7 +74,31 @@ fn plant_conflicts(a: &PlantSection, b: &PlantSection, check: &mut impl FnMut(&'
         force_noise,
         sensor_noise,
         reference_noise,
+        masses_kg,
+        stiffness_n_per_m,
+        actuator_node,
+        zeta,
+        rayleigh,
+        springs,
+        dampers,
+        forces,
+        positions,
+        file: _,
+        arrays,
     } = a;
+    check("plant.masses_kg", *masses_kg != b.masses_kg);
+    check(
+        "plant.stiffness_n_per_m",
+        *stiffness_n_per_m != b.stiffness_n_per_m,
+    );
+    check("plant.actuator_node", *actuator_node != b.actuator_node);
+    check("plant.zeta", *zeta != b.zeta);
+    check("plant.rayleigh", *rayleigh != b.rayleigh);
+    check("plant.springs", *springs != b.springs);
+    check("plant.dampers", *dampers != b.dampers);
+    check("plant.forces", *forces != b.forces);
+    check("plant.positions", *positions != b.positions);
+    check("plant.arrays", *arrays != b.arrays);
     check("plant.model", *model != b.model);
     check("plant.mass_kg", *mass_kg != b.mass_kg);
     check("plant.output", effective_output(a) != effective_output(b));

@@ -7,7 +7,7 @@ use crate::schema::{DEDICATED_CORES_MIN_CPUS, MODELS, Profile, SENSOR_POSITION_M
 use crate::{ScenarioError, limits};
 
 impl Scenario {
-    fn err(&self, field: &str, reason: impl Into<String>) -> ScenarioError {
+    pub(crate) fn err(&self, field: &str, reason: impl Into<String>) -> ScenarioError {
         ScenarioError::new(&self.source, Some(field), reason)
     }
 
@@ -41,6 +41,8 @@ impl Scenario {
         }
         self.validate_names()?;
         self.validate_applicability()?;
+        self.validate_plant_description()?;
+        self.validate_kalman_weights()?;
         let (mass_min, mass_max) = limits::MASS_KG;
         self.within(
             "plant.mass_kg",
@@ -396,7 +398,7 @@ impl Scenario {
     }
 
     /// `v` in [lo, hi] and finite, else an error naming the range.
-    fn within(
+    pub(crate) fn within(
         &self,
         field: &str,
         v: f64,
@@ -424,7 +426,7 @@ impl Scenario {
     }
 
     /// `v` in (0, hi] and finite.
-    fn positive_up_to(&self, field: &str, v: f64, hi: f64) -> Result<(), ScenarioError> {
+    pub(crate) fn positive_up_to(&self, field: &str, v: f64, hi: f64) -> Result<(), ScenarioError> {
         if v.is_finite() && v > 0.0 && v <= hi {
             return Ok(());
         }
@@ -757,6 +759,17 @@ impl Scenario {
                     return Err(self.err(
                         "plant.output",
                         "the uniform chain has one sensor, at 5/7 of its length",
+                    ));
+                }
+            }
+            "lumped" | "second-order" | "state-space" => {
+                if self.plant.output_given {
+                    return Err(self.err(
+                        "plant.output",
+                        format!(
+                            "`{model}` measures the outputs its model defines; \
+                             reference.direction says which the reference moves"
+                        ),
                     ));
                 }
             }

@@ -5,9 +5,13 @@
 //! - [`double_integrator`]: the lecture's mass with state feedback.
 //! - [`thesis_chain`]: the thesis' eight-mode chain, its sensor anywhere.
 //! - [`modal_stand_in`]: the models whose data the thesis leaves incomplete.
+//! - [`own`]: the plants a user brings (lumped networks, model files).
+//! - [`modal_parts`]: what every modal model brings to the loop.
 
 pub mod double_integrator;
+pub mod modal_parts;
 pub mod modal_stand_in;
+// OWN: pub mod own;
 pub mod thesis_chain;
 
 use crate::feedback::FeedbackPlan;
@@ -40,6 +44,7 @@ pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, S
         "mimo-example" | "oat-like" | "two-inertia" | "uniform-chain" => {
             modal_stand_in::parts(s, ts, extra_delay)
         }
+        // OWN: "lumped" | "second-order" | "state-space" => own::parts(s, ts, extra_delay),
         other => Err(ScenarioError::new(
             &s.source,
             Some("plant.model"),

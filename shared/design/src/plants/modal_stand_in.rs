@@ -2,9 +2,7 @@
 //! `mimo-example`, `oat-like`, `two-inertia` and `uniform-chain`.
 
 use super::Parts;
-use crate::feedback::FeedbackPlan;
-use crate::feedforward::FeedforwardPlan;
-use crate::observer::{flexible_modes_kept, modal_observer};
+use super::modal_parts::{ModalPlant, RigidBodyPlan, modal_damping, modal_parts};
 use flexloop_control::discretise::zoh;
 use flexloop_control::kalman::KalmanWeights;
 use flexloop_control::modal::{ModalModel, ModelError, ReducedModel};
@@ -47,11 +45,16 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         }
         "uniform-chain" => {
             let nodes = s.plant.nodes.unwrap_or_default();
-            let nodal = models::uniform_chain(nodes)
+            let mut nodal = models::uniform_chain(nodes)
                 .map_err(|e| ScenarioError::new(&s.source, Some("plant.nodes"), e.to_string()))?;
+            if let Some(zeta) = &s.plant.zeta {
+                nodal.damping = modal_damping(zeta);
+            }
             let sensor = models::uniform_chain_sensor(nodes);
             (
-                ModalModel::from_nodal(&nodal).map_err(model_err)?,
+                ModalModel::from_nodal(&nodal).map_err(|e| {
+                    ScenarioError::new(&s.source, Some("plant.zeta"), e.to_string())
+                })?,
                 vec![format!("node {sensor} of 0..{}", nodes - 1)],
                 nodes - 1,
             )
@@ -71,44 +74,18 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
             )
         }
     };
-    let (n_y, n_u) = (full.outputs(), full.inputs());
-    let plant = zoh(&full.state_space(), ts)
-        .map_err(|e| ScenarioError::new(&s.source, Some("plant"), format!("ZOH: {e}")))?;
-    let f_hz = full.frequencies_hz();
-    let flexible_modes = (full.n_rigid..full.modes())
-        .map(|i| (f_hz[i], full.zeta[i]))
-        .collect();
-    let (_, gamma, upsilon) = full.rigid_body_decoupled().map_err(model_err)?;
-    let inverse = &gamma * &upsilon;
-    let compliance = full
-        .compliance(&(full.n_rigid..full.modes()).collect::<Vec<_>>())
-        .map_err(model_err)?;
-    let n_flex = full.modes() - full.n_rigid;
-    let (observer, output_prediction, observer_modes) =
-        modal_observer(s, ts, extra_delay, n_y, n_u, || {
-            let keep = flexible_modes_kept(s, default_keep, n_flex)?;
-            let compensate: Vec<usize> = (full.n_rigid + keep..full.modes()).collect();
-            let reduced = full
-                .truncate(full.n_rigid + keep, &compensate)
-                .map_err(|e| {
-                    ScenarioError::new(&s.source, Some("observer.flexible_modes"), e.to_string())
-                })?;
-            let weights = stand_in_weights(s, &reduced, ts)?;
-            Ok((reduced, weights))
-        })?;
-    Ok(Parts {
-        plant_u: plant,
-        observer,
-        output_prediction,
-        feedforward: FeedforwardPlan::RigidBody {
-            compliance: &inverse * &compliance * &inverse,
-            inverse,
+    modal_parts(
+        s,
+        ts,
+        extra_delay,
+        ModalPlant {
+            full,
+            output_names,
+            default_keep,
+            rigid_body: RigidBodyPlan::Decoupled,
         },
-        feedback: FeedbackPlan::Decoupled { gamma, upsilon },
-        output_names,
-        flexible_modes,
-        observer_modes,
-    })
+        |reduced| stand_in_weights(s, reduced, ts),
+    )
 }
 
 /// Kalman weights of the stand-ins (None: the thesis' σ_w, σ_v, σ_d).
