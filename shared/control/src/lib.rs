@@ -10,6 +10,12 @@
 //!   the reduced model with MC and/or AD), layout in [`observer_block`];
 //! * controller: [`pid::thesis_pid`] (Tustin PID + low-pass, input e_meas);
 //! * set-point and feedforward: [`setpoint::Setpoint`], [`feedforward`].
+//!
+//! A user's own plant enters as a lumped network ([`lumped_network`]), a
+//! second-order model M, D, K, B, C ([`second_order`]), or a first-order
+//! state space ([`real_modal_form`], from discrete time through
+//! [`zoh_inverse`]); each becomes a [`modal::ModalModel`], errors in
+//! [`plant_model_error`].
 
 pub mod lti;
 
@@ -28,6 +34,7 @@ pub mod kalman;
 pub mod lecture;
 pub mod linalg;
 pub mod lqr;
+pub mod lumped_network;
 pub mod matrix_error;
 pub mod modal;
 pub mod models;
@@ -35,8 +42,12 @@ pub mod modified_feedforward;
 pub mod observer_block;
 pub mod pid;
 pub mod placement;
+pub mod plant_model_error;
+pub mod real_modal_form;
 pub mod scheduled_observer;
 pub mod scheduling;
+pub mod second_order;
 pub mod setpoint;
 pub mod step_error;
 pub mod stiffness;
+pub mod zoh_inverse;

@@ -70,6 +70,10 @@ pub enum ModalDamping {
     /// Stiffness-proportional damping D = β K, i.e. ζ_i = β ω_i / 2
     /// (a chain with equal dampers b along equal springs k has β = b/k).
     StiffnessProportional(f64),
+    /// Rayleigh damping D = α M + β K, i.e. ζ_i = α/(2ω_i) + β ω_i/2. The
+    /// α M term damps rigid-body motion too (a damper to ground), so α must
+    /// be 0 on a model with rigid modes.
+    Rayleigh { alpha: f64, beta: f64 },
 }
 
 /// Nodal form M q̈ + D q̇ + K q = S_a f, y = S_s q (docs/control.md (2.1)).
@@ -287,6 +291,22 @@ impl ModalModel {
             ModalDamping::StiffnessProportional(beta) => {
                 for i in n_rigid..n {
                     zeta[i] = beta * omega[i] / 2.0;
+                }
+            }
+            ModalDamping::Rayleigh { alpha, beta } => {
+                if !(alpha.is_finite() && beta.is_finite()) {
+                    return Err(ModelError::Matrix(MatrixError::NonFinite(
+                        "Rayleigh alpha/beta",
+                    )));
+                }
+                if *alpha != 0.0 && n_rigid > 0 {
+                    return Err(ModelError::InvalidDamping(format!(
+                        "Rayleigh α = {alpha} damps the {n_rigid} rigid-body mode(s) (α M is a \
+                         damper to ground): use α = 0 (β K only) or modal ζ"
+                    )));
+                }
+                for i in n_rigid..n {
+                    zeta[i] = alpha / (2.0 * omega[i]) + beta * omega[i] / 2.0;
                 }
             }
         }
