@@ -84,6 +84,7 @@ pub fn modal_from_second_order(
         other => PlantModelError::new("M", R::Model(other)),
     })?;
     if let Some(d) = d {
+        align_repeated_modes(&mut modal, d, b, c);
         modal.zeta = zeta_from_damping_matrix(&modal, d)?;
     }
     Ok(modal)
@@ -119,6 +120,73 @@ fn check_mass(m: &DMatrix<f64>) -> Result<(), PlantModelError> {
         return Err(PlantModelError::new("M", R::SingularMass));
     }
     Ok(())
+}
+
+/// Flexible modes whose frequencies agree to this fraction are one repeated
+/// frequency, within which the mode shapes are any orthonormal (in M) basis.
+const REPEATED_FREQUENCY_TOL: f64 = 1e-9;
+
+/// Within each repeated flexible frequency, turns the mode shapes to the
+/// eigenvectors of that block of ΦᵀDΦ: the symmetric eigen-solver returns an
+/// arbitrary basis of a repeated eigenspace (two equal bending directions),
+/// in which a D that is proportional in the structure's own directions (e.g.
+/// different dampers along two equal springs) would look coupled. The
+/// rotation is orthogonal, so Φ stays mass-normalised and Ω unchanged; the
+/// sign of each mode follows [`crate::modal`] again.
+fn align_repeated_modes(
+    modal: &mut ModalModel,
+    d: &DMatrix<f64>,
+    b: &DMatrix<f64>,
+    c: &DMatrix<f64>,
+) {
+    let Some(mut phi) = modal.shapes.clone() else {
+        return;
+    };
+    let n = modal.modes();
+    let mut start = modal.n_rigid;
+    let mut changed = false;
+    while start < n {
+        let mut end = start + 1;
+        while end < n
+            && modal.omega[end] - modal.omega[start] <= REPEATED_FREQUENCY_TOL * modal.omega[start]
+        {
+            end += 1;
+        }
+        if end - start > 1 {
+            let group = phi.columns(start, end - start).into_owned();
+            let block = group.transpose() * d * &group;
+            let sym = (&block + block.transpose()) * 0.5;
+            if let Some(eig) = SymmetricEigen::try_new(sym, f64::EPSILON, 1000 * (end - start)) {
+                let mut order: Vec<usize> = (0..end - start).collect();
+                order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+                let turned = &group * eig.eigenvectors.select_columns(&order);
+                for (col, v) in turned.column_iter().enumerate() {
+                    let mut v = v.into_owned();
+                    let gain = if b.ncols() > 0 {
+                        b.column(0).dot(&v)
+                    } else {
+                        0.0
+                    };
+                    let reference = if gain.abs() > 1e-9 * v.amax() {
+                        gain
+                    } else {
+                        v[v.iamax()]
+                    };
+                    if reference < 0.0 {
+                        v = -v;
+                    }
+                    phi.set_column(start + col, &v);
+                }
+                changed = true;
+            }
+        }
+        start = end;
+    }
+    if changed {
+        modal.phi_a = phi.transpose() * b;
+        modal.phi_s = c * &phi;
+        modal.shapes = Some(phi);
+    }
 }
 
 /// ζ per mode from the modal damping matrix ΦᵀDΦ (docs/control.md (2.3)).

@@ -100,10 +100,20 @@ fn rel(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
 }
 
 /// Frequencies (relative), ζ (absolute) and φ_s,i φ_a,iᵀ (relative to its
-/// norm) mode by mode, for models without repeated frequencies.
+/// norm) mode by mode, for models without repeated flexible frequencies;
+/// the rigid modes' products as one sum (only the sum is defined).
 fn assert_same_modes(got: &ModalModel, want: &ModalModel, tol: f64) {
     assert_eq!(got.modes(), want.modes());
     assert_eq!(got.n_rigid, want.n_rigid);
+    let rigid = |m: &ModalModel| {
+        (0..m.n_rigid)
+            .map(|i| m.phi_s.column(i) * m.phi_a.row(i))
+            .fold(DMatrix::zeros(m.outputs(), m.inputs()), |acc, x| acc + x)
+    };
+    if want.n_rigid > 0 {
+        let e = rel(&rigid(got), &rigid(want));
+        assert!(e < tol, "rigid modes: Σ φ_s φ_aᵀ off by {e:e}");
+    }
     for i in 0..want.modes() {
         if want.omega[i] == 0.0 {
             assert_eq!(got.omega[i], 0.0);
@@ -113,6 +123,9 @@ fn assert_same_modes(got: &ModalModel, want: &ModalModel, tol: f64) {
         }
         let e = (got.zeta[i] - want.zeta[i]).abs();
         assert!(e < tol, "mode {i}: ζ off by {e:e}");
+        if i < want.n_rigid {
+            continue;
+        }
         let pg = got.phi_s.column(i) * got.phi_a.row(i);
         let pw = want.phi_s.column(i) * want.phi_a.row(i);
         let e = rel(&pg, &pw);
@@ -350,4 +363,35 @@ fn planar_free_body_with_repeated_frequency() {
             assert!(e < 1e-9, "modes {r:?}: Σ φ_s φ_aᵀ off by {e:e}");
         }
     }
+}
+
+#[test]
+fn planar_free_body_with_different_dampers_on_equal_springs() {
+    // Dampers 20 and 50 N s/m along the equal x and y springs, 0.02 N m s/rad
+    // on the torsion spring: proportional in the body's own directions, not
+    // in the arbitrary basis a symmetric eigen-solver gives the repeated pair.
+    let masses = [10.0, 10.0, 0.4, 1.0, 1.0, 0.01];
+    let springs = [(0, Some(3), 1e6), (1, Some(4), 1e6), (2, Some(5), 1e3)];
+    let dampers = [(0, Some(3), 20.0), (1, Some(4), 50.0), (2, Some(5), 0.02)];
+    let io = [
+        Attach::At(0),
+        Attach::At(1),
+        Attach::At(2),
+        Attach::Between(0, 3),
+    ];
+    let net = lumped_network(&masses, &springs, &dampers, &io, &io).unwrap();
+    let d = net.d.as_ref().unwrap();
+    let modal = modal_from_second_order(&net.m, &net.k, Some(d), &net.b, &net.c, None).unwrap();
+    // ζ = c / (2 m_r ω) with m_r = 10/11 kg, ω = √1.1e6 rad/s.
+    let w = 1.1e6f64.sqrt();
+    let zx = 20.0 / (2.0 * (10.0 / 11.0) * w);
+    let zy = 50.0 / (2.0 * (10.0 / 11.0) * w);
+    assert!((modal.zeta[4] - zx).abs() < 1e-12, "{:?}", modal.zeta);
+    assert!((modal.zeta[5] - zy).abs() < 1e-12, "{:?}", modal.zeta);
+    let phys = physical(&net.m, &net.k, d, &net.b, &net.c);
+    let hz = [0.5, 20.0, 51.0, 100.0, 166.9, 300.0, 3000.0];
+    assert_same_response(&modal.state_space(), &phys, &hz);
+    let got = modal_from_state_space(&phys.a, &phys.b, &phys.c, None).unwrap();
+    assert_eq!(got.n_rigid, 3);
+    assert_same_modes(&got, &modal, 1e-9);
 }
