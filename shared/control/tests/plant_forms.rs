@@ -395,3 +395,22 @@ fn planar_free_body_with_different_dampers_on_equal_springs() {
     assert_eq!(got.n_rigid, 3);
     assert_same_modes(&got, &modal, 1e-9);
 }
+
+#[test]
+fn continuous_from_zoh_inverts_the_planar_free_body() {
+    // Three rigid modes: A_d has three 2×2 Jordan blocks at 1.
+    let (modal, phys) = planar_body();
+    let d = zoh(&phys, TS_10KHZ).unwrap();
+    let (a, b) = continuous_from_zoh(&d.a, &d.b, TS_10KHZ).unwrap();
+    let e = (&a - &phys.a).norm() / phys.a.norm();
+    assert!(e < 1e-9, "A off by {e:e}");
+    let e = rel(&b, &phys.b);
+    assert!(e < 1e-9, "B off by {e:e}");
+    let got = modal_from_state_space(&a, &b, &phys.c, None).unwrap();
+    assert_eq!(got.n_rigid, 3);
+    assert_same_response(
+        &got.state_space(),
+        &modal.state_space(),
+        &[0.5, 51.0, 300.0],
+    );
+}
