@@ -57,8 +57,9 @@ use nalgebra::{Complex, DMatrix};
 
 /// An eigenvalue with |λ| at most this fraction of ‖A‖ (Frobenius, balanced)
 /// is zero: a rigid-body Jordan pair perturbed by rounding ε splits by about
-/// √ε·‖A‖ ≈ 1.5e-8·‖A‖, so a flexible mode would have to lie five decades
-/// below the model's scale to be taken as rigid.
+/// at most √ε·‖A‖ ≈ 1.5e-8·‖A‖ (the thesis chain in mixed coordinates:
+/// 1.5e-5 rad/s at ‖A‖ ≈ 3e8), so a flexible mode would have to lie six
+/// decades below the model's scale to be taken as rigid.
 pub const ZERO_EIGENVALUE_TOL: f64 = 1e-6;
 /// An eigenvalue with |Im λ| at most this fraction of |λ| is real (a
 /// critically damped pair splits by about √ε).
