@@ -196,7 +196,7 @@ impl fmt::Display for ModelFileErrorKind {
                 first_len,
             } => write!(
                 f,
-                "row {} has {len} numbers where row 1 has {first_len}; a matrix is written as rows of equal length",
+                "row {} has length {len} where row 1 has length {first_len}; a matrix is written as rows of equal length",
                 row + 1
             ),
             InlineMixed => write!(

@@ -205,3 +205,161 @@ impl ModelArrays {
         ModelFileError::new(&self.source, Some(name), kind)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn inline(text: &str) -> Result<ModelArrays, ModelFileError> {
+        let table: toml::Table = text.parse().unwrap();
+        ModelArrays::from_toml(Path::new("scenarios/own.toml"), "plant.arrays", &table)
+    }
+
+    fn error(result: Result<impl std::fmt::Debug, ModelFileError>) -> String {
+        result.unwrap_err().to_string()
+    }
+
+    const CHAIN: &str = r#"
+        M = [[1.5, 0], [0, 2.5]]
+        K = [[3e4, -3e4], [-3e4, 3e4]]
+        B = [1, 0]
+        C = [0.0, 1.0]
+        ts = 1e-4
+    "#;
+
+    #[test]
+    fn inline_arrays_are_matrices_vectors_and_numbers() {
+        let arrays = inline(CHAIN).unwrap();
+        assert_eq!(arrays.names(), ["B", "C", "K", "M", "ts"]);
+        assert_eq!(
+            arrays.matrix("M", VectorAs::Column).unwrap(),
+            DMatrix::from_row_slice(2, 2, &[1.5, 0.0, 0.0, 2.5])
+        );
+        // A 1-D array is the column or the row the caller asks for.
+        assert_eq!(
+            arrays.matrix("B", VectorAs::Column).unwrap().shape(),
+            (2, 1)
+        );
+        assert_eq!(
+            arrays.matrix("C", VectorAs::Row).unwrap(),
+            DMatrix::from_row_slice(1, 2, &[0.0, 1.0])
+        );
+        // A number is a 1×1 matrix, or a scalar.
+        assert_eq!(arrays.matrix("ts", VectorAs::Row).unwrap().shape(), (1, 1));
+        assert_eq!(arrays.scalar("ts").unwrap(), Some(1e-4));
+        assert_eq!(arrays.scalar("dt").unwrap(), None);
+        assert_eq!(arrays.optional_matrix("D", VectorAs::Row).unwrap(), None);
+        assert!(
+            arrays
+                .optional_matrix("K", VectorAs::Row)
+                .unwrap()
+                .is_some()
+        );
+        assert_eq!(arrays.unused(&["M", "K", "B", "C"]), ["ts"]);
+        assert!(arrays.unused(&["M", "K", "B", "C", "ts"]).is_empty());
+    }
+
+    #[test]
+    fn errors_name_the_scenario_table_the_array_and_the_reason() {
+        let arrays = inline(CHAIN).unwrap();
+        assert_eq!(
+            error(arrays.matrix("D", VectorAs::Row)),
+            "scenarios/own.toml, table `plant.arrays`: array `D`: missing (the arrays present: B, C, K, M, ts)"
+        );
+        assert_eq!(
+            error(arrays.scalar("M")),
+            "scenarios/own.toml, table `plant.arrays`: array `M`: must be a single number, found 4 entries (2×2)"
+        );
+        let cases = [
+            (
+                "M = [[1.0, 2.0], [3.0]]",
+                "array `M`: row 2 has length 1 where row 1 has length 2; a matrix is written as rows of equal length",
+            ),
+            (
+                "M = [[1.0, 'x']]",
+                "array `M`: row 1, element 2 is a string, not a number",
+            ),
+            (
+                "B = [1.0, true]",
+                "array `B`: element 2 is a boolean, not a number",
+            ),
+            (
+                "ts = '1e-4'",
+                "array `ts`: the value is a string, not a number",
+            ),
+            (
+                "M = [[[1.0]]]",
+                "array `M`: is nested deeper than rows of numbers",
+            ),
+            ("M = [1.0, [2.0]]", "array `M`: mixes numbers and rows"),
+            (
+                "K = 9007199254740993",
+                "array `K`: has the integer entry 9007199254740993, too large",
+            ),
+        ];
+        for (text, expected) in cases {
+            let arrays = inline(text).unwrap();
+            let name = arrays.names()[0].to_string();
+            let message = error(arrays.matrix(&name, VectorAs::Column));
+            assert!(message.contains(expected), "{text}: {message}");
+        }
+    }
+
+    #[test]
+    fn a_non_finite_entry_is_refused_naming_its_place() {
+        let arrays = inline("K = [[1.0, 2.0], [3.0, nan]]\nB = [0.0, -inf]\nts = inf").unwrap();
+        assert!(matches!(
+            arrays.matrix("K", VectorAs::Column).unwrap_err().kind,
+            ModelFileErrorKind::NonFinite { row: 1, column: 1, value } if value.is_nan()
+        ));
+        assert!(
+            error(arrays.matrix("K", VectorAs::Column))
+                .ends_with("array `K`: the entry at row 2, column 2 (counted from 1) is NaN; entries must be finite")
+        );
+        // The place is the matrix's: a 1-D array taken as a column.
+        assert!(error(arrays.matrix("B", VectorAs::Column)).contains("row 2, column 1"));
+        assert!(error(arrays.matrix("B", VectorAs::Row)).contains("row 1, column 2"));
+        assert!(error(arrays.scalar("ts")).contains("is inf"));
+    }
+
+    #[test]
+    fn more_than_two_dimensions_are_refused() {
+        let arrays = ModelArrays {
+            source: ArraySource::File("plant.npz".into()),
+            arrays: [(
+                "M".to_string(),
+                Ok(Array::new(vec![2, 2, 2], vec![0.0; 8]).unwrap()),
+            )]
+            .into(),
+        };
+        assert_eq!(
+            error(arrays.matrix("M", VectorAs::Column)),
+            "plant.npz: array `M`: has 3 dimensions (2×2×2); a model array is a matrix, a vector or a single number"
+        );
+    }
+
+    #[test]
+    fn files_are_read_by_extension() {
+        let dir = std::env::temp_dir();
+        assert_eq!(
+            error(ModelArrays::read(&dir.join("plant.csv"))),
+            format!(
+                "{}: unknown model file type `.csv`: expected .npz (NumPy np.savez) or .mat (MATLAB save, level 5)",
+                dir.join("plant.csv").display()
+            )
+        );
+        assert!(matches!(
+            ModelArrays::read(Path::new("plant")).unwrap_err().kind,
+            ModelFileErrorKind::UnknownFormat { extension: None }
+        ));
+        let missing = dir.join(format!(
+            "flexloop-modelfile-{}-missing.MAT",
+            std::process::id()
+        ));
+        let message = error(ModelArrays::read(&missing));
+        assert!(
+            message.contains("cannot read the file: No such file"),
+            "{message}"
+        );
+    }
+}

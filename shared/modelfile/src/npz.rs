@@ -134,3 +134,217 @@ fn corrupt(reason: String) -> ModelFileErrorKind {
         reason,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::io::Write;
+
+    use zip::write::SimpleFileOptions;
+
+    use super::*;
+    use crate::error::ArraySource;
+
+    /// A `.npy` array as the format's specification lays it out (version 1.0:
+    /// magic, header length, the header dict padded to 64 bytes, the data),
+    /// made here so that the reader is checked against the format, not
+    /// against npyz's own writer.
+    fn npy(descr: &str, fortran_order: bool, shape: &str, data: &[u8]) -> Vec<u8> {
+        let order = if fortran_order { "True" } else { "False" };
+        let mut dict =
+            format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': {shape}, }}");
+        while (10 + dict.len() + 1) % 64 != 0 {
+            dict.push(' ');
+        }
+        dict.push('\n');
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&u16::try_from(dict.len()).unwrap().to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        bytes.extend_from_slice(data);
+        bytes
+    }
+
+    fn f64s(values: &[f64]) -> Vec<u8> {
+        values.iter().flat_map(|v| v.to_le_bytes()).collect()
+    }
+
+    /// An archive of `members` (name, bytes), stored or deflated.
+    fn npz(members: &[(&str, Vec<u8>)], deflated: bool) -> Vec<u8> {
+        let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));
+        let method = if deflated {
+            zip::CompressionMethod::Deflated
+        } else {
+            zip::CompressionMethod::Stored
+        };
+        for (name, bytes) in members {
+            zip.start_file(
+                *name,
+                SimpleFileOptions::default().compression_method(method),
+            )
+            .unwrap();
+            zip.write_all(bytes).unwrap();
+        }
+        zip.finish().unwrap().into_inner()
+    }
+
+    fn entry(arrays: &NamedArrays, name: &str) -> Entry {
+        arrays
+            .0
+            .get(name)
+            .cloned()
+            .unwrap_or_else(|| panic!("no {name}"))
+    }
+
+    fn message(result: Result<NamedArrays, Fault>) -> String {
+        match result {
+            Ok(arrays) => panic!("read: {:?}", arrays.0.keys()),
+            Err(fault) => fault.at(&ArraySource::File("t.npz".into())).to_string(),
+        }
+    }
+
+    #[test]
+    fn orders_byte_orders_and_number_types_read_as_row_major_f64() {
+        // [[1, 2, 3], [4, 5, 6]] stored column by column.
+        let fortran = npy(
+            "<f8",
+            true,
+            "(2, 3)",
+            &f64s(&[1.0, 4.0, 2.0, 5.0, 3.0, 6.0]),
+        );
+        let c = npy(
+            "<f8",
+            false,
+            "(2, 3)",
+            &f64s(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+        );
+        let big: Vec<u8> = [1.5f64, -2.0]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        let ints: Vec<u8> = [-7i32, 9].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let bools = vec![1u8, 0, 1];
+        let single = 0.25f32.to_le_bytes().to_vec();
+        let file = npz(
+            &[
+                ("F.npy", fortran),
+                ("C.npy", c),
+                ("big.npy", npy(">f8", false, "(2,)", &big)),
+                ("ints.npy", npy("<i4", false, "(2,)", &ints)),
+                ("bools.npy", npy("|b1", false, "(3,)", &bools)),
+                ("single.npy", npy("<f4", false, "()", &single)),
+            ],
+            true,
+        );
+        let arrays = read(&file).unwrap();
+        let six = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        assert_eq!(
+            entry(&arrays, "F").unwrap(),
+            Array::new(vec![2, 3], six.to_vec()).unwrap()
+        );
+        assert_eq!(
+            entry(&arrays, "C").unwrap(),
+            Array::new(vec![2, 3], six.to_vec()).unwrap()
+        );
+        assert_eq!(entry(&arrays, "big").unwrap().data(), &[1.5, -2.0]);
+        assert_eq!(entry(&arrays, "ints").unwrap().data(), &[-7.0, 9.0]);
+        assert_eq!(entry(&arrays, "bools").unwrap().data(), &[1.0, 0.0, 1.0]);
+        let single = entry(&arrays, "single").unwrap();
+        assert_eq!((single.shape(), single.data()), (&[][..], &[0.25][..]));
+    }
+
+    #[test]
+    fn arrays_that_are_not_real_numbers_are_refused_each_with_its_reason() {
+        let huge: Vec<u8> = [(1i64 << 53) + 1]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let file = npz(
+            &[
+                ("Z.npy", npy("<c16", false, "(1,)", &f64s(&[1.0, 2.0]))),
+                ("T.npy", npy("<U1", false, "(1,)", &[b'M', 0, 0, 0])),
+                ("O.npy", npy("|O", false, "(1,)", b"\x80\x02N.")),
+                ("H.npy", npy("<f2", false, "(1,)", &[0, 0x3c])),
+                ("N.npy", npy("<i8", false, "(1,)", &huge)),
+                ("notes.txt", b"a model".to_vec()),
+            ],
+            false,
+        );
+        let arrays = read(&file).unwrap();
+        assert_eq!(entry(&arrays, "Z"), Err(ModelFileErrorKind::Complex));
+        assert_eq!(
+            entry(&arrays, "T"),
+            Err(not_numeric("text (dtype <U1)".into()))
+        );
+        assert_eq!(
+            entry(&arrays, "O"),
+            Err(not_numeric(
+                "an array of Python objects (dtype object)".into()
+            ))
+        );
+        assert_eq!(
+            entry(&arrays, "H"),
+            Err(ModelFileErrorKind::UnsupportedNumberType {
+                dtype: "<f2".into()
+            })
+        );
+        assert_eq!(
+            entry(&arrays, "N"),
+            Err(ModelFileErrorKind::InexactInteger {
+                value: "9007199254740993".into()
+            })
+        );
+        assert!(matches!(
+            entry(&arrays, "notes.txt"),
+            Err(ModelFileErrorKind::NotNumeric { .. })
+        ));
+    }
+
+    #[test]
+    fn a_damaged_or_foreign_file_is_an_error_naming_it() {
+        let short = npz(
+            &[("M.npy", npy("<f8", false, "(2, 2)", &f64s(&[1.0; 3])))],
+            false,
+        );
+        assert!(
+            message(read(&short)).starts_with(
+                "t.npz: array `M`: not a readable NumPy .npz archive: cannot read the array's data"
+            ),
+            "{}",
+            message(read(&short))
+        );
+        // The zip crate refuses two members of one name; `M.npy` and `M`
+        // are two names for `np.load`'s one.
+        let twice = npz(
+            &[
+                ("M.npy", npy("<f8", false, "()", &f64s(&[1.0]))),
+                ("M", b"M again".to_vec()),
+            ],
+            false,
+        );
+        assert_eq!(message(read(&twice)), "t.npz: array `M`: is given twice");
+        assert!(message(read(b"MATLAB 5.0 MAT-file")).contains("not a zip archive"));
+    }
+
+    #[test]
+    fn truncated_archives_are_errors() {
+        for deflated in [false, true] {
+            let file = npz(
+                &[
+                    (
+                        "M.npy",
+                        npy("<f8", true, "(2, 2)", &f64s(&[1.0, 0.0, 0.0, 2.0])),
+                    ),
+                    ("B.npy", npy("<f8", false, "(2,)", &f64s(&[0.0, 1.0]))),
+                ],
+                deflated,
+            );
+            assert_eq!(read(&file).unwrap().0.len(), 2);
+            for len in 0..file.len() {
+                let text = message(read(&file[..len]));
+                assert!(
+                    !text.contains("stopped on malformed data"),
+                    "cut at {len}: {text}"
+                );
+            }
+        }
+    }
+}
