@@ -120,8 +120,10 @@ impl ModelArrays {
 
     /// The array `name` as a matrix: a 2-D array as it is; a 1-D array of n
     /// as an n×1 column or a 1×n row, per `vector` (the caller knows: B is a
-    /// column, C a row); a single number (0-D) as 1×1. Which dimensions fit
-    /// is the caller's to check. An error names the source and the array:
+    /// column, C a row); a single number (0-D) as 1×1. A MAT-file has no 1-D
+    /// arrays: MATLAB and scipy.io.savemat write a vector as a 1×n or n×1
+    /// matrix (savemat makes a 1-D NumPy array a 1×n row by default), which
+    /// comes as written. Which dimensions fit is the caller's to check. An error names the source and the array:
     /// missing (listing the names present), more than two dimensions, a NaN
     /// or infinite entry (which one), or not real numbers.
     pub fn matrix(&self, name: &str, vector: VectorAs) -> Result<DMatrix<f64>, ModelFileError> {
