@@ -1,0 +1,25 @@
+//! flexloop-modelfile: the named numeric arrays of a model that a user brings
+//! (issue 17, "your own plant"), whatever they were saved with, as one data
+//! contract. Turning the arrays into a model is the next crate up.
+//!
+//! - [`ModelArrays`]: read from a NumPy `.npz` (`np.savez`), a MATLAB level-5
+//!   `.mat` (`save`, scipy.io.savemat) or a table of the scenario's TOML, and
+//!   taken by name as a matrix, a vector or a number.
+//! - [`Array`], [`VectorAs`]: one array as read, and how a 1-D one is taken.
+//! - [`ModelFileError`]: errors naming the file (or scenario table), the array
+//!   and the reason.
+//! - `npz`, `mat`, `inline`: one reader per source. The file formats are
+//!   parsed by crates (`zip` and `npyz`; `matrw`); `mat` adds the header and
+//!   framing checks matrw lacks (see there).
+
+mod array;
+pub mod error;
+mod inline;
+mod mat;
+mod model_arrays;
+mod npz;
+mod read;
+
+pub use array::{Array, VectorAs};
+pub use error::{ArraySource, FileFormat, ModelFileError, ModelFileErrorKind};
+pub use model_arrays::ModelArrays;
