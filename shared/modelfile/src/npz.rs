@@ -9,8 +9,14 @@ use crate::array::{Array, signed_to_f64, unsigned_to_f64};
 use crate::error::{FileFormat, ModelFileErrorKind};
 use crate::read::{Entry, Fault, NamedArrays, catch};
 
+/// The names scipy.io.loadmat adds to the variables of a MAT-file: a model
+/// saved with `np.savez(path, **scipy.io.loadmat(mat))` carries them, and
+/// they are no arrays of the model (neither MATLAB's save nor savemat writes
+/// them into a .mat).
+const LOADMAT_METADATA: [&str; 3] = ["__header__", "__version__", "__globals__"];
+
 /// The arrays of an `.npz` archive, named as `np.load` names them (the member
-/// name without `.npy`).
+/// name without `.npy`), less scipy.io.loadmat's metadata.
 pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
     let mut archive = zip::ZipArchive::new(Cursor::new(bytes))
         .map_err(|e| Fault::file(corrupt(format!("not a zip archive ({e})"))))?;
@@ -23,6 +29,12 @@ pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
             .name()
             .map_err(|e| Fault::file(corrupt(format!("member {}: {e}", index + 1))))?
             .into_owned();
+        if LOADMAT_METADATA
+            .iter()
+            .any(|m| member_name == format!("{m}.npy"))
+        {
+            continue;
+        }
         let Some(name) = member_name.strip_suffix(".npy").map(str::to_string) else {
             let refused = Err(ModelFileErrorKind::NotNumeric {
                 found: "a member of the archive that is not a .npy array".into(),
@@ -265,10 +277,16 @@ mod tests {
                 ("H.npy", npy("<f2", false, "(1,)", &[0, 0x3c])),
                 ("N.npy", npy("<i8", false, "(1,)", &huge)),
                 ("notes.txt", b"a model".to_vec()),
+                ("__header__.npy", npy("|S5", false, "()", b"MATLA")),
             ],
             false,
         );
         let arrays = read(&file).unwrap();
+        assert_eq!(
+            arrays.0.len(),
+            6,
+            "loadmat's __header__ is no array of the model"
+        );
         assert_eq!(entry(&arrays, "Z"), Err(ModelFileErrorKind::Complex));
         assert_eq!(
             entry(&arrays, "T"),

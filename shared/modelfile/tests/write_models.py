@@ -45,6 +45,11 @@ def main():
     np.savez(out / "second_order.npz", **second)
     np.savez_compressed(out / "second_order_compressed.npz", **second)
     np.savez(out / "state_space.npz", **ss)
+    # A MAT-file's variables handed on through scipy.io.loadmat, which adds
+    # __header__, __version__ and __globals__: not arrays of the model.
+    scipy.io.savemat(out / "via_loadmat.mat", second)
+    np.savez(out / "via_loadmat.npz", **scipy.io.loadmat(out / "via_loadmat.mat"))
+    (out / "via_loadmat.mat").unlink()
     # A Fortran-ordered array (fortran_order: True in the .npy header), an
     # integer array and a boolean array: read as numbers.
     np.savez(
