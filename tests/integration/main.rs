@@ -9,6 +9,7 @@ mod bench;
 mod chaos;
 mod loop_processes;
 mod mimo;
+mod own_plant;
 mod positions;
 mod recording;
 mod report;

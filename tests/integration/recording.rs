@@ -10,25 +10,9 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// The Python with the pinned readers of `tools/python-requirements.txt`:
-/// `FLEXLOOP_PYTHON` (`tools/test` sets it to the venv it makes), else that
-/// venv. A test that needs an independent reader fails without one, with how
-/// to get it: it never passes without having checked anything.
+/// The Python with the pinned independent readers.
 fn python() -> String {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-python/bin/python");
-    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| venv.display().to_string());
-    let mut probe = Command::new(&python);
-    probe.args(["-c", "import mcap, mcap_ros1, hdrh"]);
-    match probe.output() {
-        Ok(out) if out.status.success() => python,
-        Ok(out) => panic!(
-            "{python} cannot import the independent readers ({}); run the tests with tools/test, which installs them",
-            String::from_utf8_lossy(&out.stderr).trim()
-        ),
-        Err(e) => panic!(
-            "{python}: {e}; run the tests with tools/test (it makes that venv), or set FLEXLOOP_PYTHON to a Python with tools/python-requirements.txt"
-        ),
-    }
+    python_with(&["mcap", "mcap_ros1", "hdrh"])
 }
 
 /// Runs one of the checking scripts on `file`; its stdout is JSON.

@@ -356,3 +356,26 @@ pub fn pids_of(dir: &Path, role: &str) -> Vec<i32> {
     found.sort();
     found
 }
+
+/// The Python of the tests' venv (`tools/test` makes it from
+/// tools/python-requirements.txt and sets `FLEXLOOP_PYTHON`), checked to
+/// import `modules`. A test that needs it fails without it, saying how to
+/// get it: it never passes without having checked anything.
+pub fn python_with(modules: &[&str]) -> String {
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-python/bin/python");
+    let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| venv.display().to_string());
+    let mut probe = Command::new(&python);
+    probe.args(["-c", &format!("import {}", modules.join(", "))]);
+    match probe.output() {
+        Ok(out) if out.status.success() => python,
+        Ok(out) => panic!(
+            "{python} cannot import {} ({}); run the tests with tools/test, which installs them",
+            modules.join(", "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        ),
+        Err(e) => panic!(
+            "{python}: {e}; run the tests with tools/test (it makes that venv), or set \
+             FLEXLOOP_PYTHON to a Python with tools/python-requirements.txt"
+        ),
+    }
+}

@@ -11,7 +11,7 @@
 pub mod double_integrator;
 pub mod modal_parts;
 pub mod modal_stand_in;
-// OWN: pub mod own;
+pub mod own;
 pub mod thesis_chain;
 
 use crate::feedback::FeedbackPlan;
@@ -44,7 +44,7 @@ pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, S
         "mimo-example" | "oat-like" | "two-inertia" | "uniform-chain" => {
             modal_stand_in::parts(s, ts, extra_delay)
         }
-        // OWN: "lumped" | "second-order" | "state-space" => own::parts(s, ts, extra_delay),
+        "lumped" | "second-order" | "state-space" => own::parts(s, ts, extra_delay),
         other => Err(ScenarioError::new(
             &s.source,
             Some("plant.model"),

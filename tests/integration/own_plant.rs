@@ -1,0 +1,109 @@
+//! A plant of the user's own, through the real processes in lockstep: the
+//! thesis chain entered every way a user would bring it (a lumped network in
+//! the scenario; M, K, D, B, C and a physical A, B, C, D in .npz and .mat
+//! files written by NumPy and SciPy) must run Table 3.7's loops as the
+//! built-in chain does (docs/own-plant.md).
+
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// The scan rms of e_true (nm) of a lockstep run of `scenario`.
+fn scan_rms_nm(scenario: &Path, run_dir: &Path) -> f64 {
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(scenario)
+        .args(["--mode", "lockstep", "--no-realtime", "--run-dir"])
+        .arg(run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("metrics.json")).unwrap())
+            .unwrap();
+    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
+    assert_clean(run_dir);
+    metrics["control"]["rms_e_true_scan"].as_f64().unwrap() * 1e9
+}
+
+/// The thesis chain's sensor line in the Table 3.7 scenarios.
+const BUILT_IN_PLANT: &str = "model = \"thesis-chain\"\noutput = 5\n";
+
+/// `case` (a Table 3.7 scenario) with its plant replaced by `plant`, in `dir`.
+fn with_plant(dir: &Path, case: &str, tag: &str, plant: &str) -> PathBuf {
+    scenario_variant(
+        dir,
+        case,
+        &format!("{case}-{tag}.toml"),
+        &[(BUILT_IN_PLANT, plant)],
+        "",
+    )
+}
+
+/// The chain of Table 3.2 as a lumped network: ma and m1..m7 in a row, the
+/// force on ma, the sensor on m5.
+fn lumped_chain() -> String {
+    let mut springs = vec!["{ between = [0, 1], stiffness = 1e8 }".to_string()];
+    springs.extend((1..7).map(|i| format!("{{ between = [{i}, {}], stiffness = 9.6e7 }}", i + 1)));
+    format!(
+        "model = \"lumped\"\n\
+         masses_kg = [2.5, {m}, {m}, {m}, {m}, {m}, {m}, {m}]\n\
+         springs = [{}]\n\
+         zeta = 0.005\n\
+         forces = [{{ at = 0 }}]\n\
+         positions = [{{ at = 5 }}]\n",
+        springs.join(", "),
+        m = 10.0_f64 / 7.0
+    )
+}
+
+/// Within 1 % of the built-in chain's figure.
+fn assert_close(what: &str, own: f64, built_in: f64) {
+    let off = (own - built_in).abs() / built_in;
+    assert!(
+        off < 0.01,
+        "{what}: {own} nm against the built-in chain's {built_in} nm ({:.3} %)",
+        off * 100.0
+    );
+}
+
+#[test]
+fn the_chain_as_a_lumped_network_runs_table_3_7_as_the_built_in_chain() {
+    let dir = temp_dir("own-plant-lumped");
+    for case in ["thesis-original", "thesis-mc-ad"] {
+        let built_in = scan_rms_nm(&scenario(case), &dir.join(format!("{case}-built-in")));
+        let lumped = with_plant(&dir, case, "lumped", &lumped_chain());
+        let own = scan_rms_nm(&lumped, &dir.join(format!("{case}-lumped")));
+        assert_close(&format!("{case} as a lumped network"), own, built_in);
+    }
+}
+
+#[test]
+fn the_chain_from_numpy_and_matlab_files_runs_table_3_7_as_the_built_in_chain() {
+    let dir = temp_dir("own-plant-files");
+    let python = python_with(&["numpy", "scipy"]);
+    let mut cmd = std::process::Command::new(&python);
+    cmd.arg(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/integration/python/write_chain_models.py"),
+    )
+    .arg(&*dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    for case in ["thesis-original", "thesis-mc-ad"] {
+        let built_in = scan_rms_nm(&scenario(case), &dir.join(format!("{case}-built-in")));
+        for (model, file) in [
+            ("second-order", "chain_mkd.npz"),
+            ("second-order", "chain_mkd.mat"),
+            ("state-space", "chain_abcd.npz"),
+            ("state-space", "chain_abcd.mat"),
+        ] {
+            let tag = file.replace('.', "-");
+            let plant = format!("model = \"{model}\"\nfile = \"{file}\"\n");
+            let own = scan_rms_nm(
+                &with_plant(&dir, case, &tag, &plant),
+                &dir.join(format!("{case}-{tag}")),
+            );
+            assert_close(&format!("{case} from {file}"), own, built_in);
+        }
+    }
+}
