@@ -17,4 +17,4 @@ pub mod swap;
 mod validate;
 
 pub use error::ScenarioError;
-pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, Profile, Scenario};
+pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario};
