@@ -162,7 +162,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
 pub fn pid_words(design: &flexloop_design::LoopDesign) -> Option<String> {
     design.pid_bandwidth.map(|p| {
         format!(
-            "PID f_bw {} Hz{}",
+            "PID f_bw {:.1} Hz{}",
             p.hz,
             if p.auto { " (auto)" } else { "" }
         )

@@ -338,8 +338,11 @@ fn report(
     let c = &scenario.controller;
     let pid = design.pid_bandwidth;
     let f_bw = match pid {
-        Some(p) if p.auto => format!("{} Hz (\"auto\": the largest meeting the 6 dB rule)", p.hz),
-        Some(p) => format!("{} Hz", p.hz),
+        Some(p) if p.auto => format!(
+            "{:.1} Hz (\"auto\": the largest meeting the 6 dB rule)",
+            p.hz
+        ),
+        Some(p) => format!("{:.1} Hz", p.hz),
         None => String::new(),
     };
     let controller = match c.feedback.as_str() {
@@ -575,7 +578,7 @@ impl LoopReport {
                 let _ = writeln!(
                     s,
                     "  largest f_bw meeting the 6 dB rule with a stable loop here \
-                     ({} sample{} of loop delay, this observer): {hz} Hz",
+                     ({} sample{} of loop delay, this observer): {hz:.1} Hz",
                     self.loop_delay_samples,
                     if self.loop_delay_samples == 1 {
                         ""
@@ -633,7 +636,7 @@ impl LoopReport {
         }
         let hint = match self.largest_bandwidth_hz {
             Some(hz) if !self.meets_6db_rule => {
-                format!("; f_bw {hz} Hz meets it (`flexloop design`)")
+                format!("; f_bw {hz:.1} Hz meets it (`flexloop design`)")
             }
             _ => "; see `flexloop design`".into(),
         };
