@@ -647,3 +647,60 @@ impl LoopReport {
         ))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flexloop_scenario::Overrides;
+    use std::path::Path;
+
+    /// A shipped scenario with `controller.bandwidth_hz` set to `f_bw`.
+    fn retuned(name: &str, from: &str, f_bw: f64) -> (Scenario, LoopDesign) {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../scenarios")
+            .join(format!("{name}.toml"));
+        let text = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace(from, &format!("bandwidth_hz = {f_bw:?}"));
+        let s = Scenario::from_text(&path, &text, &Overrides::default()).unwrap();
+        let d = LoopDesign::from_scenario(&s).unwrap();
+        (s, d)
+    }
+
+    #[test]
+    fn a_loop_near_instability_is_close_to_unstable_and_warned_about() {
+        // The original PID at 160 Hz: stable (170 Hz is not), mode 3 left
+        // at ζ ≈ 0.0006 of its 0.005.
+        let (s, d) = retuned("thesis-original", "bandwidth_hz = 35.5", 160.0);
+        let r = loop_check(&s, &d).unwrap();
+        assert!(r.stable && r.close_to_unstable, "{r:?}");
+        let (f, z) = r.least_damped.unwrap();
+        assert!(z < CLOSE_ZETA && (f - 1396.1).abs() < 20.0, "{f} Hz, ζ {z}");
+        let line = r.warning().unwrap();
+        assert!(line.contains("close to unstable"), "{line}");
+        assert!(!line.contains('\n'), "{line}");
+        // As shipped: neither broken nor close, no warning.
+        let (s, d) = retuned("thesis-original", "bandwidth_hz = 35.5", 35.5);
+        let r = loop_check(&s, &d).unwrap();
+        assert!(r.meets_6db_rule && !r.close_to_unstable, "{r:?}");
+        assert_eq!(r.warning(), None);
+    }
+
+    #[test]
+    fn a_broken_6_db_rule_is_reported_with_its_peak_and_the_bandwidth_that_meets_it() {
+        // MC+AD at the thesis' continuous-time 77.5 Hz, 10 kHz, one sample:
+        // |S^O| 6.81 dB (docs/control.md §10.1); 44.0 Hz meets the rule at y5.
+        let (s, d) = retuned("thesis-mc-ad-redesigned", "bandwidth_hz = 43.5", 77.5);
+        let r = loop_report(&s, &d).unwrap();
+        assert!(r.stable && !r.meets_6db_rule);
+        assert!((r.worst_peak_db - 6.81).abs() < 0.02, "{}", r.worst_peak_db);
+        assert_eq!(r.largest_bandwidth_hz, Some(44.0));
+        assert!(r.rule_verdict().contains("breaks the 6 dB rule"));
+        let line = r.warning().unwrap();
+        assert!(
+            line.contains("breaks the 6 dB rule") && line.contains("44.0 Hz meets it"),
+            "{line}"
+        );
+        assert!(r.render_text().contains("|S^O| of y5 at 6.81 dB"));
+    }
+}
