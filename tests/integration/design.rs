@@ -58,6 +58,22 @@ fn design_reports_the_scenarios_own_loop_and_its_broken_6_db_rule() {
     assert!(text.contains("breaks the 6 dB rule"), "{text}");
     assert!(text.contains("6.5"), "{text}");
     assert!(!text.contains("Thesis design report"), "{text}");
+    // The study when asked: after the loop, not instead of it.
+    let mut cmd = flexloop();
+    cmd.args(["design", "--study"]).arg(&retuned);
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let (own, study) = (
+        text.find("Loop design of").unwrap(),
+        text.find("Thesis design report").unwrap(),
+    );
+    assert!(own < study, "{text}");
+    // --continuous is the study's.
+    let mut cmd = flexloop();
+    cmd.args(["design", "--continuous"]).arg(&retuned);
+    let out = run_bounded(cmd, Duration::from_secs(60));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
 }
 
 #[test]
