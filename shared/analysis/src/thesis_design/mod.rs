@@ -20,6 +20,12 @@
 //! | MC+AD | MC + AD static, Q_ν 0.03 | 59 | 57.5 / 60.4 |
 //! | MC+AD + band-pass | MC + AD band-pass, Q_ν 10³ | 83 | 77.5 / 81.4 |
 //!
+//! The chain is a parameter ([`ThesisDesignSpec::with_chain`]: seven outputs
+//! y1..y7, rigid + 7 modes, and the PID's mass), the thesis chain by default,
+//! so that a chain with other masses, stiffnesses or damping gets its own
+//! table. `flexloop design --study` runs it; the scenario's own loop is
+//! [`crate::loop_report`].
+//!
 //! Q_ν is the thesis intensity; discrete designs convert it
 //! ([`flexloop_control::kalman::NoiseModel::thesis`]). With two samples of loop delay the
 //! AD output uses one more model step (x̂(k+2|k), docs/control.md §10.1); longer
