@@ -6,7 +6,7 @@
 //! closed loop, dimensions, actuator limits), before any process enters its loop.
 
 use crate::checks::{check_actuator_limit, check_protocol_limits, stable_closed_loop};
-use crate::feedback::{FeedbackPlan, anti_windup_time_constant, scenario_feedback};
+use crate::feedback::{anti_windup_time_constant, scenario_feedback};
 use crate::feedforward::{feedforward_form, feedforward_gains};
 use crate::observer::OutputPrediction;
 use crate::pid_bandwidth::{self, PidBandwidthChoice};
@@ -40,8 +40,9 @@ pub struct LoopDesign {
     /// The f_bw the PID runs ([`pid_bandwidth::resolve`]: the number given,
     /// or what `"auto"` chose); None without PID feedback.
     pub pid_bandwidth: Option<PidBandwidthChoice>,
-    /// The mass the SISO PID is tuned on [kg]; None for a PID decoupled
-    /// over several axes, or no PID (what a bandwidth search needs).
+    /// The mass the single-axis PID is tuned on [kg]
+    /// ([`pid_bandwidth::siso_mass`]); None for a PID decoupled over several
+    /// axes, or no PID (what a bandwidth search needs).
     pub pid_mass: Option<f64>,
     /// Tracking time constant T_t [s] of the feedback's anti-windup (back-
     /// calculation): √(T_i T_d) of the PID, as Åström and Hägglund advise
@@ -91,10 +92,7 @@ impl LoopDesign {
         let reference_direction = reference_direction(s, n_outputs)?;
         let pid_bandwidth = pid_bandwidth::resolve(s, &parts, loop_delay_samples as usize)?;
         let feedback = scenario_feedback(s, ts, &parts.feedback, pid_bandwidth.map(|p| p.hz))?;
-        let pid_mass = match (&pid_bandwidth, &parts.feedback) {
-            (Some(_), FeedbackPlan::Mass(m)) => Some(*m),
-            _ => None,
-        };
+        let pid_mass = pid_bandwidth.and_then(|_| pid_bandwidth::siso_mass(&parts.feedback));
         let feedforward = feedforward_gains(s, &parts.feedforward, n_inputs, &reference_direction)?;
         // Without feedback the loop is analysed with a zero controller.
         let zero_controller = DiscreteStateSpace::gain(DMatrix::zeros(n_inputs, n_outputs), ts)

@@ -14,6 +14,7 @@
 //! the strict one: every peak ≤ 6 dB, no tolerance. |T_{r→e_true}| is not
 //! bounded (the thesis bounds it only in its "MC + r→e" case).
 
+use crate::feedback::FeedbackPlan;
 use crate::plants::Parts;
 use flexloop_control::bandwidth::DiscreteBandwidthProblem;
 use flexloop_control::design_error::DesignError;
@@ -81,6 +82,20 @@ pub fn search_limit_hz(ts: f64) -> f64 {
     ((1.0 / (6.0 * ts)) / STEP_HZ).floor() * STEP_HZ - STEP_HZ
 }
 
+/// The mass a single-axis PID is tuned on [kg]: the plan's mass, or for a
+/// PID "decoupled" over one axis (u = γ C₁ υ e, C₁ tuned on 1/s², the
+/// two-inertia setup) γυ, since the Table 3.3 PID scales with its mass.
+/// None for several axes.
+pub fn siso_mass(plan: &FeedbackPlan) -> Option<f64> {
+    match plan {
+        FeedbackPlan::Mass(m) => Some(*m),
+        FeedbackPlan::Decoupled { gamma, upsilon } if gamma.len() == 1 && upsilon.len() == 1 => {
+            Some(gamma[(0, 0)] * upsilon[(0, 0)]).filter(|m| m.is_finite() && *m > 0.0)
+        }
+        FeedbackPlan::Decoupled { .. } => None,
+    }
+}
+
 /// The observer block as the search takes it: None when it has no states
 /// (`observer.design = "none"`).
 pub fn observer_of(block: &ObserverBlock) -> Option<&ObserverBlock> {
@@ -104,7 +119,7 @@ pub fn resolve(
     match s.controller.bandwidth_hz {
         PidBandwidth::Hz(hz) => Ok(Some(PidBandwidthChoice { hz, auto: false })),
         PidBandwidth::Auto => {
-            let crate::feedback::FeedbackPlan::Mass(mass) = parts.feedback else {
+            let Some(mass) = siso_mass(&parts.feedback) else {
                 return Err(err(format!(
                     "\"auto\" tunes one SISO loop; the PID of `{}` is decoupled over {} axes: \
                      give f_bw in Hz",
