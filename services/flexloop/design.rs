@@ -1,32 +1,39 @@
-//! `flexloop design [SCENARIO] [--continuous] [--json]`: the design report,
-//! before anything runs.
+//! `flexloop design [SCENARIO] [--study [--continuous]] [--json]`: the
+//! design report, before anything runs.
 //!
-//! - The thesis chain with its sensor on a mass y1..y7: the thesis report
-//!   (modal table, observer poles, damping AD achieves, and the largest PID
-//!   bandwidth meeting the 6 dB rule for every case) at the scenario's rate
-//!   and loop delay, for that output.
-//! - The thesis chain with its sensor elsewhere (between masses, on ma):
-//!   the scenario's own loop at its sensor, then the thesis report at the
-//!   mass nearest the sensor, named as such.
-//! - A scanned sensor, and every other model: the scenario's own loop
-//!   (modes, observer poles, per-output sensitivity peaks).
+//! Always, for every model: the scenario's own loop at its rate, loop
+//! delay, observer and notches (flexloop-analysis' `loop_report`): modes,
+//! observer poles, the damping achieved on every flexible mode and the
+//! observer-error poles near it, |S| peaks per output, stability and its
+//! margin, the 6 dB rule's verdict and the largest f_bw meeting it.
+//!
+//! `--study` adds the thesis' eight-case study (`thesis_design`) for the
+//! thesis chain: every case at the scenario's rate and delay (or in
+//! continuous time with `--continuous`), at the mass the sensor is on or
+//! nearest to. A flag rather than a `study` subcommand: the study is a
+//! second part of the same report on the same scenario, whose rate, delay
+//! and sensor it takes, as `--continuous` already was.
 
 use anyhow::{Context, bail};
 use flexloop_analysis::loop_report::loop_report;
 use flexloop_analysis::thesis_design::{ThesisDesignSpec, thesis_design_report};
 use flexloop_design::acceptance::{self, Accepted};
+use flexloop_design::plants::thesis_chain::{chain_mass, chain_modal};
 use flexloop_scenario::Overrides;
 use std::path::PathBuf;
 
-/// `design [SCENARIO] [--continuous] [--json]`.
+/// `design [SCENARIO] [--study [--continuous]] [--json]`.
 #[derive(Debug, clap::Args)]
 pub struct DesignArgs {
     /// Scenario file, or its name under scenarios/ [default: scenarios/default.toml]
     scenario: Option<PathBuf>,
-    /// The thesis chain's report in continuous time
+    /// Add the thesis' eight-case study (thesis chain only): the largest f_bw of every case
     #[arg(long)]
+    study: bool,
+    /// The study in continuous time (the thesis' setting) instead of the scenario's rate and delay
+    #[arg(long, requires = "study")]
     continuous: bool,
-    /// Print JSON instead of text
+    /// Print JSON ({"loop": ..., "study": ... or null}) instead of text
     #[arg(long)]
     json: bool,
 }
@@ -34,6 +41,7 @@ pub struct DesignArgs {
 pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
     let DesignArgs {
         scenario,
+        study,
         continuous,
         json,
     } = args;
@@ -47,31 +55,31 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         &Overrides::default(),
         flexloop_runtime::realtime::online_cpus(),
     )?;
-    // The mass the thesis report is about, and whether the sensor sits on
-    // it (a scanned sensor has no one mass: only its own loop is reported).
-    let thesis_output =
-        (s.plant.model == "thesis-chain" && s.plant.sensor_scan.is_none()).then(|| {
-            let node = s.plant.sensor_node();
-            let nearest = node.round().clamp(1.0, 7.0);
-            (nearest as usize, nearest == node)
-        });
-    if continuous && thesis_output.is_none() {
-        bail!(
-            "{}: field plant.model: --continuous is the thesis chain's report, not `{}`'s",
-            path.display(),
-            s.plant.model
-        );
-    }
-    let loop_part = match thesis_output {
-        Some((_, true)) => None,
-        _ => Some(
-            loop_report(&s, &design)
-                .map_err(anyhow::Error::msg)
-                .with_context(|| path.display().to_string())?,
-        ),
+    let own = loop_report(&s, &design)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| path.display().to_string())?;
+    // The study's mass: the sensor's, or the nearest (a scanned sensor
+    // starts at its scan's first point).
+    let study_output = if study {
+        if s.plant.model != "thesis-chain" {
+            bail!(
+                "{}: field plant.model: --study is the thesis chain's eight-case study, not \
+                 `{}`'s",
+                path.display(),
+                s.plant.model
+            );
+        }
+        let node = s
+            .plant
+            .sensor_scan
+            .map_or_else(|| s.plant.sensor_node(), |[from, _]| from);
+        let nearest = node.round().clamp(1.0, 7.0);
+        Some((nearest as usize, nearest == node, node))
+    } else {
+        None
     };
-    let thesis_part = match thesis_output {
-        Some((output, _)) => {
+    let study_part = match study_output {
+        Some((output, _, _)) => {
             let mut spec = if continuous {
                 ThesisDesignSpec::continuous()
             } else {
@@ -81,21 +89,19 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
                 )
             };
             spec.output = output;
+            // The scenario's chain (its masses, springs, ζ, actuator), not Table 3.2's.
+            let chain = chain_modal(&s).with_context(|| path.display().to_string())?;
+            spec = spec.with_chain(chain, chain_mass(&s));
             Some(thesis_design_report(&spec).with_context(|| path.display().to_string())?)
         }
         None => None,
     };
     if json {
-        let value = match (&loop_part, &thesis_part) {
-            (None, Some(thesis)) => serde_json::to_value(thesis),
-            (l, t) => Ok(serde_json::json!({ "loop": l, "thesis_at_nearest_mass": t })),
-        }?;
+        let value = serde_json::json!({ "loop": own, "study": study_part });
         println!("{}", serde_json::to_string_pretty(&value)?);
         return Ok(0);
     }
-    if let Some(l) = &loop_part {
-        print!("{}", l.render_text());
-    }
+    print!("{}", own.render_text());
     if let Some([from, to]) = s.plant.sensor_scan {
         println!(
             "\nThe sensor is scanned from {from} to {to}: the figures above are the loop \
@@ -103,11 +109,15 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
              point of the observer's position grid and halfway between."
         );
     }
-    if let (Some(t), Some((output, on_mass))) = (&thesis_part, thesis_output) {
-        if !on_mass {
+    if let (Some(t), Some((output, on_mass, node))) = (&study_part, study_output) {
+        if on_mass {
             println!(
-                "\nThe thesis cases at y{output}, the mass nearest the sensor at {}:\n",
-                s.plant.sensor_node()
+                "\nThe thesis' study at y{output} (every case re-tuned; not this scenario's loop):\n"
+            );
+        } else {
+            println!(
+                "\nThe thesis' study at y{output}, the mass nearest the sensor at {node} \
+                 (every case re-tuned; not this scenario's loop):\n"
             );
         }
         print!("{}", t.render_text());

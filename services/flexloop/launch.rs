@@ -91,9 +91,10 @@ fn scenario_dirs() -> Vec<PathBuf> {
     dirs
 }
 
-/// A loop ready to start: the validated scenario and what to launch.
+/// A loop ready to start: the validated scenario, its design and what to launch.
 pub struct Prepared {
     pub scenario: Scenario,
+    pub design: flexloop_design::LoopDesign,
     pub overrides: Overrides,
     pub plan: LaunchPlan,
 }
@@ -107,12 +108,12 @@ impl Prepared {
 /// Validates the scenario and designs it before anything starts, then makes
 /// the run directory.
 pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
-    let scenario = flexloop_design::acceptance::accept(
-        &args.scenario,
-        &args.overrides,
-        flexloop_runtime::realtime::online_cpus(),
-    )?
-    .scenario;
+    let flexloop_design::acceptance::Accepted { scenario, design } =
+        flexloop_design::acceptance::accept(
+            &args.scenario,
+            &args.overrides,
+            flexloop_runtime::realtime::online_cpus(),
+        )?;
     let run_dir = match &args.run_dir {
         Some(d) => d.clone(),
         None => stamped_run_dir(&scenario.name),
@@ -153,6 +154,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
             warm_spares: scenario.supervision.warm_spares,
         },
         scenario,
+        design,
         overrides: args.overrides.clone(),
     })
 }
@@ -180,6 +182,32 @@ fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The PID's f_bw in words ("PID f_bw 43.5 Hz (auto)"), None without one.
+pub fn pid_words(design: &flexloop_design::LoopDesign) -> Option<String> {
+    design.pid_bandwidth.map(|p| {
+        format!(
+            "PID f_bw {:.1} Hz{}",
+            p.hz,
+            if p.auto { " (auto)" } else { "" }
+        )
+    })
+}
+
+/// `up` and `run`: one line on stderr when the loop breaks the 6 dB rule or
+/// is close to unstable (flexloop-analysis' `LoopReport::warning`, which
+/// defines both). The loop still starts: the scenario is valid, its design
+/// only questionable.
+pub fn warn_about_design(prepared: &Prepared) {
+    match flexloop_analysis::loop_report::loop_check(&prepared.scenario, &prepared.design) {
+        Ok(report) => {
+            if let Some(line) = report.warning() {
+                eprintln!("flexloop: warning: {line}");
+            }
+        }
+        Err(e) => eprintln!("flexloop: warning: the loop's design could not be checked: {e}"),
+    }
+}
+
 /// A loop that ran to its end.
 pub struct Finished {
     pub running: RunningLoop,
@@ -201,6 +229,7 @@ pub fn supervise(
         run_dir: prepared.plan.run_dir.clone(),
         scenario: prepared.scenario.name.clone(),
         cpus: pinned_cpus(&prepared.scenario),
+        design: pid_words(&prepared.design),
     };
     warn_about_shared_cpus(&entry);
     registry::register(&entry).context("cannot register the loop")?;

@@ -64,11 +64,13 @@ impl SwapRole {
 
 pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
     let prepared = prepare(&args)?;
+    crate::launch::warn_about_design(&prepared);
     eprintln!(
-        "flexloop: {} at {} Hz ({}), run directory {}; Ctrl-C or `flexloop down` stops it",
+        "flexloop: {} at {} Hz ({}{}), run directory {}; Ctrl-C or `flexloop down` stops it",
         prepared.scenario.name,
         prepared.scenario.timing.rate_hz,
         prepared.scenario.timing.mode.as_str(),
+        crate::launch::pid_words(&prepared.design).map_or(String::new(), |w| format!(", {w}")),
         prepared.plan.run_dir.display()
     );
     let run_dir = prepared.run_dir();
@@ -219,6 +221,9 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         entry.prefix,
         entry.run_dir.display()
     );
+    if let Some(design) = &entry.design {
+        println!("  design: {design}");
+    }
     print_processes(&run_dir);
     let Some(t) = last else {
         println!("  no telemetry yet (the logger publishes once a second)");
@@ -308,6 +313,7 @@ mod tests {
             run_dir: format!("runs/{prefix}").into(),
             scenario: "default".into(),
             cpus: Vec::new(),
+            design: None,
         }
     }
 

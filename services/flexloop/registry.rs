@@ -17,6 +17,10 @@ pub struct Entry {
     /// The CPUs its processes are pinned to (`[realtime]` `cpu`).
     #[serde(default)]
     pub cpus: Vec<usize>,
+    /// What the design chose that the file may not say: the PID's f_bw
+    /// ("PID f_bw 43.5 Hz (auto)"), for `status`.
+    #[serde(default)]
+    pub design: Option<String>,
 }
 
 /// The running loops among `others` whose processes are pinned to any of
@@ -180,6 +184,7 @@ mod tests {
             run_dir: PathBuf::from("r"),
             scenario: "s".into(),
             cpus: cpus.to_vec(),
+            design: None,
         }
     }
 

@@ -40,12 +40,14 @@ pub fn run(flags: RunFlags) -> anyhow::Result<i32> {
             args.scenario.display()
         );
     }
+    crate::launch::warn_about_design(&prepared);
     eprintln!(
-        "flexloop run: {} for {} s at {} Hz ({}), run directory {}",
+        "flexloop run: {} for {} s at {} Hz ({}{}), run directory {}",
         prepared.scenario.name,
         prepared.scenario.timing.duration_s,
         prepared.scenario.timing.rate_hz,
         prepared.scenario.timing.mode.as_str(),
+        crate::launch::pid_words(&prepared.design).map_or(String::new(), |w| format!(", {w}")),
         run_dir.path().display()
     );
     supervise(prepared, |_, _| None)?;

@@ -258,7 +258,7 @@ fn design_and_up_refuse_the_same_files_with_the_same_message() {
         ),
         ("shape = \"scan\"", "shape = \"square\"", "reference.shape"),
         (
-            "bandwidth_hz = 77.5",
+            "bandwidth_hz = 43.5",
             "bandwidth_hz = 4999",
             "controller.bandwidth_hz",
         ),

@@ -7,6 +7,7 @@
 mod bad_input;
 mod bench;
 mod chaos;
+mod design;
 mod loop_processes;
 mod mimo;
 mod own_plant;

@@ -271,5 +271,5 @@ fn design_reports_name_the_outputs_measured() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["loop"]["axes"].as_array().unwrap().len(), 3);
     assert_eq!(v["loop"]["meets_6db_rule"], true);
-    assert!(v["thesis_at_nearest_mass"].is_null());
+    assert!(v["study"].is_null());
 }

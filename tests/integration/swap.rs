@@ -129,13 +129,13 @@ fn assert_commands_match_the_uninterrupted_lecture_loop(log: &LogReader) -> usiz
 #[test]
 fn a_retuned_controller_takes_over_without_a_step() {
     let dir = temp_dir("swap-retuned");
-    // The default scenario scans back and forth; its PID (f_bw 77.5 Hz) is
+    // The default scenario scans back and forth; its PID (f_bw 43.5 Hz) is
     // replaced mid-scan by the original tuning (35.5 Hz), same trajectory.
     let retuned = scenario_variant(
         &dir,
         "default",
         "retuned.toml",
-        &[("bandwidth_hz = 77.5", "bandwidth_hz = 35.5")],
+        &[("bandwidth_hz = 43.5", "bandwidth_hz = 35.5")],
         "",
     );
     let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);

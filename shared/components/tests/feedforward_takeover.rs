@@ -69,7 +69,8 @@ fn another_feedforward_is_not_taken_over() {
     let mut later_scan = scenario.clone();
     later_scan.reference.start_s += 0.01;
     let mut retuned = scenario.clone();
-    retuned.controller.bandwidth_hz *= 1.5;
+    retuned.controller.bandwidth_hz =
+        flexloop_scenario::PidBandwidth::Hz(1.5 * scenario.controller.bandwidth_hz.hz().unwrap());
     for other in [later_scan, retuned] {
         let other = LoopDesign::from_scenario(&other).unwrap();
         let mut joiner = ControllerCore::new(&other, 1);

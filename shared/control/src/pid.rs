@@ -46,7 +46,10 @@ impl PidTuning {
         })
     }
 
-    /// Adds notches N(s, ω) at the given frequencies [rad/s].
+    /// Adds notches N(s, ω) at the given continuous frequencies [rad/s]. For
+    /// a discrete notch exactly at ω, give [`crate::freq::prewarped_notch`]
+    /// of it: what the running controller (flexloop-design's `feedback`)
+    /// and the bandwidth searches do.
     pub fn with_notches(mut self, notches: &[f64]) -> Self {
         self.notches = notches.to_vec();
         self

@@ -1,6 +1,13 @@
 //! The PID of `controller.feedback = "pid"` (Table 3.3 single-parameter
 //! tuning, notches, Tustin), on one axis or on every decoupled axis.
+//!
+//! The notches are pre-warped before Tustin ([`prewarped_notch`]), so that
+//! the running controller's discrete notch sits exactly at the asked
+//! frequency, as in the design report's and the bandwidth search's
+//! controller (flexloop-control's `bandwidth`); the PID itself is not
+//! pre-warped (docs/control.md §10.1).
 
+use flexloop_control::freq::prewarped_notch;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::pid::PidTuning;
 use flexloop_scenario::{Scenario, ScenarioError};
@@ -19,23 +26,20 @@ pub enum FeedbackPlan {
     },
 }
 
-/// The PID of `controller.feedback = "pid"` (Table 3.3 single-parameter
-/// tuning, notches, Tustin), on one axis or on every decoupled axis.
+/// The PID of `controller.feedback = "pid"` at `f_bw` [Hz] (Table 3.3
+/// single-parameter tuning, pre-warped notches, Tustin), on one axis or on
+/// every decoupled axis.
 pub fn pid_feedback(
     s: &Scenario,
     ts: f64,
     plan: &FeedbackPlan,
+    f_bw: f64,
 ) -> Result<DiscreteStateSpace, ScenarioError> {
     let err =
         |reason: String| ScenarioError::new(&s.source, Some("controller.bandwidth_hz"), reason);
-    let notches: Vec<f64> = s
-        .controller
-        .notches_hz
-        .iter()
-        .map(|hz| 2.0 * PI * hz)
-        .collect();
+    let notches = prewarped_notches(s, ts)?;
     let axis = |mass: f64| {
-        PidTuning::single_parameter(mass, s.controller.bandwidth_hz)
+        PidTuning::single_parameter(mass, f_bw)
             .and_then(|t| t.with_notches(&notches).discrete(ts))
             .map_err(|e| err(format!("PID design: {e}")))
     };
@@ -62,16 +66,42 @@ pub fn pid_feedback(
     }
 }
 
-/// `controller.feedback`: the PID on `plan`, or none.
+/// `controller.notches_hz` as the continuous notch frequencies [rad/s]
+/// whose Tustin images sit at the asked ones.
+pub fn prewarped_notches(s: &Scenario, ts: f64) -> Result<Vec<f64>, ScenarioError> {
+    s.controller
+        .notches_hz
+        .iter()
+        .enumerate()
+        .map(|(i, hz)| {
+            prewarped_notch(2.0 * PI * hz, ts).map_err(|e| {
+                ScenarioError::new(
+                    &s.source,
+                    Some(&format!("controller.notches_hz[{i}]")),
+                    e.to_string(),
+                )
+            })
+        })
+        .collect()
+}
+
+/// `controller.feedback`: the PID on `plan` at `f_bw` [Hz] (resolved by
+/// [`crate::pid_bandwidth::resolve`]), or none.
 pub fn scenario_feedback(
     s: &Scenario,
     ts: f64,
     plan: &FeedbackPlan,
+    f_bw: Option<f64>,
 ) -> Result<Option<DiscreteStateSpace>, ScenarioError> {
-    match s.controller.feedback.as_str() {
-        "none" => Ok(None),
-        "pid" => pid_feedback(s, ts, plan).map(Some),
-        other => Err(ScenarioError::new(
+    match (s.controller.feedback.as_str(), f_bw) {
+        ("none", _) => Ok(None),
+        ("pid", Some(f_bw)) => pid_feedback(s, ts, plan, f_bw).map(Some),
+        ("pid", None) => Err(ScenarioError::new(
+            &s.source,
+            Some("controller.bandwidth_hz"),
+            "the PID has no f_bw",
+        )),
+        (other, _) => Err(ScenarioError::new(
             &s.source,
             Some("controller.feedback"),
             format!("unknown feedback `{other}` (expected pid or none)"),

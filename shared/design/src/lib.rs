@@ -12,6 +12,7 @@
 //!   and feedforward plans).
 //! - [`observer`]: the modal Kalman observer of a scenario, or none.
 //! - [`feedback`]: the PID of `controller.feedback = "pid"`.
+//! - [`pid_bandwidth`]: its f_bw, as given or chosen by `"auto"`.
 //! - [`feedforward`]: the feedforward gains and Appendix A's modified form.
 //! - [`checks`]: what a design must satisfy before a process runs it (message
 //!   sizes, closed-loop stability, actuator limit).
@@ -25,6 +26,7 @@ pub mod feedback;
 pub mod feedforward;
 pub mod loop_design;
 pub mod observer;
+pub mod pid_bandwidth;
 pub mod plants;
 pub mod reference;
 pub mod sensor_scan;

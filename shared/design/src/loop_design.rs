@@ -9,6 +9,7 @@ use crate::checks::{check_actuator_limit, check_protocol_limits, stable_closed_l
 use crate::feedback::{anti_windup_time_constant, scenario_feedback};
 use crate::feedforward::{feedforward_form, feedforward_gains};
 use crate::observer::OutputPrediction;
+use crate::pid_bandwidth::{self, PidBandwidthChoice};
 use crate::plants::{model_parts, with_input_disturbance};
 use crate::reference::{Derivatives, Reference};
 use crate::sensor_scan::{SensorScan, design_sensor_scan};
@@ -36,6 +37,13 @@ pub struct LoopDesign {
     pub output_prediction: OutputPrediction,
     /// e_meas → u_fb (absent when the observer block closes the loop by state feedback).
     pub feedback: Option<DiscreteStateSpace>,
+    /// The f_bw the PID runs ([`pid_bandwidth::resolve`]: the number given,
+    /// or what `"auto"` chose); None without PID feedback.
+    pub pid_bandwidth: Option<PidBandwidthChoice>,
+    /// The mass the single-axis PID is tuned on [kg]
+    /// ([`pid_bandwidth::siso_mass`]); None for a PID decoupled over several
+    /// axes, or no PID (what a bandwidth search needs).
+    pub pid_mass: Option<f64>,
     /// Tracking time constant T_t [s] of the feedback's anti-windup (back-
     /// calculation): √(T_i T_d) of the PID, as Åström and Hägglund advise
     /// (T_i = 1/ω_i = 9/ω_bw, T_d = 1/ω_d = 3/ω_bw); 0 without feedback.
@@ -82,7 +90,9 @@ impl LoopDesign {
         let (n_outputs, n_inputs) = (parts.plant_u.outputs(), parts.plant_u.inputs());
         check_protocol_limits(s, &parts)?;
         let reference_direction = reference_direction(s, n_outputs)?;
-        let feedback = scenario_feedback(s, ts, &parts.feedback)?;
+        let pid_bandwidth = pid_bandwidth::resolve(s, &parts, loop_delay_samples as usize)?;
+        let feedback = scenario_feedback(s, ts, &parts.feedback, pid_bandwidth.map(|p| p.hz))?;
+        let pid_mass = pid_bandwidth.and_then(|_| pid_bandwidth::siso_mass(&parts.feedback));
         let feedforward = feedforward_gains(s, &parts.feedforward, n_inputs, &reference_direction)?;
         // Without feedback the loop is analysed with a zero controller.
         let zero_controller = DiscreteStateSpace::gain(DMatrix::zeros(n_inputs, n_outputs), ts)
@@ -112,12 +122,13 @@ impl LoopDesign {
             plant,
             observer: parts.observer,
             output_prediction: parts.output_prediction,
-            anti_windup_s: if feedback.is_some() {
-                anti_windup_time_constant(s.controller.bandwidth_hz)
-            } else {
-                0.0
+            anti_windup_s: match (&feedback, pid_bandwidth) {
+                (Some(_), Some(p)) => anti_windup_time_constant(p.hz),
+                _ => 0.0,
             },
             feedback,
+            pid_bandwidth,
+            pid_mass,
             feedforward,
             modified_feedforward,
             reference,

@@ -35,12 +35,12 @@ fn the_files_design_accepted_and_up_refused_are_refused_by_the_one_check() {
         ),
         ("shape = \"scan\"", "shape = \"square\"", "reference.shape"),
         (
-            "bandwidth_hz = 77.5",
+            "bandwidth_hz = 43.5",
             "bandwidth_hz = 4999",
             "controller.bandwidth_hz",
         ),
         (
-            "snap = 1.6681987210371764e-6",
+            "snap = 1.6704035112986372e-6",
             "snap = 1e300",
             "controller.feedforward.snap",
         ),

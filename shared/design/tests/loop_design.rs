@@ -289,7 +289,7 @@ fn the_decoupled_pid_is_one_pid_per_rigid_axis() {
     let d = LoopDesign::from_scenario(&s).unwrap();
     let full = models::mimo_example().unwrap();
     let (_, gamma, upsilon) = full.rigid_body_decoupled().unwrap();
-    let one = PidTuning::single_parameter(1.0, s.controller.bandwidth_hz)
+    let one = PidTuning::single_parameter(1.0, s.controller.bandwidth_hz.hz().unwrap())
         .unwrap()
         .discrete(d.ts)
         .unwrap();

@@ -21,4 +21,4 @@ mod validate;
 mod validate_plant;
 
 pub use error::ScenarioError;
-pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, Profile, Scenario};
+pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario};

@@ -342,9 +342,11 @@ pub struct ControllerSection {
     /// Feedback on e_meas: `pid` (PID + low-pass, Table 3.3 tuning) or `none`.
     #[serde(default = "default_feedback")]
     pub feedback: String,
-    /// The PID's single tuning parameter f_bw in Hz (crossover ≈ 1.05 f_bw).
+    /// The PID's single tuning parameter f_bw in Hz (crossover ≈ 1.05 f_bw),
+    /// or `"auto"`: the largest f_bw meeting the 6 dB rule with a stable loop,
+    /// which the design resolves (flexloop-design's `pid_bandwidth`).
     #[serde(default = "default_pid_bandwidth")]
-    pub bandwidth_hz: f64,
+    pub bandwidth_hz: PidBandwidth,
     /// Notch frequencies in Hz (docs/control.md §6), empty: none.
     #[serde(default)]
     pub notches_hz: Vec<f64>,
@@ -381,8 +383,67 @@ impl Default for ControllerSection {
 fn default_feedback() -> String {
     "none".into()
 }
-fn default_pid_bandwidth() -> f64 {
-    35.5
+fn default_pid_bandwidth() -> PidBandwidth {
+    PidBandwidth::Hz(35.5)
+}
+
+/// `controller.bandwidth_hz`: a number of Hz, or the string `"auto"`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PidBandwidth {
+    /// f_bw as given [Hz].
+    Hz(f64),
+    /// The largest f_bw that meets the 6 dB rule and keeps the loop stable
+    /// (docs/control.md §6, §10.1), found by the design.
+    Auto,
+}
+
+impl PidBandwidth {
+    /// The number given, None for `"auto"`.
+    pub fn hz(self) -> Option<f64> {
+        match self {
+            Self::Hz(hz) => Some(hz),
+            Self::Auto => None,
+        }
+    }
+}
+
+impl std::fmt::Display for PidBandwidth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Hz(hz) => write!(f, "{hz}"),
+            Self::Auto => f.write_str("\"auto\""),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for PidBandwidth {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = PidBandwidth;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number of Hz or \"auto\"")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Self::Value, E> {
+                Ok(PidBandwidth::Hz(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                Ok(PidBandwidth::Hz(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                Ok(PidBandwidth::Hz(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Self::Value, E> {
+                match v {
+                    "auto" => Ok(PidBandwidth::Auto),
+                    other => Err(E::custom(format!(
+                        "expected a number of Hz or \"auto\", got \"{other}\""
+                    ))),
+                }
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 /// u_ff = snap·r⁗ + jerk·r⃛ + acc·r̈ + vel·ṙ (docs/control.md (A.1)).

@@ -187,11 +187,10 @@ impl Scenario {
             "",
         )?;
         let nyquist = self.timing.rate_hz / 2.0;
-        self.positive_up_to(
-            "controller.bandwidth_hz",
-            self.controller.bandwidth_hz,
-            f64::MAX,
-        )?;
+        // "auto" is resolved by the design (flexloop-design's pid_bandwidth).
+        if let Some(hz) = self.controller.bandwidth_hz.hz() {
+            self.positive_up_to("controller.bandwidth_hz", hz, f64::MAX)?;
+        }
         if self.controller.notches_hz.len() > limits::NOTCHES_MAX {
             return Err(self.err(
                 "controller.notches_hz",
@@ -259,10 +258,15 @@ impl Scenario {
                 "observer.feedback_bandwidth_hz",
                 self.observer.feedback_bandwidth_hz,
             ),
-            ("controller.bandwidth_hz", self.controller.bandwidth_hz),
             ("reference.frequency_hz", self.reference.frequency_hz),
         ]
         .into_iter()
+        .chain(
+            self.controller
+                .bandwidth_hz
+                .hz()
+                .map(|hz| ("controller.bandwidth_hz", hz)),
+        )
         .chain(notches)
         {
             if hz >= nyquist {

@@ -70,7 +70,7 @@ fn the_original_thesis_design_on_the_default_loop_is_refused_for_its_reference()
 #[test]
 fn gains_bandwidths_notches_feedforward_and_the_observer_may_change() {
     let new = edited(|s| {
-        s.controller.bandwidth_hz = 35.5;
+        s.controller.bandwidth_hz = flexloop_scenario::PidBandwidth::Hz(35.5);
         s.controller.notches_hz = vec![120.0];
         s.controller.feedforward = None;
         s.controller.feedforward_form = "plain".into();

@@ -20,6 +20,12 @@
 //! | MC+AD | MC + AD static, Q_ν 0.03 | 59 | 57.5 / 60.4 |
 //! | MC+AD + band-pass | MC + AD band-pass, Q_ν 10³ | 83 | 77.5 / 81.4 |
 //!
+//! The chain is a parameter ([`ThesisDesignSpec::with_chain`]: seven outputs
+//! y1..y7, rigid + 7 modes, and the PID's mass), the thesis chain by default,
+//! so that a chain with other masses, stiffnesses or damping gets its own
+//! table. `flexloop design --study` runs it; the scenario's own loop is
+//! [`crate::loop_report`].
+//!
 //! Q_ν is the thesis intensity; discrete designs convert it
 //! ([`flexloop_control::kalman::NoiseModel::thesis`]). With two samples of loop delay the
 //! AD output uses one more model step (x̂(k+2|k), docs/control.md §10.1); longer
@@ -59,7 +65,8 @@ use flexloop_control::discretise::zoh;
 use flexloop_control::freq::LoopMetrics;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::matrix_error::MatrixError;
-use flexloop_control::models::{CHAIN_MASS, CHAIN_ZETA, thesis_plant, thesis_reduced};
+use flexloop_control::modal::{ModalModel, ReducedModel};
+use flexloop_control::models::{CHAIN_MASS, thesis_chain_modal};
 use flexloop_control::observer_block::{
     ContinuousObserverOptions, DampingOptions, ModalObserverOptions, ObserverBlock,
     design_continuous_modal_observer, design_modal_observer,
@@ -234,6 +241,13 @@ pub struct ThesisDesignSpec {
     pub fine_step: f64,
     /// f_bw [Hz] of the PID in the AD damping check (docs/control.md §10.1: 35.5).
     pub ad_check_f_bw: f64,
+    /// The chain studied: a modal model whose seven outputs are y1..y7
+    /// (None: the thesis chain, `models::thesis_chain_modal`), and the mass
+    /// the PID is tuned on [kg], so that a chain with other parameters gets
+    /// its own table ([`ThesisDesignSpec::with_chain`]).
+    #[serde(skip)]
+    pub chain: Option<ModalModel>,
+    pub mass: f64,
 }
 
 impl ThesisDesignSpec {
@@ -249,7 +263,33 @@ impl ThesisDesignSpec {
             coarse_step: 4.0,
             fine_step: 0.5,
             ad_check_f_bw: 35.5,
+            chain: None,
+            mass: CHAIN_MASS,
         }
+    }
+
+    /// The study of another chain: `chain` with seven outputs y1..y7 (the
+    /// observer keeps rigid + 3 flexible modes, T_DC of modes 4–6, as the
+    /// thesis'), its PID tuned on `mass` [kg].
+    pub fn with_chain(mut self, chain: ModalModel, mass: f64) -> Self {
+        self.chain = Some(chain);
+        self.mass = mass;
+        self
+    }
+
+    /// The chain at output y_i (1..=7).
+    pub(crate) fn plant(&self, output: usize) -> Result<ModalModel, DesignError> {
+        let chain = match &self.chain {
+            Some(c) => c.clone(),
+            None => thesis_chain_modal()?,
+        };
+        Ok(chain.select_outputs(&[output - 1])?)
+    }
+
+    /// The observer's model at output y_i: rigid + 3 flexible modes, T_DC
+    /// of modes 4–6 (docs/control.md §1.3).
+    pub(crate) fn reduced(&self, output: usize) -> Result<ReducedModel, DesignError> {
+        Ok(self.plant(output)?.truncate(4, &[4, 5, 6])?)
     }
 
     /// All cases sampled at `ts` with `loop_delay` samples (docs/control.md §10.1
@@ -263,6 +303,21 @@ impl ThesisDesignSpec {
 
     fn validate(&self) -> Result<(), DesignError> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
+        if let Some(c) = &self.chain
+            && (c.outputs() != THESIS_OUTPUTS || c.modes() != 8)
+        {
+            return Err(DesignError::InvalidParameter(format!(
+                "the study's chain has {} outputs and {} modes (7 and 8: y1..y7, rigid + 7)",
+                c.outputs(),
+                c.modes()
+            )));
+        }
+        if !(self.mass.is_finite() && self.mass > 0.0) {
+            return Err(DesignError::InvalidParameter(format!(
+                "mass {} kg",
+                self.mass
+            )));
+        }
         if !(1..=THESIS_OUTPUTS).contains(&self.output) {
             return Err(DesignError::InvalidParameter(format!(
                 "output y{} (1..=7)",
@@ -400,10 +455,10 @@ pub struct DesignReport {
 /// spec or a failed design; no NaN or infinity reaches the report.
 pub fn thesis_design_report(spec: &ThesisDesignSpec) -> Result<DesignReport, DesignError> {
     spec.validate()?;
-    let modes = modal_table(spec.output)?;
+    let modes = modal_table(spec)?;
     let observer_poles = observer_poles(spec)?;
     let ad_damping = ad_damping_check(spec)?;
-    let plants = Plants::new(spec.domain)?;
+    let plants = Plants::new(spec)?;
     let mut cases = Vec::with_capacity(spec.cases.len());
     for &case in &spec.cases {
         cases.push(evaluate_case(spec, &plants, case)?);
@@ -424,15 +479,15 @@ pub fn evaluate_design_case(
     case: DesignCase,
 ) -> Result<(Option<f64>, Vec<LoopMetrics>), DesignError> {
     spec.validate()?;
-    let plants = Plants::new(spec.domain)?;
+    let plants = Plants::new(spec)?;
     let problem = case_problem(spec, &plants, case)?;
     let best = problem.max_bandwidth(spec)?;
     let metrics = problem.evaluate(best.unwrap_or(spec.f_bw_min))?;
     Ok((best, metrics))
 }
 
-fn modal_table(output: usize) -> Result<Vec<ModeRow>, DesignError> {
-    let m = thesis_plant(output)?;
+fn modal_table(spec: &ThesisDesignSpec) -> Result<Vec<ModeRow>, DesignError> {
+    let m = spec.plant(spec.output)?;
     let f = m.frequencies_hz();
     Ok((0..m.modes())
         .map(|i| ModeRow {
@@ -462,11 +517,11 @@ enum Plants {
 }
 
 impl Plants {
-    fn new(domain: DesignDomain) -> Result<Self, DesignError> {
+    fn new(spec: &ThesisDesignSpec) -> Result<Self, DesignError> {
         let cont = (1..=THESIS_OUTPUTS)
-            .map(|i| Ok(thesis_plant(i)?.state_space()))
+            .map(|i| Ok(spec.plant(i)?.state_space()))
             .collect::<Result<Vec<_>, DesignError>>()?;
-        Ok(match domain {
+        Ok(match spec.domain {
             DesignDomain::Continuous => Self::Continuous(cont),
             DesignDomain::Discrete { ts, loop_delay } => Self::Discrete {
                 plants: cont
@@ -507,8 +562,8 @@ impl Problem {
     }
 }
 
-fn notch_frequencies() -> Result<Vec<f64>, DesignError> {
-    let m = thesis_plant(5)?;
+fn notch_frequencies(spec: &ThesisDesignSpec) -> Result<Vec<f64>, DesignError> {
+    let m = spec.plant(5)?;
     Ok(m.omega[1..=3].to_vec())
 }
 
@@ -519,7 +574,7 @@ fn case_problem(
 ) -> Result<Problem, DesignError> {
     let observed = case.mc() || case.ad().is_some();
     let notches = if case.notches() {
-        notch_frequencies()?
+        notch_frequencies(spec)?
     } else {
         Vec::new()
     };
@@ -528,7 +583,7 @@ fn case_problem(
             let observers = (1..=THESIS_OUTPUTS)
                 .map(|i| {
                     Ok(if observed {
-                        Some(continuous_observer(i, case)?.system)
+                        Some(continuous_observer(spec, i, case)?.system)
                     } else {
                         None
                     })
@@ -538,7 +593,7 @@ fn case_problem(
                 ContinuousBandwidthProblem::new(
                     p.clone(),
                     observers,
-                    CHAIN_MASS,
+                    spec.mass,
                     spec.limit_db,
                     case.bounds_re(),
                 )?
@@ -553,7 +608,7 @@ fn case_problem(
             let observers = (1..=THESIS_OUTPUTS)
                 .map(|i| {
                     Ok(if observed {
-                        Some(discrete_observer(i, *ts, *loop_delay, case)?.block)
+                        Some(discrete_observer(spec, i, *ts, *loop_delay, case)?.block)
                     } else {
                         None
                     })
@@ -564,7 +619,7 @@ fn case_problem(
                     plants.clone(),
                     observers,
                     *loop_delay,
-                    CHAIN_MASS,
+                    spec.mass,
                     spec.limit_db,
                     case.bounds_re(),
                 )?

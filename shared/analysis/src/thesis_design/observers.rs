@@ -17,6 +17,7 @@ fn extra_delay(loop_delay: usize, ad: bool) -> usize {
 }
 
 pub(super) fn discrete_observer(
+    spec: &ThesisDesignSpec,
     output: usize,
     ts: f64,
     loop_delay: usize,
@@ -30,10 +31,11 @@ pub(super) fn discrete_observer(
         weights: None,
         extra_delay_samples: extra_delay(loop_delay, case.ad().is_some()),
     };
-    design_modal_observer(&thesis_reduced(output)?, &opts)
+    design_modal_observer(&spec.reduced(output)?, &opts)
 }
 
 pub(super) fn continuous_observer(
+    spec: &ThesisDesignSpec,
     output: usize,
     case: DesignCase,
 ) -> Result<flexloop_control::observer_block::ContinuousModalObserver, DesignError> {
@@ -43,7 +45,7 @@ pub(super) fn continuous_observer(
         q_nu: case.q_nu(),
         weights: None,
     };
-    design_continuous_modal_observer(&thesis_reduced(output)?, &opts)
+    design_continuous_modal_observer(&spec.reduced(output)?, &opts)
 }
 
 fn pole_row(w: f64, zeta: f64) -> Option<PoleRow> {
@@ -58,7 +60,7 @@ pub(super) fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, De
     let case = DesignCase::McAdBandpass;
     let mut rows: Vec<PoleRow> = match spec.domain {
         DesignDomain::Continuous => {
-            let o = continuous_observer(spec.output, case)?;
+            let o = continuous_observer(spec, spec.output, case)?;
             let f = &o.model.a - &o.kalman.l * &o.model.c;
             flexloop_control::linalg::eigenvalues(&f)?
                 .iter()
@@ -70,7 +72,7 @@ pub(super) fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, De
                 .collect()
         }
         DesignDomain::Discrete { ts, loop_delay } => {
-            let o = discrete_observer(spec.output, ts, loop_delay, case)?;
+            let o = discrete_observer(spec, spec.output, ts, loop_delay, case)?;
             let d = &o.design;
             flexloop_control::linalg::eigenvalues(&(&d.model.a - &d.gain * &d.model.c))?
                 .iter()
@@ -90,12 +92,12 @@ pub(super) fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, De
 /// Q = 2) at `spec.ad_check_f_bw`, output `spec.output`.
 pub(super) fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck, DesignError> {
     let case = DesignCase::AdBandpass;
-    let red = thesis_reduced(spec.output)?;
-    let tuning = PidTuning::single_parameter(CHAIN_MASS, spec.ad_check_f_bw)?;
+    let red = spec.reduced(spec.output)?;
+    let tuning = PidTuning::single_parameter(spec.mass, spec.ad_check_f_bw)?;
     let (modes, obs_modes) = match spec.domain {
         DesignDomain::Continuous => {
-            let plant = thesis_plant(spec.output)?.state_space();
-            let o = continuous_observer(spec.output, case)?;
+            let plant = spec.plant(spec.output)?.state_space();
+            let o = continuous_observer(spec, spec.output, case)?;
             let cl = assemble_continuous_loop(&plant, Some(&o.system), &tuning.continuous()?)?;
             let f = &o.model.a - &o.kalman.l * &o.model.c;
             let obs = flexloop_control::linalg::eigenvalues(&f)?
@@ -106,8 +108,8 @@ pub(super) fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck
             (continuous_closed_loop_modes(&cl)?, obs)
         }
         DesignDomain::Discrete { ts, loop_delay } => {
-            let plant = zoh(&thesis_plant(spec.output)?.state_space(), ts)?;
-            let o = discrete_observer(spec.output, ts, loop_delay, case)?;
+            let plant = zoh(&spec.plant(spec.output)?.state_space(), ts)?;
+            let o = discrete_observer(spec, spec.output, ts, loop_delay, case)?;
             let cl = assemble_loop(&LoopSpec {
                 plant: &plant,
                 observer: Some(&o.block),
@@ -127,7 +129,7 @@ pub(super) fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck
             mode: i,
             frequency_hz: freqs[i],
             open_loop: red.modal.zeta[i],
-            target: CHAIN_ZETA + DAMPING_INCREASE,
+            target: red.modal.zeta[i] + DAMPING_INCREASE,
             achieved,
         })
         .collect();

@@ -301,3 +301,40 @@ fn full_reports_match_every_table() {
         }
     }
 }
+
+#[test]
+fn a_chain_with_other_parameters_gets_its_own_study() {
+    // The thesis chain with ζ = 0.01 on every flexible mode: its own modal
+    // table and AD targets (open loop + 0.035), and its own bandwidths.
+    let mut chain = thesis_chain_modal().unwrap();
+    for z in chain.zeta.iter_mut().skip(1) {
+        *z = 0.01;
+    }
+    let mut spec = ThesisDesignSpec::discrete(TS_10KHZ, 1).with_chain(chain, CHAIN_MASS);
+    spec.cases = Vec::new();
+    let r = thesis_design_report(&spec).unwrap();
+    assert!(
+        r.modes[1..].iter().all(|m| m.damping == 0.01),
+        "{:?}",
+        r.modes
+    );
+    assert!(
+        r.ad_damping
+            .modes
+            .iter()
+            .all(|m| (m.target - 0.045).abs() < 1e-12)
+    );
+    let thesis = thesis_design_report(&ThesisDesignSpec {
+        cases: Vec::new(),
+        ..ThesisDesignSpec::discrete(TS_10KHZ, 1)
+    })
+    .unwrap();
+    assert_ne!(r.ad_damping, thesis.ad_damping);
+    // A chain that is not seven outputs of eight modes is refused.
+    let two = thesis_chain_modal()
+        .unwrap()
+        .select_outputs(&[0, 1])
+        .unwrap();
+    let bad = ThesisDesignSpec::discrete(TS_10KHZ, 1).with_chain(two, CHAIN_MASS);
+    assert!(thesis_design_report(&bad).is_err());
+}
