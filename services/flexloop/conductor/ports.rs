@@ -7,14 +7,14 @@ use super::replay::Replay;
 use anyhow::Result;
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
-    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY,
-    OBSERVER_STATE, SPARE_ORDER, SPARE_STATUS,
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT,
+    MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, SPARE_ORDER, SPARE_STATUS, TELEMETRY,
 };
 use flexloop_protocol::handover::CATCHING_UP;
 use flexloop_protocol::{
-    Activation, Command, Estimate, Handover, Measurement, SpareOrder, SpareStatus, flags,
+    Activation, Command, Estimate, Handover, Measurement, SpareOrder, SpareStatus, Telemetry, flags,
 };
-use flexloop_transport::{Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
+use flexloop_transport::{ChannelHold, Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
 use std::time::Instant;
 
 pub struct Ports {
@@ -33,6 +33,8 @@ pub struct Ports {
     replay_out: Outlet<Measurement>,
     spare_orders: Outlet<SpareOrder>,
     spare_status: Inlet<SpareStatus>,
+    /// Every loop channel, made before any process starts (see `ChannelHold`).
+    _holds: Vec<ChannelHold>,
     node: LoopNode,
     domain: Domain,
 }
@@ -41,6 +43,23 @@ impl Ports {
     pub fn open(prefix: &str) -> Result<Self> {
         let domain = Domain::new(prefix)?;
         let node = domain.node("supervisor")?;
+        let mut holds = vec![
+            ChannelHold::with_samples::<Measurement>(&node, &MEASUREMENT)?,
+            ChannelHold::with_samples::<Estimate>(&node, &ESTIMATE)?,
+            ChannelHold::with_samples::<Telemetry>(&node, &TELEMETRY)?,
+            ChannelHold::with_samples::<u64>(&node, &LOGGER_PROGRESS)?,
+        ];
+        // The event services of the channels the supervisor polls, and the
+        // observer's own wake-up.
+        for channel in [
+            &COMMAND,
+            &CONTROLLER_STATE,
+            &OBSERVER_STATE,
+            &SPARE_STATUS,
+            &OBSERVER_WAKEUP,
+        ] {
+            holds.push(ChannelHold::events(&node, channel)?);
+        }
         Ok(Self {
             activation_out: Outlet::open(&node, &ACTIVATION)?,
             controller_states: Inlet::open_polling(&node, &CONTROLLER_STATE, 8)?,
@@ -57,6 +76,7 @@ impl Ports {
                 &SPARE_STATUS,
                 SPARE_STATUS.qos.loop_buffer_size,
             )?,
+            _holds: holds,
             node,
             domain,
         })

@@ -62,6 +62,44 @@ fn open_event(
         .map_err(|e| TransportError::new(channel.name, "open event service", e))
 }
 
+/// A channel's services kept in existence without a port. The supervisor
+/// holds every loop channel from before its first process starts, so that
+/// the processes only ever open services: a process killed while it created
+/// one would leave it half-made, and iceoryx2 0.10 refuses to open such a
+/// service (`HangsInCreation`) for the rest of the run (seen when a test
+/// killed a controller at start-up; fixed upstream after 0.10, iceoryx2
+/// #1584). Holding a service adds no publisher or subscriber, so the
+/// processes' own counts of their readers are unchanged.
+pub struct ChannelHold {
+    _samples: Option<Box<dyn std::any::Any>>,
+    _events: EventFactory,
+}
+
+impl ChannelHold {
+    /// The channel's publish–subscribe service of `T` and its event service.
+    pub fn with_samples<T: Debug + ZeroCopySend + 'static>(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+    ) -> Result<Self, TransportError> {
+        let samples: Box<dyn std::any::Any> = Box::new(open_pubsub::<T>(node, channel)?);
+        Ok(Self {
+            _samples: Some(samples),
+            _events: open_event(node, channel)?,
+        })
+    }
+
+    /// The channel's event service alone (a [`Wakeup`] channel).
+    pub fn events(
+        node: &Node<ipc::Service>,
+        channel: &'static Channel,
+    ) -> Result<Self, TransportError> {
+        Ok(Self {
+            _samples: None,
+            _events: open_event(node, channel)?,
+        })
+    }
+}
+
 /// Publishes samples of `T` on a channel and wakes its listeners.
 pub struct Outlet<T: Debug + ZeroCopySend + 'static> {
     channel: &'static str,
