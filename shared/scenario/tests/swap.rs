@@ -241,12 +241,10 @@ fn inline_arrays_and_lumped_fields_are_the_plant() {
         ),
     ];
     for (from, to, field) in edits {
-        let text = format!(
-            "model = \"lumped\"\nmasses_kg = [2.5, 10.0]\n\
-             springs = [{{ between = [0, 1], stiffness = 1e8 }}]\n\
-             forces = [{{ at = 0 }}]\npositions = [{{ at = 1 }}]\nzeta = 0.01"
-        )
-        .replace(from, to);
+        let text = "model = \"lumped\"\nmasses_kg = [2.5, 10.0]\n\
+             springs = [{ between = [0, 1], stiffness = 1e8 }]\n\
+             forces = [{ at = 0 }]\npositions = [{ at = 1 }]\nzeta = 0.01"
+            .replace(from, to);
         let new = own(at, &text);
         assert_eq!(
             swap_conflicts(&base, &new, Swapped::Controller),
