@@ -301,3 +301,75 @@ fn design_and_up_refuse_the_same_files_with_the_same_message() {
         .collect();
     assert!(escaped.is_empty(), "{escaped:?}");
 }
+
+/// `thesis-original` with its plant replaced by `plant`, in `dir`.
+fn own_plant_variant(dir: &std::path::Path, plant: &str) -> std::path::PathBuf {
+    scenario_variant(
+        dir,
+        "thesis-original",
+        "bad-own.toml",
+        &[("model = \"thesis-chain\"\noutput = 5\n", plant)],
+        "",
+    )
+}
+
+/// `flexloop up` and `flexloop design` refuse the scenario alike, naming
+/// the scenario, the field and every fragment; nothing starts or remains.
+fn both_refuse(dir: &std::path::Path, path: &std::path::Path, field: &str, reason: &[&str]) {
+    refused(dir, path, field, reason);
+    let mut design = flexloop();
+    design.arg("design").arg(path);
+    let out = run_bounded(design, Duration::from_secs(60));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(err.contains("bad-own.toml") && err.contains(field), "{err}");
+    for r in reason {
+        assert!(err.contains(r), "design: no `{r}` in {err}");
+    }
+    assert!(processes_mentioning(&dir.display().to_string()).is_empty());
+}
+
+#[test]
+fn a_matlab_v7_3_model_file_is_refused_with_the_advice_to_save_with_v7() {
+    let dir = temp_dir("bad-mat-v73");
+    // MATLAB's v7.3 is HDF5: the 128-byte text header, the HDF5 signature
+    // at byte 512.
+    let mut v73 =
+        b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan 13 2025 HDF5 schema 1.00 ."
+            .to_vec();
+    v73.resize(116, b' ');
+    v73.extend_from_slice(&[0; 8]);
+    v73.extend_from_slice(&[0x00, 0x02, b'I', b'M']);
+    v73.resize(512, 0);
+    v73.extend_from_slice(b"\x89HDF\r\n\x1a\n");
+    v73.resize(4096, 0);
+    std::fs::write(dir.join("plant.mat"), &v73).unwrap();
+    let path = own_plant_variant(&dir, "model = \"state-space\"\nfile = \"plant.mat\"\n");
+    both_refuse(&dir, &path, "plant.file", &["plant.mat", "v7.3", "-v7"]);
+}
+
+#[test]
+fn a_numpy_model_with_a_non_symmetric_k_is_refused_naming_the_file_and_k() {
+    let dir = temp_dir("bad-npz-k");
+    let mut cmd = std::process::Command::new(python_with(&["numpy"]));
+    cmd.arg("-c")
+        .arg(
+            "import sys, numpy as np\n\
+             np.savez(sys.argv[1], M=np.diag([2.5, 10.0]), \
+             K=np.array([[1e8, -1e8], [-0.9e8, 1e8]]), B=np.array([1.0, 0.0]), \
+             C=np.array([0.0, 1.0]))",
+        )
+        .arg(dir.join("plant.npz"));
+    let out = run_bounded(cmd, Duration::from_secs(60));
+    assert!(out.status.success(), "{}", describe(&out));
+    let path = own_plant_variant(
+        &dir,
+        "model = \"second-order\"\nfile = \"plant.npz\"\nzeta = 0.01\n",
+    );
+    both_refuse(
+        &dir,
+        &path,
+        "plant.file",
+        &["plant.npz", "K: is not symmetric"],
+    );
+}

@@ -141,3 +141,115 @@ fn every_differing_field_is_named_at_once() {
         ]
     );
 }
+
+/// An own plant's scenario text, read as if from `path` (not validated:
+/// the swap rule compares what the files say).
+fn own(path: &Path, plant: &str) -> Scenario {
+    let text = format!(
+        "name = \"own\"\n[loop]\nrate_hz = 10000\n[observer]\ndesign = \"kalman\"\n\
+         [controller]\nfeedback = \"pid\"\n[plant]\n{plant}\n"
+    );
+    Scenario::parse(path, &text).unwrap()
+}
+
+#[test]
+fn a_model_file_is_the_same_plant_only_when_it_is_the_same_file() {
+    let file = "model = \"state-space\"\nfile = \"plant.npz\"";
+    let a = own(Path::new("/runs/a/own.toml"), file);
+    // The same name beside another scenario is another file.
+    let elsewhere = own(Path::new("/runs/b/own.toml"), file);
+    // The same file, named from another directory.
+    let same = own(
+        Path::new("/runs/b/own.toml"),
+        "model = \"state-space\"\nfile = \"../a/plant.npz\"",
+    );
+    let absolute = own(
+        Path::new("/elsewhere/own.toml"),
+        "model = \"state-space\"\nfile = \"/runs/a/plant.npz\"",
+    );
+    for swapped in [Swapped::Controller, Swapped::Observer] {
+        assert_eq!(swap_conflicts(&a, &elsewhere, swapped), vec!["plant.file"]);
+        assert_eq!(swap_conflicts(&a, &a.clone(), swapped), Vec::<&str>::new());
+        assert_eq!(swap_conflicts(&a, &absolute, swapped), Vec::<&str>::new());
+        // `..` is not resolved: a path spelled otherwise is refused rather
+        // than taken for the same file.
+        assert_eq!(swap_conflicts(&a, &same, swapped), vec!["plant.file"]);
+    }
+}
+
+#[test]
+fn inline_arrays_and_lumped_fields_are_the_plant() {
+    let at = Path::new("/runs/a/own.toml");
+    let arrays = |k: &str| {
+        own(
+            at,
+            &format!(
+                "model = \"second-order\"\nzeta = 0.01\n[plant.arrays]\n\
+                 M = [[2.5, 0.0], [0.0, 10.0]]\nK = [[{k}, -1e8], [-1e8, 1e8]]\n\
+                 B = [1.0, 0.0]\nC = [0.0, 1.0]"
+            ),
+        )
+    };
+    assert_eq!(
+        swap_conflicts(&arrays("1e8"), &arrays("1e8"), Swapped::Controller),
+        Vec::<&str>::new()
+    );
+    assert_eq!(
+        swap_conflicts(&arrays("1e8"), &arrays("2e8"), Swapped::Controller),
+        vec!["plant.arrays"]
+    );
+    let lumped = |lines: &str| {
+        own(
+            at,
+            &format!(
+                "model = \"lumped\"\nmasses_kg = [2.5, 10.0]\n\
+                 springs = [{{ between = [0, 1], stiffness = 1e8 }}]\n\
+                 forces = [{{ at = 0 }}]\npositions = [{{ at = 1 }}]\n{lines}"
+            ),
+        )
+    };
+    let base = lumped("zeta = 0.01");
+    for (lines, field) in [
+        ("zeta = 0.02", "plant.zeta"),
+        ("zeta = [0.01]", "plant.zeta"),
+        ("rayleigh = { beta = 1e-6 }", "plant.zeta"),
+        (
+            "dampers = [{ between = [0, 1], damping = 10.0 }]",
+            "plant.dampers",
+        ),
+    ] {
+        let new = lumped(lines);
+        let conflicts = swap_conflicts(&base, &new, Swapped::Observer);
+        assert!(conflicts.contains(&field), "{lines}: {conflicts:?}");
+    }
+    let edits: [(&str, &str, &str); 4] = [
+        (
+            "masses_kg = [2.5, 10.0]",
+            "masses_kg = [2.5, 12.0]",
+            "plant.masses_kg",
+        ),
+        ("stiffness = 1e8", "stiffness = 2e8", "plant.springs"),
+        (
+            "forces = [{ at = 0 }]",
+            "forces = [{ at = 1 }]",
+            "plant.forces",
+        ),
+        (
+            "positions = [{ at = 1 }]",
+            "positions = [{ between = [0, 1] }]",
+            "plant.positions",
+        ),
+    ];
+    for (from, to, field) in edits {
+        let text = "model = \"lumped\"\nmasses_kg = [2.5, 10.0]\n\
+             springs = [{ between = [0, 1], stiffness = 1e8 }]\n\
+             forces = [{ at = 0 }]\npositions = [{ at = 1 }]\nzeta = 0.01"
+            .replace(from, to);
+        let new = own(at, &text);
+        assert_eq!(
+            swap_conflicts(&base, &new, Swapped::Controller),
+            vec![field],
+            "{to}"
+        );
+    }
+}

@@ -8,7 +8,7 @@ use super::Parts;
 use super::modal_parts::{ModalPlant, RigidBodyPlan, modal_damping, modal_parts};
 use flexloop_control::lumped_network::{Attach, Element, lumped_network};
 use flexloop_control::modal::{ModalDamping, ModalModel};
-use flexloop_control::plant_model_error::PlantModelError;
+use flexloop_control::plant_model_error::{PlantModelError, PlantModelReason};
 use flexloop_control::real_modal_form::modal_from_state_space;
 use flexloop_control::second_order::modal_from_second_order;
 use flexloop_control::zoh_inverse::continuous_from_zoh;
@@ -138,6 +138,7 @@ fn lumped(s: &Scenario) -> Result<(ModalModel, Vec<String>), ScenarioError> {
         &network.c,
         damping,
     )
+    .and_then(checked_rigid_modes)
     .map_err(|e| {
         let field = if p.dampers.is_empty() {
             if p.zeta.is_some() {
@@ -166,6 +167,38 @@ fn lumped(s: &Scenario) -> Result<(ModalModel, Vec<String>), ScenarioError> {
         })
         .collect();
     Ok((modal, names))
+}
+
+/// A second-order model's rigid-body modes must be moved by the forces (B)
+/// and seen by the outputs (C), as the state space's are
+/// (`real_modal_form`): the PID and the feedforward act on the rigid body.
+/// A force pair or a relative position alone leaves it free or unseen.
+fn checked_rigid_modes(modal: ModalModel) -> Result<ModalModel, PlantModelError> {
+    let r = modal.n_rigid;
+    let full_rank = |m: nalgebra::DMatrix<f64>, scale: f64| {
+        let floor = 1e-8 * scale;
+        m.svd(false, false)
+            .singular_values
+            .iter()
+            .filter(|&&v| v > floor)
+            .count()
+            == r
+    };
+    let reach = modal.phi_a.rows(0, r).into_owned();
+    if r > 0 && !full_rank(reach, modal.phi_a.amax()) {
+        return Err(PlantModelError {
+            array: "B",
+            reason: PlantModelReason::UncontrollableRigidMode,
+        });
+    }
+    let seen = modal.phi_s.columns(0, r).into_owned();
+    if r > 0 && !full_rank(seen, modal.phi_s.amax()) {
+        return Err(PlantModelError {
+            array: "C",
+            reason: PlantModelReason::UnobservableRigidMode,
+        });
+    }
+    Ok(modal)
 }
 
 /// The model's arrays: `plant.file` or `[plant.arrays]`.
@@ -274,6 +307,7 @@ fn second_order(s: &Scenario) -> Result<(ModalModel, Vec<String>), ScenarioError
         ));
     }
     let modal = modal_from_second_order(&m, &k, d.as_ref(), &b, &c, damping)
+        .and_then(checked_rigid_modes)
         .map_err(|e| model_error(s, &arrays, e))?;
     let names = output_names(modal.outputs());
     Ok((modal, names))
