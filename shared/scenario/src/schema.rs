@@ -678,6 +678,8 @@ pub struct Overrides {
     pub mode: Option<Mode>,
     /// Drop all SCHED_FIFO priorities (e.g. in tests on a shared machine).
     pub no_realtime: bool,
+    /// `realtime.tick`, as if the file gave it.
+    pub tick: Option<TickWait>,
 }
 
 impl Scenario {
