@@ -16,5 +16,6 @@ mod report;
 mod sensor_scan;
 mod swap;
 mod thesis;
+mod tick;
 mod util;
 mod verdicts;
