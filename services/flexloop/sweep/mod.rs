@@ -373,13 +373,17 @@ fn write_results(
             .with_context(|| path.display().to_string())
     };
     let mut markdown = format!(
-        "# flexloop bench --sweep\n\n{} s per point, realtime{}; host {} CPUs.\n{text}\n",
+        "# flexloop bench --sweep\n\n{} s per point, realtime{}{}; host {} CPUs.\n{text}\n",
         o.duration_s,
         if o.no_realtime {
             " without real-time settings"
         } else {
             ""
         },
+        o.tick.map_or(String::new(), |t| format!(
+            ", tick wait {} (--tick)",
+            t.as_str()
+        )),
         flexloop_runtime::realtime::online_cpus()
     );
     for (name, figure) in results::figures(results) {
