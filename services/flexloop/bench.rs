@@ -76,6 +76,7 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
             rate_hz: Some(args.overrides.rate_hz.unwrap_or(10_000.0)),
             mode: Some(args.overrides.mode.unwrap_or(Mode::Realtime)),
             no_realtime: args.overrides.no_realtime,
+            tick: args.overrides.tick,
         },
         run_dir: args.run_dir.clone(),
     };
@@ -91,6 +92,9 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         run_dir.path().display()
     );
     println!("{}", profile_line(&scenario));
+    // The plant's CPU (what a spinning tick wait costs there), CPU 0 if unpinned.
+    let plant_cpu = scenario.realtime.plant.cpu.unwrap_or(0);
+    let cpu_before = crate::sampling::CpuTimes::read(plant_cpu);
     let started = Instant::now();
     let scenario_file = prepared.plan.scenario.clone();
     let mut next_swap = args
@@ -119,6 +123,9 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
     }
     // CPU shares are over the loop's run, not the probes after it.
     let wall_ns = started.elapsed().as_nanos().max(1) as f64;
+    let plant_cpu_busy = cpu_before
+        .zip(crate::sampling::CpuTimes::read(plant_cpu))
+        .map(|(a, b)| a.busy_until(&b));
     eprintln!("flexloop bench: loop ran {:.1} s", wall_ns / 1e9);
     let summary = run_dir.read_summary()?;
 
@@ -158,6 +165,11 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
     };
     for metric in Metric::ALL {
         row(metric.name(), &summary.latency(metric.name()));
+    }
+    let sampling = crate::sampling::jitter(&run_dir.samples(0), scenario.period_ns());
+    if let Some(j) = &sampling {
+        row("published - tick", &j.published_after_tick);
+        row("|interval - period|", &j.interval_error);
     }
     if let Some(f) = &floors {
         for (label, h) in f.rows() {
@@ -207,6 +219,20 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
     println!(
         "CPU (share of one core over the run): {}",
         cpu_line.join(", ")
+    );
+    let plant_cpu_per_tick_ns = cpu_ns
+        .get(Role::Plant.name())
+        .filter(|_| ticks > 0)
+        .map(|ns| *ns as f64 / ticks as f64);
+    let tick_wait = run_dir.read_plant_latency().ok().and_then(|p| p.tick_wait);
+    println!(
+        "{}",
+        tick_line(
+            tick_wait.as_ref(),
+            plant_cpu_per_tick_ns,
+            plant_cpu_busy.as_ref(),
+            sampling.as_ref()
+        )
     );
     let p50 = |h: &Histogram| h.percentiles.p50 as f64;
     let rt = summary.latency(Metric::RoundTrip.name());
@@ -270,6 +296,10 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         probes: floors,
         cpu_ns,
         wall_ns,
+        sampling,
+        tick_wait,
+        plant_cpu_per_tick_ns,
+        plant_cpu_busy,
     };
     write_json_atomically(&run_dir.bench(), &bench_file)?;
     println!(
@@ -278,6 +308,50 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         run_dir.bench().display()
     );
     Ok(0)
+}
+
+/// How the plant waited for its ticks and what it cost: the setting (or its
+/// fallback), the spin margin, the plant's CPU per tick and its CPU's busy
+/// share, the publication intervals.
+fn tick_line(
+    tick_wait: Option<&flexloop_runfiles::TickWaitReport>,
+    plant_cpu_per_tick_ns: Option<f64>,
+    busy: Option<&flexloop_runfiles::bench::CpuBusy>,
+    sampling: Option<&flexloop_runfiles::bench::SamplingJitter>,
+) -> String {
+    let us = |ns: u64| ns as f64 / 1e3;
+    let mut parts = vec![format!(
+        "tick wait {}",
+        tick_wait.map_or("(not recorded)", |t| t.setting.as_str())
+    )];
+    if let Some(s) = tick_wait.and_then(|t| t.spin.as_ref()) {
+        parts.push(format!(
+            "margin {:.1} µs at the end, {:.1}..{:.1} µs over the run (bounds {:.0}..{:.0}), {} ticks spun, {} woke after the tick, {} spins capped, {:.1} µs spun per spinning tick",
+            us(s.margin_ns),
+            us(s.margin_lowest_ns),
+            us(s.margin_highest_ns),
+            us(s.margin_lower_bound_ns),
+            us(s.margin_upper_bound_ns),
+            s.spun_ticks,
+            s.late_wakeups,
+            s.capped_spins,
+            s.spin_ns as f64 / 1e3 / s.spun_ticks.max(1) as f64
+        ));
+    }
+    if let Some(ns) = plant_cpu_per_tick_ns {
+        parts.push(format!("plant CPU {:.1} µs per tick", ns / 1e3));
+    }
+    if let Some(b) = busy {
+        parts.push(format!("CPU {} busy {:.1} %", b.cpu, 100.0 * b.share));
+    }
+    if let Some(j) = sampling {
+        parts.push(format!(
+            "publication interval {:.1}..{:.1} µs",
+            us(j.interval_min_ns),
+            us(j.interval_max_ns)
+        ));
+    }
+    parts.join("; ")
 }
 
 /// Which deployment profile runs and why, for the head of the bench table.

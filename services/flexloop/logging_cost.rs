@@ -21,6 +21,7 @@ pub struct Options {
     duration_s: f64,
     rate_hz: Option<f64>,
     no_realtime: bool,
+    tick: Option<flexloop_scenario::TickWait>,
     out: Option<PathBuf>,
 }
 
@@ -39,6 +40,7 @@ impl Options {
             duration_s: positive("--duration", o.duration_s)?.unwrap_or(10.0),
             rate_hz: positive("--rate", o.rate_hz)?,
             no_realtime: o.no_realtime,
+            tick: o.tick,
             out: args.run_dir.clone(),
         })
     }
@@ -67,6 +69,7 @@ fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> anyhow::Result<Plan
             duration_s: Some(o.duration_s),
             mode: Some(Mode::Realtime),
             no_realtime: o.no_realtime,
+            tick: o.tick,
         },
         run_dir: Some(run_dir.to_path_buf()),
     };

@@ -23,6 +23,7 @@ mod progress;
 mod registry;
 mod report;
 mod run;
+mod sampling;
 mod supervisor;
 mod sweep;
 

@@ -101,6 +101,8 @@ impl RunReport {
             mode: Mode::parse(&summary.mode),
             duration_s: Some(summary.duration_s),
             no_realtime: false,
+            // How the plant waited does not change the analysis.
+            tick: None,
         };
         let scenario = Scenario::load(&run_dir.scenario_copy(), &overrides)?;
         let design = LoopDesign::from_scenario(&scenario)?;

@@ -94,6 +94,7 @@ pub struct Options {
     duration_s: f64,
     probes: bool,
     no_realtime: bool,
+    tick: Option<flexloop_scenario::TickWait>,
     keep_logs: bool,
     out: Option<PathBuf>,
 }
@@ -112,6 +113,7 @@ impl Options {
             duration_s: args.overrides.duration_s.unwrap_or(4.0),
             probes: !args.no_probes,
             no_realtime: args.overrides.no_realtime,
+            tick: args.overrides.tick,
             keep_logs: grid.keep_logs,
             out: args.run_dir.clone(),
         };
@@ -228,6 +230,7 @@ fn base_overrides(o: &Options, rate_hz: f64) -> Overrides {
         duration_s: Some(o.duration_s),
         mode: Some(Mode::Realtime),
         no_realtime: o.no_realtime,
+        tick: o.tick,
     }
 }
 
@@ -370,13 +373,17 @@ fn write_results(
             .with_context(|| path.display().to_string())
     };
     let mut markdown = format!(
-        "# flexloop bench --sweep\n\n{} s per point, realtime{}; host {} CPUs.\n{text}\n",
+        "# flexloop bench --sweep\n\n{} s per point, realtime{}{}; host {} CPUs.\n{text}\n",
         o.duration_s,
         if o.no_realtime {
             " without real-time settings"
         } else {
             ""
         },
+        o.tick.map_or(String::new(), |t| format!(
+            ", tick wait {} (--tick)",
+            t.as_str()
+        )),
         flexloop_runtime::realtime::online_cpus()
     );
     for (name, figure) in results::figures(results) {

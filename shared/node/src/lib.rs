@@ -19,6 +19,7 @@ pub mod run_metadata;
 pub mod spare;
 pub mod startup;
 pub mod summary;
+pub mod tick;
 
 use std::fmt;
 use std::time::{Duration, Instant};

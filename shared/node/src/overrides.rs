@@ -2,10 +2,10 @@
 //! them on to every process it starts as the same flags, and each process
 //! parses them back with the same type.
 
-use flexloop_scenario::{Mode, Overrides};
+use flexloop_scenario::{Mode, Overrides, TickWait};
 use std::ffi::OsString;
 
-/// `--rate HZ --duration S --mode realtime|lockstep --no-realtime`.
+/// `--rate HZ --duration S --mode realtime|lockstep --no-realtime --tick WAIT`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, clap::Args)]
 pub struct OverrideFlags {
     /// Sample rate in Hz (the scenario's `loop.rate_hz`).
@@ -20,6 +20,13 @@ pub struct OverrideFlags {
     /// Drop every SCHED_FIFO priority (tests on a shared machine).
     #[arg(long)]
     pub no_realtime: bool,
+    /// How the plant waits for its tick (the scenario's `realtime.tick`).
+    #[arg(long, value_name = "sleep|sleep-then-spin", value_parser = parse_tick)]
+    pub tick: Option<TickWait>,
+}
+
+fn parse_tick(text: &str) -> Result<TickWait, String> {
+    text.parse()
 }
 
 fn parse_mode(text: &str) -> Result<Mode, String> {
@@ -42,6 +49,9 @@ impl OverrideFlags {
         if self.no_realtime {
             out.push("--no-realtime".into());
         }
+        if let Some(t) = self.tick {
+            out.extend(["--tick".into(), t.as_str().into()]);
+        }
         out
     }
 }
@@ -53,6 +63,7 @@ impl From<OverrideFlags> for Overrides {
             duration_s: f.duration_s,
             mode: f.mode,
             no_realtime: f.no_realtime,
+            tick: f.tick,
         }
     }
 }
@@ -64,6 +75,7 @@ impl From<&Overrides> for OverrideFlags {
             duration_s: o.duration_s,
             mode: o.mode,
             no_realtime: o.no_realtime,
+            tick: o.tick,
         }
     }
 }
@@ -89,6 +101,7 @@ mod tests {
                 duration_s: Some(0.05),
                 mode: Some(Mode::Lockstep),
                 no_realtime: true,
+                tick: Some(TickWait::SleepThenSpin),
             },
             OverrideFlags {
                 mode: Some(Mode::Realtime),
@@ -101,5 +114,7 @@ mod tests {
         }
         let e = Line::try_parse_from(["--mode", "fast"]).err().unwrap();
         assert!(e.to_string().contains("unknown mode `fast`"), "{e}");
+        let e = Line::try_parse_from(["--tick", "spin"]).err().unwrap();
+        assert!(e.to_string().contains("unknown tick wait `spin`"), "{e}");
     }
 }

@@ -69,7 +69,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let mut activation = ActivationView::open(&node)?;
     activation.connect()?;
     // Priority and CPU only now, connected: see `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(Role::Plant.name(), &rt.scheduling_part());
+    let scheduling = realtime::apply(Role::Plant.name(), &rt.scheduling_part());
 
     let mut core = PlantCore::new(&design);
     core.set_watchdog(
@@ -86,6 +86,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let last_tick = scenario.ticks().map(|n| n.saturating_sub(1));
     let grid = TickGrid::starting_in(period_ns, 2_000_000);
     let waits = wait_mode(&scenario);
+    // The tick wait is chosen once the priority is in force (a refused one
+    // cannot spin): see `crate::tick`.
+    let tick_decision = crate::tick::decide(&scenario, realtime::online_cpus(), &scheduling);
+    let mut tick_waiter = crate::tick::waiter(&tick_decision, period_ns);
+    let sleeps_for_ticks = scenario.plant_sleeps_for_ticks();
     let mut logger_pace = LoggerPace::new(lockstep && scenario.logger.enabled);
 
     let mut k: u64 = 0;
@@ -108,7 +113,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             (now, now)
         } else {
             let tick_ns = grid.tick_ns(k);
-            wait_until(waits, tick_ns);
+            if sleeps_for_ticks {
+                tick_waiter.wait_for(tick_ns);
+            } else {
+                wait_until(waits, tick_ns);
+            }
             let woke_ns = monotonic_ns();
             core.set_activation(activation.refresh()?);
             while let Some(cmd) = commands.receive()? {
@@ -144,7 +153,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         c.ticks, c.misses, c.late_commands, c.stalled_ticks, c.stall_misses
     );
     let path = flexloop_runfiles::RunDir::new(&args.run_dir).plant_latency();
-    let own = crate::summary::plant_latency(&c, &core.latencies, period_ns);
+    let tick_wait = sleeps_for_ticks.then(|| crate::tick::report(&tick_decision, &tick_waiter));
+    let own = crate::summary::plant_latency(&c, &core.latencies, period_ns, tick_wait);
     if let Err(e) = flexloop_runfiles::json::write_json_atomically(&path, &own) {
         // The loop's work is done; the logger's summary has the same figures.
         eprintln!("flexloop-plant: {e}");

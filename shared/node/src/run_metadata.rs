@@ -52,6 +52,16 @@ pub fn run_metadata(
             ),
         );
     }
+    if scenario.plant_sleeps_for_ticks() {
+        // As the scenario resolves on this machine; the plant's own record
+        // (plant_latency.json) also knows whether its priority was granted.
+        put(
+            "realtime_tick",
+            scenario
+                .tick_decision(flexloop_runtime::realtime::online_cpus())
+                .describe(),
+        );
+    }
     let applied: Vec<String> = logger_realtime.iter().map(|g| g.summary()).collect();
     put("realtime_logger_applied", applied.join(" "));
     for (key, path) in [

@@ -42,11 +42,13 @@ pub fn latencies(latencies: &LoopLatencies, budget_ns: u64) -> BTreeMap<String, 
 }
 
 /// What the plant measured itself: its counters and its latencies (the
-/// same metric names as the logger's summary).
+/// same metric names as the logger's summary) and how it waited for its
+/// ticks.
 pub fn plant_latency(
     counters: &flexloop_components::plant::PlantCounters,
     latencies: &PlantLatencies,
     period_ns: u64,
+    tick_wait: Option<flexloop_runfiles::TickWaitReport>,
 ) -> PlantLatency {
     let own = [
         (Metric::TickLateness, &latencies.tick_lateness),
@@ -65,6 +67,7 @@ pub fn plant_latency(
             .into_iter()
             .map(|(m, h)| (m.name().to_string(), histogram(h, period_ns)))
             .collect(),
+        tick_wait,
     }
 }
 

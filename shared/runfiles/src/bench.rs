@@ -2,7 +2,7 @@
 //! for `--logging-cost` and `sweep.json` for `--sweep`.
 
 use crate::latency::{Histogram, Percentiles};
-use crate::summary::{PlantLatency, RunSummary};
+use crate::summary::{PlantLatency, RunSummary, TickWaitReport};
 use crate::supervision::SwitchRecord;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -20,6 +20,40 @@ pub struct BenchFile {
     pub cpu_ns: BTreeMap<String, u64>,
     /// The loop's run, wall clock, ns.
     pub wall_ns: f64,
+    /// When y(k) was published against the grid, from the sample file
+    /// (absent without one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sampling: Option<SamplingJitter>,
+    /// How the plant waited for its ticks (its `plant_latency.json`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tick_wait: Option<TickWaitReport>,
+    /// The plant's CPU time per tick, ns.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plant_cpu_per_tick_ns: Option<f64>,
+    /// The busy share of the plant's CPU (`realtime.plant.cpu`, CPU 0 if
+    /// unpinned) over the loop's run, from /proc/stat: everyone's time on it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plant_cpu_busy: Option<CpuBusy>,
+}
+
+/// Sampling jitter: y(k)'s publication against its tick t_k.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SamplingJitter {
+    /// published_ns − t_k, per sample.
+    pub published_after_tick: Histogram,
+    /// |published(k) − published(k−1) − period| over consecutive samples.
+    pub interval_error: Histogram,
+    /// The shortest and longest interval between consecutive publications.
+    pub interval_min_ns: u64,
+    pub interval_max_ns: u64,
+}
+
+/// One CPU's busy share over a window.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct CpuBusy {
+    pub cpu: usize,
+    /// Busy (not idle, not waiting for I/O) / all, 0..=1.
+    pub share: f64,
 }
 
 /// The machine's own floors, measured in the same invocation as the loop.

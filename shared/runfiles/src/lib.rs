@@ -24,4 +24,4 @@ pub mod supervision;
 pub use json::FileError;
 pub use latency::{Histogram, Percentiles};
 pub use run_dir::RunDir;
-pub use summary::{PlantLatency, RunSummary};
+pub use summary::{PlantLatency, RunSummary, SpinReport, TickWaitReport};

@@ -205,6 +205,42 @@ pub struct PlantLatency {
     pub ticks: u64,
     pub counters: PlantCounters,
     pub latency: BTreeMap<String, Histogram>,
+    /// How the plant waited for its ticks (`realtime.tick`); absent in
+    /// files written before it existed and in lockstep.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tick_wait: Option<TickWaitReport>,
+}
+
+/// `realtime.tick` as the plant ran it.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TickWaitReport {
+    /// `sleep`, `sleep-then-spin`, or `sleep (fallback: REASON)` where the
+    /// scenario asked for the spin and this machine could not give it.
+    pub setting: String,
+    /// With `sleep-then-spin`: the margin and what the spin did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spin: Option<SpinReport>,
+}
+
+/// The spin margin (the plant sleeps until t_k − margin) and the spins.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SpinReport {
+    /// The margin at the end of the run.
+    pub margin_ns: u64,
+    /// The smallest and largest margin the run used.
+    pub margin_lowest_ns: u64,
+    pub margin_highest_ns: u64,
+    /// The bounds it adapts within.
+    pub margin_lower_bound_ns: u64,
+    pub margin_upper_bound_ns: u64,
+    /// Ticks whose sleep ended before t_k and spun the rest.
+    pub spun_ticks: u64,
+    /// Ticks whose sleep ended at or after t_k.
+    pub late_wakeups: u64,
+    /// Spins cut by the cap (margin + 50 µs) before t_k.
+    pub capped_spins: u64,
+    /// Time spent spinning over the run.
+    pub spin_ns: u64,
 }
 
 impl PlantLatency {

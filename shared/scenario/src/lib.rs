@@ -9,6 +9,7 @@
 //!   files, the chain's parameters, modal damping).
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
+//! - [`tick`]: `realtime.tick`, where it applies and where it falls back.
 //! - [`error`]: errors that name the file, the field and the reason.
 
 pub mod error;
@@ -17,8 +18,12 @@ mod load;
 pub mod plant_description;
 pub mod schema;
 pub mod swap;
+pub mod tick;
 mod validate;
 mod validate_plant;
 
 pub use error::ScenarioError;
-pub use schema::{DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario};
+pub use schema::{
+    DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario, TickWait,
+};
+pub use tick::TickDecision;

@@ -69,6 +69,12 @@ impl Scenario {
         if let Some(mode) = overrides.mode {
             self.timing.mode = mode;
         }
+        if let Some(tick) = overrides.tick {
+            // As if the file named it: validation refuses it where it does
+            // not act, as it would the file's.
+            self.realtime.tick = tick;
+            self.given.insert("realtime.tick".into());
+        }
         if overrides.no_realtime {
             for p in [
                 &mut self.realtime.plant,

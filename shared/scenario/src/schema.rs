@@ -536,6 +536,51 @@ impl Profile {
     }
 }
 
+/// How the plant waits for tick t_k under the shared-cores profile
+/// (docs/architecture.md, "Waiting for the tick").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TickWait {
+    /// An absolute `clock_nanosleep` until t_k: y(k) is sampled when the
+    /// timer's wake-up comes, 10–20 µs late on a virtual machine.
+    Sleep,
+    /// Sleep until t_k minus an adaptive margin, then spin on the clock
+    /// until t_k (bounded), so that y(k) is sampled on the tick. Needs the
+    /// plant below observer and controller in SCHED_FIFO priority, so that
+    /// they preempt the spin.
+    SleepThenSpin,
+}
+
+impl TickWait {
+    /// The setting of a scenario that names none. Switching the default is
+    /// this one line (issue 23: the lead measures both on a quiet machine).
+    pub const DEFAULT: TickWait = TickWait::Sleep;
+
+    fn default_setting() -> Self {
+        Self::DEFAULT
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TickWait::Sleep => "sleep",
+            TickWait::SleepThenSpin => "sleep-then-spin",
+        }
+    }
+}
+
+impl std::str::FromStr for TickWait {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "sleep" => Ok(TickWait::Sleep),
+            "sleep-then-spin" => Ok(TickWait::SleepThenSpin),
+            _ => Err(format!(
+                "unknown tick wait `{text}` (expected sleep or sleep-then-spin)"
+            )),
+        }
+    }
+}
+
 /// CPUs a spinning profile needs: one per loop process, one for the logger
 /// and the rest of the system.
 pub const DEDICATED_CORES_MIN_CPUS: usize = 4;
@@ -551,6 +596,10 @@ pub struct RealtimeSection {
     pub timer_slack_ns: u64,
     #[serde(default = "yes")]
     pub hold_cpu_dma_latency: bool,
+    /// How the plant waits for each tick of the grid (realtime mode,
+    /// shared-cores profile).
+    #[serde(default = "TickWait::default_setting")]
+    pub tick: TickWait,
     #[serde(default)]
     pub plant: ProcessRealtime,
     #[serde(default)]
@@ -575,6 +624,7 @@ impl Default for RealtimeSection {
             lock_memory: true,
             timer_slack_ns: default_slack(),
             hold_cpu_dma_latency: true,
+            tick: TickWait::default_setting(),
             plant: ProcessRealtime::default(),
             observer: ProcessRealtime::default(),
             controller: ProcessRealtime::default(),
@@ -689,6 +739,8 @@ pub struct Overrides {
     pub mode: Option<Mode>,
     /// Drop all SCHED_FIFO priorities (e.g. in tests on a shared machine).
     pub no_realtime: bool,
+    /// `realtime.tick`, as if the file gave it.
+    pub tick: Option<TickWait>,
 }
 
 impl Scenario {

@@ -160,6 +160,7 @@ impl Scenario {
             self.within("observer.q_nu", q, 0.0, limits::Q_NU_MAX, "")?;
         }
         self.validate_sensor_scan()?;
+        self.validate_tick()?;
         self.validate_profile()?;
         self.within(
             "observer.damping_increase",

@@ -1,0 +1,129 @@
+//! `realtime.tick`: a spinning plant keeps the tick grid (counts only, no
+//! timing), falls back with one clear line where it cannot spin, and the
+//! setting is refused where the plant does not wait on its clock.
+
+use crate::util::{describe, flexloop, processes_mentioning, run_bounded, temp_dir};
+use flexloop_components::LogReader;
+use serde_json::Value;
+use std::path::Path;
+use std::time::Duration;
+
+fn json(path: &Path) -> Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap()
+}
+
+/// `flexloop bench thesis-mc --tick sleep-then-spin ARGS` for half a second
+/// at 2 kHz (1000 ticks); it must succeed.
+fn bench_spinning(args: &[&str], run_dir: &Path) -> String {
+    let mut cmd = flexloop();
+    cmd.args(["bench", "thesis-mc", "--duration", "0.5", "--rate", "2000"])
+        .args(["--tick", "sleep-then-spin", "--no-probes"])
+        .args(args)
+        .arg("--run-dir")
+        .arg(run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(processes_mentioning(&run_dir.display().to_string()).is_empty());
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Every tick 0..ticks published once, in order, in the sample file.
+fn assert_every_tick_once_in_order(run: &Path, ticks: u64) {
+    let log = LogReader::open(&run.join("samples.mcap")).unwrap();
+    let seqs: Vec<u64> = log.measurements().map(|m| m.seq).collect();
+    assert_eq!(seqs, (0..ticks).collect::<Vec<_>>());
+}
+
+#[test]
+fn a_spinning_plant_keeps_the_tick_grid() {
+    let dir = temp_dir("tick-spin-grid");
+    let run = dir.join("run");
+    // Real-time priorities as shipped (plant 79 below observer 80 and
+    // controller 81), so that the plant does spin; bounded: at most the
+    // margin (≤ 60 µs) plus 50 µs of every 500 µs period.
+    let stdout = bench_spinning(&[], &run);
+    let plant = json(&run.join("plant_latency.json"));
+    // ticks == duration × rate, each published once, in order.
+    assert_eq!(plant["ticks"], 1000);
+    assert_eq!(plant["latency"]["tick_lateness"]["count"], 1000);
+    assert_every_tick_once_in_order(&run, 1000);
+    let bench = json(&run.join("bench.json"));
+    assert_eq!(bench["sampling"]["published_after_tick"]["count"], 1000);
+    assert_eq!(bench["sampling"]["interval_error"]["count"], 999);
+    let wait = &plant["tick_wait"];
+    assert_eq!(bench["tick_wait"], *wait);
+    let setting = wait["setting"].as_str().unwrap();
+    if setting == "sleep-then-spin" {
+        // Every tick either spun up to its time or woke after it.
+        let spin = &wait["spin"];
+        let spun = spin["spun_ticks"].as_u64().unwrap();
+        let late = spin["late_wakeups"].as_u64().unwrap();
+        assert_eq!(spun + late, 1000, "{wait}");
+        let margin = spin["margin_ns"].as_u64().unwrap();
+        let (lo, hi) = (
+            spin["margin_lower_bound_ns"].as_u64().unwrap(),
+            spin["margin_upper_bound_ns"].as_u64().unwrap(),
+        );
+        assert!(lo <= margin && margin <= hi, "{wait}");
+        assert!(
+            stdout.contains("tick wait sleep-then-spin; margin"),
+            "{stdout}"
+        );
+    } else {
+        // A machine that refuses SCHED_FIFO: the plant said why and slept.
+        assert!(setting.contains("refused its priority"), "{wait}");
+    }
+}
+
+#[test]
+fn without_real_time_the_spin_falls_back_to_sleep_and_says_so() {
+    let dir = temp_dir("tick-spin-fallback");
+    let run = dir.join("run");
+    let stdout = bench_spinning(&["--no-realtime"], &run);
+    let stderr = std::fs::read_to_string(run.join("plant.stderr")).unwrap();
+    let said: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("realtime.tick"))
+        .collect();
+    assert_eq!(said.len(), 1, "{stderr}");
+    assert!(
+        said[0].contains("cannot work here") && said[0].contains("--no-realtime"),
+        "{stderr}"
+    );
+    let plant = json(&run.join("plant_latency.json"));
+    let setting = plant["tick_wait"]["setting"].as_str().unwrap();
+    assert!(setting.starts_with("sleep (fallback: "), "{setting}");
+    assert!(plant["tick_wait"].get("spin").is_none(), "{plant}");
+    assert_eq!(plant["ticks"], 1000);
+    assert!(stdout.contains("tick wait sleep (fallback: "), "{stdout}");
+    // The run's recorded settings say the same.
+    let log = LogReader::open(&run.join("samples.mcap")).unwrap();
+    let recorded = &log.metadata["realtime_tick"];
+    assert!(recorded.starts_with("sleep (fallback: "), "{recorded}");
+}
+
+#[test]
+fn in_lockstep_the_setting_is_refused_before_anything_starts() {
+    let dir = temp_dir("tick-lockstep");
+    let run = dir.join("run");
+    let mut cmd = flexloop();
+    cmd.args([
+        "run",
+        "thesis-mc",
+        "--mode",
+        "lockstep",
+        "--duration",
+        "0.1",
+    ])
+    .args(["--no-realtime", "--tick", "sleep-then-spin", "--run-dir"])
+    .arg(&run);
+    let out = run_bounded(cmd, Duration::from_secs(60));
+    assert!(!out.status.success(), "{}", describe(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("realtime.tick") && stderr.contains("does not apply"),
+        "{stderr}"
+    );
+    assert!(processes_mentioning(&run.display().to_string()).is_empty());
+}
