@@ -17,5 +17,6 @@ mod report;
 mod sensor_scan;
 mod swap;
 mod thesis;
+mod tune;
 mod util;
 mod verdicts;

@@ -9,6 +9,7 @@
 //!   files, the chain's parameters, modal damping).
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
+//! - [`tune`]: the fields live tuning (`flexloop set`) may change.
 //! - [`error`]: errors that name the file, the field and the reason.
 
 pub mod error;
@@ -17,6 +18,7 @@ mod load;
 pub mod plant_description;
 pub mod schema;
 pub mod swap;
+pub mod tune;
 mod validate;
 mod validate_plant;
 

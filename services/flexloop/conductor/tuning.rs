@@ -1,0 +1,225 @@
+//! Live tuning on the supervisor's side: the scenario as it stands (after
+//! swaps and sets), and a `flexloop set` turned into a checked scenario
+//! file and the roles to hand over to it (docs/architecture.md, "Live
+//! tuning"). The hand-over itself is the swap's (`shell.rs`).
+
+use anyhow::{Context, Result, bail};
+use flexloop_design::LoopDesign;
+use flexloop_design::acceptance::{Accepted, accept_text};
+use flexloop_node::Role;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::{FieldChange, SetRequest};
+use flexloop_scenario::tune::{self, Change, TunedRole};
+use flexloop_scenario::{Overrides, Scenario};
+use std::path::{Path, PathBuf};
+
+/// What a set will do once checked: the file to hand over to, the fields
+/// it changes, and the roles that take it (observer first: the controller's
+/// design may build on the observer's, never the other way round).
+#[derive(Debug)]
+pub struct SetPlan {
+    pub file: PathBuf,
+    pub fields: Vec<FieldChange>,
+    pub roles: Vec<Role>,
+}
+
+/// The scenario as it stands, as a TOML table (loaded from the run's copy
+/// when first needed) and the number of changed files written so far.
+#[derive(Debug, Default)]
+pub struct Tuning {
+    now: Option<toml::Table>,
+    written: u32,
+}
+
+impl Tuning {
+    /// The table of the loop as it runs now: the run's copy of its scenario
+    /// with the rate and mode it was started with written in (they shape
+    /// every block), and `plant.file` made absolute (a changed file lives
+    /// in `tuned/`, where a relative path would find nothing).
+    fn now(&mut self, run_dir: &RunDir, running: &Scenario) -> Result<&toml::Table> {
+        if self.now.is_none() {
+            let path = run_dir.scenario_copy();
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            let mut table: toml::Table =
+                toml::from_str(&text).with_context(|| format!("{}", path.display()))?;
+            let timing = [
+                Change {
+                    field: "loop.rate_hz".into(),
+                    value: toml::Value::Float(running.timing.rate_hz),
+                },
+                Change {
+                    field: "loop.mode".into(),
+                    value: toml::Value::String(running.timing.mode.as_str().into()),
+                },
+            ];
+            table = tune::with_changes(&table, &timing)?;
+            if let Some(file) = running.plant_file_path() {
+                let absolute = std::fs::canonicalize(&file)
+                    .with_context(|| format!("plant.file {}", file.display()))?;
+                let change = Change {
+                    field: "plant.file".into(),
+                    value: toml::Value::String(absolute.display().to_string()),
+                };
+                table = tune::with_changes(&table, &[change])?;
+            }
+            self.now = Some(table);
+        }
+        Ok(self.now.as_ref().expect("loaded above"))
+    }
+
+    /// Checks `request` against the loop as it stands: only tunables, each
+    /// field of the format and its value valid, the changed scenario
+    /// accepted as every command accepts a file, and its loop meeting the
+    /// 6 dB rule and stable at the loop's real delay (flexloop-analysis'
+    /// `loop_check`). Writes the changed file (`tuned/NNN.toml`) and says
+    /// which roles must take it; none when no value changes.
+    pub fn plan(
+        &mut self,
+        run_dir: &RunDir,
+        running: &Scenario,
+        overrides: &Overrides,
+        request: &SetRequest,
+    ) -> Result<Option<SetPlan>> {
+        let changes = request
+            .changes
+            .iter()
+            .map(|c| {
+                tune::parse_value(&c.field, &c.value).map(|value| Change {
+                    field: c.field.clone(),
+                    value,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        if changes.is_empty() {
+            bail!("nothing to set");
+        }
+        let now = self.now(run_dir, running)?.clone();
+        let now_path = run_dir.scenario_now();
+        tune::check_changes(&changes, |field| tune::known_field(&now, field))?;
+        let table = tune::with_changes(&now, &changes)?;
+        let old = Scenario::from_text(&now_path, &toml::to_string(&now)?, overrides)
+            .context("the running loop's scenario")?;
+        let index = self.written + 1;
+        let file = run_dir.tuned().join(format!("{index:03}.toml"));
+        let text = toml::to_string(&table)?;
+        let Accepted {
+            scenario: new,
+            design,
+        } = accept_text(
+            &file,
+            &text,
+            overrides,
+            flexloop_runtime::realtime::online_cpus(),
+        )
+        .context("the changed scenario is not valid (nothing written, the loop untouched)")?;
+        let report = flexloop_analysis::loop_report::loop_check(&new, &design)
+            .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
+        if !report.meets_6db_rule {
+            bail!(
+                "the changed loop at {} Hz with {} sample(s) of loop delay: {}",
+                new.timing.rate_hz,
+                design.loop_delay_samples,
+                report.rule_verdict()
+            );
+        }
+        let mut fields = Vec::new();
+        let (mut controller, mut observer) = (false, false);
+        for change in &changes {
+            let Some(t) = tune::tunable(&change.field) else {
+                continue;
+            };
+            let (before, after) = ((t.value)(&old), (t.value)(&new));
+            if before == after {
+                continue;
+            }
+            match t.role {
+                TunedRole::Controller => controller = true,
+                TunedRole::Observer => observer = true,
+            }
+            fields.push(FieldChange {
+                field: change.field.clone(),
+                old: tune::shown(before.as_ref()),
+                new: tune::shown(after.as_ref()),
+            });
+        }
+        if fields.is_empty() {
+            return Ok(None);
+        }
+        // A field of one role may change the other's design (the modified
+        // feedforward copies the observer; "auto" searches f_bw on it).
+        let was = LoopDesign::from_scenario(&old).context("the running loop's design")?;
+        controller |= was.feedback != design.feedback
+            || was.modified_feedforward != design.modified_feedforward
+            || was.feedforward != design.feedforward;
+        observer |=
+            was.observer != design.observer || was.output_prediction != design.output_prediction;
+        let mut roles = Vec::new();
+        if observer {
+            roles.push(Role::Observer);
+        }
+        if controller {
+            roles.push(Role::Controller);
+        }
+        std::fs::create_dir_all(run_dir.tuned())
+            .with_context(|| format!("{}", run_dir.tuned().display()))?;
+        std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;
+        self.written = index;
+        Ok(Some(SetPlan {
+            file,
+            fields,
+            roles,
+        }))
+    }
+
+    /// `role` now runs `file` (a swap or a set's hand-over): its part of
+    /// the scenario as it stands is now that file's, rewritten in
+    /// `scenario-now.toml`. The controller's part is `[controller]` and
+    /// `supervision.estimate_watchdog_ticks`; the observer's `[observer]`.
+    pub fn swapped(
+        &mut self,
+        run_dir: &RunDir,
+        running: &Scenario,
+        role: Role,
+        file: &Path,
+    ) -> Result<()> {
+        let text = std::fs::read_to_string(file).with_context(|| format!("{}", file.display()))?;
+        let from: toml::Table =
+            toml::from_str(&text).with_context(|| format!("{}", file.display()))?;
+        self.now(run_dir, running)?;
+        let now = self.now.as_mut().expect("loaded above");
+        match role {
+            Role::Observer => take(now, &from, "observer"),
+            _ => {
+                take(now, &from, "controller");
+                let ticks = from
+                    .get("supervision")
+                    .and_then(|s| s.get("estimate_watchdog_ticks"))
+                    .cloned();
+                let supervision = now
+                    .entry("supervision")
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                if let toml::Value::Table(supervision) = supervision {
+                    match ticks {
+                        Some(v) => supervision.insert("estimate_watchdog_ticks".into(), v),
+                        None => supervision.remove("estimate_watchdog_ticks"),
+                    };
+                }
+            }
+        }
+        let text = toml::to_string(now)?;
+        let path = run_dir.scenario_now();
+        let tmp = path.with_extension("toml.tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("{}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("{}", path.display()))?;
+        Ok(())
+    }
+}
+
+/// `table`'s section `name` replaced by `from`'s (removed if it has none).
+fn take(table: &mut toml::Table, from: &toml::Table, name: &str) {
+    match from.get(name) {
+        Some(section) => table.insert(name.into(), section.clone()),
+        None => table.remove(name),
+    };
+}
