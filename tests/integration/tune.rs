@@ -183,8 +183,15 @@ fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
         err.contains("controller.bandwidth_hz") && err.contains("\"auto\""),
         "{err}"
     );
-    let err = refused_set(&prefix, "observer.bandpass_q=-1");
-    assert!(err.contains("observer.bandpass_q"), "{err}");
+    let err = refused_set(&prefix, "controller.notches_hz=[-900.0]");
+    assert!(err.contains("controller.notches_hz"), "{err}");
+    // The observer's fields are shown, not set: its hand-over to another
+    // design is not bumpless.
+    let err = refused_set(&prefix, "observer.damping_increase=0.05");
+    assert!(
+        err.contains("observer.damping_increase") && err.contains("not set live"),
+        "{err}"
+    );
 
     // Untouched: the same instances serve on, the value stands, nothing
     // was written or handed over.

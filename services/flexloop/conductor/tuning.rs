@@ -14,8 +14,8 @@ use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 
 /// What a set will do once checked: the file to hand over to, the fields
-/// it changes, and the roles that take it (observer first: the controller's
-/// design may build on the observer's, never the other way round).
+/// it changes, and the roles that take it (today the controller alone: see
+/// `flexloop_scenario::tune` on the observer).
 #[derive(Debug)]
 pub struct SetPlan {
     pub file: PathBuf,
@@ -154,13 +154,19 @@ impl Tuning {
             || was.feedforward != design.feedforward;
         observer |=
             was.observer != design.observer || was.output_prediction != design.output_prediction;
-        let mut roles = Vec::new();
         if observer {
-            roles.push(Role::Observer);
+            // Refused by field already (`tune::check_changes`); a controller
+            // field never changes the observer's design.
+            bail!(
+                "the changed scenario changes the observer's design, whose hand-over is not \
+                 bumpless (docs/architecture.md#live-tuning)"
+            );
         }
-        if controller {
-            roles.push(Role::Controller);
-        }
+        let roles = if controller {
+            vec![Role::Controller]
+        } else {
+            Vec::new()
+        };
         std::fs::create_dir_all(run_dir.tuned())
             .with_context(|| format!("{}", run_dir.tuned().display()))?;
         std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;

@@ -9,6 +9,16 @@
 //! `supervision.safe_action` and `supervision.command_watchdog_ticks` are
 //! the plant's (read once at its start; the plant is never swapped), and
 //! `safe_action = "standby"` also sets what the supervisor keeps running.
+//!
+//! The observer's fields are shown but not set: a swap to another observer
+//! design is not bumpless today. The new observer cannot take over the
+//! running one's state (it takes a state only from an identical design,
+//! `ObserverCore::load`), so it starts from its own initial state in shadow
+//! and is still far from the loop's at the boundary: on `default`,
+//! `observer.damping_increase` 0.035 → 0.05 put u_d at 3 100 N at the
+//! switch and u on its ±2 000 N limit for the next samples (measured with
+//! `flexloop set` before this refusal). Setting them waits for a hand-over
+//! that carries the estimate across observer designs of the same model.
 
 use crate::schema::{PidBandwidth, Scenario};
 use std::fmt;
@@ -52,7 +62,8 @@ fn feedforward_gain(
         .and_then(|f| float(gain(f)))
 }
 
-/// Every tunable, in the order `flexloop get` lists them.
+/// Every tunable, in the order `flexloop get` lists them (the observer's
+/// shown, not set: see the module's doc).
 pub const TUNABLES: &[Tunable] = &[
     Tunable {
         field: "controller.bandwidth_hz",
@@ -195,6 +206,8 @@ pub enum TuneError {
     ReadAtStart(String),
     /// Another field a swap may differ in but that is no tunable.
     NotTunable(String),
+    /// An observer field: shown, not set (see the module's doc).
+    ObserverHandOver(String),
     /// The same field twice in one change.
     Repeated(String),
 }
@@ -204,6 +217,7 @@ impl fmt::Display for TuneError {
         let tunables = || {
             TUNABLES
                 .iter()
+                .filter(|t| t.role == TunedRole::Controller)
                 .map(|t| t.field)
                 .collect::<Vec<_>>()
                 .join(", ")
@@ -236,6 +250,13 @@ impl fmt::Display for TuneError {
             TuneError::NotTunable(field) => {
                 write!(f, "{field}: not a tunable (tunables: {})", tunables())
             }
+            TuneError::ObserverHandOver(field) => write!(
+                f,
+                "{field}: not set live: a new observer design takes over from its own initial \
+                 state, not the running observer's, and steps the command at the switch (u_d \
+                 3 100 N on `default`); change it in the scenario and start the loop again \
+                 (docs/architecture.md#live-tuning)"
+            ),
             TuneError::Repeated(field) => write!(f, "{field}: given twice"),
         }
     }
@@ -319,8 +340,12 @@ pub fn check_changes(changes: &[Change], known: impl Fn(&str) -> bool) -> Result
         if changes[..i].iter().any(|c| c.field == change.field) {
             return Err(TuneError::Repeated(change.field.clone()));
         }
-        if tunable(&change.field).is_none() {
-            return Err(refusal(&change.field, known(&change.field)));
+        match tunable(&change.field) {
+            None => return Err(refusal(&change.field, known(&change.field))),
+            Some(t) if t.role == TunedRole::Observer => {
+                return Err(TuneError::ObserverHandOver(change.field.clone()));
+            }
+            Some(_) => {}
         }
     }
     Ok(())
@@ -368,7 +393,11 @@ mod tests {
                 known,
             )
         };
-        assert!(one("observer.q_nu").is_ok());
+        assert!(one("controller.bandwidth_hz").is_ok());
+        assert!(matches!(
+            one("observer.q_nu"),
+            Err(TuneError::ObserverHandOver(_))
+        ));
         assert!(matches!(
             one("plant.output"),
             Err(TuneError::NotSwappable(_))
@@ -392,7 +421,7 @@ mod tests {
         let e = one("controller.bogus").unwrap_err();
         assert!(matches!(e, TuneError::UnknownField(_)));
         assert!(e.to_string().contains("controller.bogus"), "{e}");
-        let twice = Change::parse("observer.q_nu=1").unwrap();
+        let twice = Change::parse("controller.notches_hz=[]").unwrap();
         assert!(matches!(
             check_changes(&[twice.clone(), twice], known),
             Err(TuneError::Repeated(_))
