@@ -92,6 +92,18 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
     assert!(design.status.success(), "{}", describe(&design));
     assert!(stdout(&design).contains("35.5"), "{}", describe(&design));
 
+    // A plain swap moves the scenario as it stands too.
+    let variant = scenario_variant(
+        &dir,
+        "default",
+        "retuned.toml",
+        &[("bandwidth_hz = 43.5", "bandwidth_hz = 40.0")],
+        "",
+    );
+    let swapped = flexloop_on(&prefix, &["swap", "controller", variant.to_str().unwrap()]);
+    assert!(swapped.status.success(), "{}", describe(&swapped));
+    assert_eq!(get(&prefix, "controller.bandwidth_hz"), "40.0");
+
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 500);
     stop(&prefix, child);
@@ -103,7 +115,7 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
         assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
     }
     let swaps = of_kind(&dir, "swap");
-    assert_eq!(swaps.len(), 1, "{swaps:?}");
+    assert_eq!(swaps.len(), 2, "{swaps:?}");
     let sets = of_kind(&dir, "set");
     assert_eq!(sets.len(), 1, "{sets:?}");
     let set = &sets[0]["detail"];
@@ -134,7 +146,7 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
     );
     let generations: std::collections::BTreeSet<u32> =
         log.commands().map(|c| c.generation).collect();
-    assert_eq!(generations.len(), 2, "controllers 0 and 1: {generations:?}");
+    assert_eq!(generations.len(), 3, "controllers 0, 1, 2: {generations:?}");
     assert_clean(&dir);
 }
 
