@@ -4,18 +4,19 @@
 //! tuning"). The hand-over itself is the swap's (`shell.rs`).
 
 use anyhow::{Context, Result, bail};
-use flexloop_design::LoopDesign;
 use flexloop_design::acceptance::{Accepted, accept_text};
 use flexloop_node::Role;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::supervision::{FieldChange, SetRequest};
-use flexloop_scenario::tune::{self, Change, TunedRole};
+use flexloop_scenario::tune::{self, Change};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 
+const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
+
 /// What a set will do once checked: the file to hand over to, the fields
-/// it changes, and the roles that take it (today the controller alone: see
-/// `flexloop_scenario::tune` on the observer).
+/// it changes, and the roles that take it (today the controller alone: the
+/// observer's fields are refused, `flexloop_scenario::tune` says why).
 #[derive(Debug)]
 pub struct SetPlan {
     pub file: PathBuf,
@@ -103,6 +104,24 @@ impl Tuning {
         let index = self.written + 1;
         let file = run_dir.tuned().join(format!("{index:03}.toml"));
         let text = toml::to_string(&table)?;
+        // The values as the scenario reads them (`60` is 60.0), before
+        // anything is designed: a set of the running values changes nothing.
+        let read = Scenario::parse(&file, &text).context(NOT_VALID)?;
+        let fields: Vec<FieldChange> = changes
+            .iter()
+            .filter_map(|change| {
+                let t = tune::tunable(&change.field)?;
+                let (before, after) = ((t.value)(&old), (t.value)(&read));
+                (before != after).then(|| FieldChange {
+                    field: change.field.clone(),
+                    old: tune::shown(before.as_ref()),
+                    new: tune::shown(after.as_ref()),
+                })
+            })
+            .collect();
+        if fields.is_empty() {
+            return Ok(None);
+        }
         let Accepted {
             scenario: new,
             design,
@@ -112,7 +131,7 @@ impl Tuning {
             overrides,
             flexloop_runtime::realtime::online_cpus(),
         )
-        .context("the changed scenario is not valid (nothing written, the loop untouched)")?;
+        .context(NOT_VALID)?;
         let report = flexloop_analysis::loop_report::loop_check(&new, &design)
             .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
         if !report.meets_6db_rule {
@@ -123,50 +142,6 @@ impl Tuning {
                 report.rule_verdict()
             );
         }
-        let mut fields = Vec::new();
-        let (mut controller, mut observer) = (false, false);
-        for change in &changes {
-            let Some(t) = tune::tunable(&change.field) else {
-                continue;
-            };
-            let (before, after) = ((t.value)(&old), (t.value)(&new));
-            if before == after {
-                continue;
-            }
-            match t.role {
-                TunedRole::Controller => controller = true,
-                TunedRole::Observer => observer = true,
-            }
-            fields.push(FieldChange {
-                field: change.field.clone(),
-                old: tune::shown(before.as_ref()),
-                new: tune::shown(after.as_ref()),
-            });
-        }
-        if fields.is_empty() {
-            return Ok(None);
-        }
-        // A field of one role may change the other's design (the modified
-        // feedforward copies the observer; "auto" searches f_bw on it).
-        let was = LoopDesign::from_scenario(&old).context("the running loop's design")?;
-        controller |= was.feedback != design.feedback
-            || was.modified_feedforward != design.modified_feedforward
-            || was.feedforward != design.feedforward;
-        observer |=
-            was.observer != design.observer || was.output_prediction != design.output_prediction;
-        if observer {
-            // Refused by field already (`tune::check_changes`); a controller
-            // field never changes the observer's design.
-            bail!(
-                "the changed scenario changes the observer's design, whose hand-over is not \
-                 bumpless (docs/architecture.md#live-tuning)"
-            );
-        }
-        let roles = if controller {
-            vec![Role::Controller]
-        } else {
-            Vec::new()
-        };
         std::fs::create_dir_all(run_dir.tuned())
             .with_context(|| format!("{}", run_dir.tuned().display()))?;
         std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;
@@ -174,7 +149,7 @@ impl Tuning {
         Ok(Some(SetPlan {
             file,
             fields,
-            roles,
+            roles: vec![Role::Controller],
         }))
     }
 
