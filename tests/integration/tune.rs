@@ -205,6 +205,15 @@ fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
         "{err}"
     );
 
+    // The running value again: nothing to hand over.
+    let same = flexloop_on(&prefix, &["set", "controller.bandwidth_hz=43.5"]);
+    assert!(same.status.success(), "{}", describe(&same));
+    assert!(
+        stdout(&same).contains("nothing changed"),
+        "{}",
+        describe(&same)
+    );
+
     // Untouched: the same instances serve on, the value stands, nothing
     // was written or handed over.
     let refused_at = recorded_ticks_in(&dir, "samples.mcap");

@@ -176,6 +176,20 @@ mod tests {
     }
 
     #[test]
+    fn swaps_and_sets_wait_in_one_queue_oldest_first() {
+        let run = std::env::temp_dir().join(format!("flexloop-pending-{}", std::process::id()));
+        let dir = run.join(REQUESTS_DIR);
+        std::fs::create_dir_all(&dir).unwrap();
+        for name in ["2-1.set", "1-1.request", "3-1.answer", "0-1.json.tmp"] {
+            std::fs::write(dir.join(name), "{}").unwrap();
+        }
+        let found = pending(&run);
+        let _ = std::fs::remove_dir_all(&run);
+        assert_eq!(found, vec![dir.join("1-1.request"), dir.join("2-1.set")]);
+        assert!(is_set(&found[1]) && !is_set(&found[0]));
+    }
+
+    #[test]
     fn an_answer_replaces_its_request_and_reads_back() {
         let dir = std::env::temp_dir().join(format!("flexloop-answer-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
