@@ -319,9 +319,9 @@ impl Conductor {
     }
 
     /// `flexloop set`: the changed scenario checked and written (refused
-    /// with the reason, the loop untouched), then handed to the roles it
-    /// changes through the swap path; one `set` event names the fields,
-    /// their old and new values, the file and the switches.
+    /// with the reason, the loop untouched), then handed to the controller
+    /// through the swap path; one `set` event after the swap's names the
+    /// fields, their old and new values, the file and the switch.
     fn set(
         &mut self,
         running: &mut RunningLoop,
@@ -342,38 +342,30 @@ impl Conductor {
                 handover_s: 0.0,
             });
         };
-        let mut switches = Vec::new();
-        for &role in &plan.roles {
-            let switch = self.swap(running, role, &plan.file).map_err(|e| {
-                let done: Vec<&str> = switches
-                    .iter()
-                    .map(|s: &flexloop_runfiles::supervision::SwitchRecord| s.role.as_str())
-                    .collect();
-                e.context(if done.is_empty() {
-                    format!("the {} did not take {}", role.name(), plan.file.display())
-                } else {
-                    format!(
-                        "the {} did not take {} (the {} did)",
-                        role.name(),
-                        plan.file.display(),
-                        done.join(" and ")
-                    )
-                })
+        // The controller's fields alone are set (the observer's hand-over
+        // is not bumpless across designs: `flexloop_scenario::tune`).
+        let switch = self
+            .swap(running, Role::Controller, &plan.file)
+            .map_err(|e| {
+                e.context(format!(
+                    "the controller did not take {}",
+                    plan.file.display()
+                ))
             })?;
-            self.note_swapped(role, &plan.file);
-            switches.push(switch.record());
-        }
+        self.note_swapped(Role::Controller, &plan.file);
         let outcome = SetOutcome {
             fields: plan.fields,
             file: Some(plan.file.display().to_string()),
-            switches,
+            switches: vec![switch.record()],
             check_s,
             handover_s: since.elapsed().as_secs_f64() - check_s,
         };
-        // The event's role and generation: the last hand-over's.
-        let role = plan.roles.last().copied().unwrap_or(Role::Controller);
-        let generation = outcome.switches.last().map(|s| s.generation);
-        self.record_action(self.core.note("set", role, generation, json!(outcome)));
+        self.record_action(self.core.note(
+            "set",
+            Role::Controller,
+            Some(switch.generation),
+            json!(outcome),
+        ));
         self.publish_files();
         Ok(outcome)
     }

@@ -14,14 +14,12 @@ use std::path::{Path, PathBuf};
 
 const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
 
-/// What a set will do once checked: the file to hand over to, the fields
-/// it changes, and the roles that take it (today the controller alone: the
-/// observer's fields are refused, `flexloop_scenario::tune` says why).
+/// What a set will do once checked: the file to hand the controller over
+/// to and the fields it changes.
 #[derive(Debug)]
 pub struct SetPlan {
     pub file: PathBuf,
     pub fields: Vec<FieldChange>,
-    pub roles: Vec<Role>,
 }
 
 /// The scenario as it stands, as a TOML table (loaded from the run's copy
@@ -73,8 +71,8 @@ impl Tuning {
     /// field of the format and its value valid, the changed scenario
     /// accepted as every command accepts a file, and its loop meeting the
     /// 6 dB rule and stable at the loop's real delay (flexloop-analysis'
-    /// `loop_check`). Writes the changed file (`tuned/NNN.toml`) and says
-    /// which roles must take it; none when no value changes.
+    /// `loop_check`). Writes the changed file (`tuned/NNN.toml`); None
+    /// when no value changes.
     pub fn plan(
         &mut self,
         run_dir: &RunDir,
@@ -146,11 +144,7 @@ impl Tuning {
             .with_context(|| format!("{}", run_dir.tuned().display()))?;
         std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;
         self.written = index;
-        Ok(Some(SetPlan {
-            file,
-            fields,
-            roles: vec![Role::Controller],
-        }))
+        Ok(Some(SetPlan { file, fields }))
     }
 
     /// `role` now runs `file` (a swap or a set's hand-over): its part of
