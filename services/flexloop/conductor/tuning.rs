@@ -198,3 +198,100 @@ fn take(table: &mut toml::Table, from: &toml::Table, name: &str) {
         None => table.remove(name),
     };
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flexloop_runfiles::supervision::FieldValue;
+
+    fn default_scenario() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/default.toml")
+    }
+
+    /// A run directory holding the default scenario's copy, and the
+    /// scenario as the supervisor runs it.
+    fn run_dir(test: &str) -> (RunDir, Scenario) {
+        let dir =
+            std::env::temp_dir().join(format!("flexloop-tuning-{test}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let run_dir = RunDir::new(&dir);
+        std::fs::copy(default_scenario(), run_dir.scenario_copy()).unwrap();
+        let overrides = Overrides {
+            rate_hz: Some(5_000.0),
+            ..Overrides::default()
+        };
+        (
+            run_dir,
+            Scenario::load(&default_scenario(), &overrides).unwrap(),
+        )
+    }
+
+    fn now(run_dir: &RunDir) -> toml::Table {
+        toml::from_str(&std::fs::read_to_string(run_dir.scenario_now()).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_swap_moves_its_role_s_part_of_the_scenario_as_it_stands_and_no_other() {
+        let (run_dir, running) = run_dir("swapped");
+        let file = run_dir.path().join("other.toml");
+        let text = std::fs::read_to_string(default_scenario())
+            .unwrap()
+            .replace("bandwidth_hz = 43.5", "bandwidth_hz = 40.0")
+            .replace("q_nu = 1000.0", "q_nu = 500.0");
+        std::fs::write(
+            &file,
+            format!("{text}\n[supervision]\nestimate_watchdog_ticks = 3\n"),
+        )
+        .unwrap();
+        let mut tuning = Tuning::default();
+        tuning
+            .swapped(&run_dir, &running, Role::Controller, &file)
+            .unwrap();
+        let table = now(&run_dir);
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        assert_eq!(table["controller"]["bandwidth_hz"].as_float(), Some(40.0));
+        assert_eq!(
+            table["supervision"]["estimate_watchdog_ticks"].as_integer(),
+            Some(3)
+        );
+        // The observer is not the controller's: it stays the running one's.
+        assert_eq!(table["observer"]["q_nu"].as_float(), Some(1000.0));
+        // The rate the loop was started with is the scenario's now.
+        assert_eq!(table["loop"]["rate_hz"].as_float(), Some(5_000.0));
+    }
+
+    #[test]
+    fn a_set_of_a_field_that_is_not_the_controller_s_writes_nothing() {
+        let (run_dir, running) = run_dir("refused");
+        let request = |field: &str, value: &str| SetRequest {
+            changes: vec![FieldValue {
+                field: field.into(),
+                value: value.into(),
+            }],
+        };
+        let mut tuning = Tuning::default();
+        for (field, value, says) in [
+            ("plant.output", "3", "a swap may not change it"),
+            ("observer.q_nu", "500.0", "not set live"),
+            ("controller.bandwith_hz", "40", "no such field"),
+        ] {
+            let e = tuning
+                .plan(
+                    &run_dir,
+                    &running,
+                    &Overrides::default(),
+                    &request(field, value),
+                )
+                .unwrap_err();
+            let message = format!("{e:#}");
+            assert!(
+                message.contains(field) && message.contains(says),
+                "{message}"
+            );
+        }
+        let written = run_dir.tuned().exists() || run_dir.scenario_now().exists();
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        assert!(!written);
+    }
+}
