@@ -24,6 +24,17 @@ pub struct PrefixArg {
     pub prefix: Option<String>,
 }
 
+/// `status [--prefix P] [--scenario]`.
+#[derive(Debug, clap::Args)]
+pub struct StatusArgs {
+    #[command(flatten)]
+    pub which: PrefixArg,
+    /// Print the loop's scenario as it stands (after swaps and sets) as TOML
+    /// instead (`flexloop status --scenario > tuned.toml` saves a tuned loop)
+    #[arg(long)]
+    pub scenario: bool,
+}
+
 /// `down [--prefix P | --all]`.
 #[derive(Debug, clap::Args)]
 pub struct DownArgs {
@@ -143,7 +154,13 @@ fn loops_to_stop(
     )
 }
 
-pub fn status(prefix: Option<String>) -> anyhow::Result<i32> {
+pub fn status(args: StatusArgs) -> anyhow::Result<i32> {
+    let prefix = args.which.prefix;
+    if args.scenario {
+        let (_, text) = crate::tune::current(prefix.as_deref())?;
+        print!("{text}");
+        return Ok(0);
+    }
     say_finished_dead_loops("status");
     let loops = registry::matching(prefix.as_deref());
     if loops.is_empty() {

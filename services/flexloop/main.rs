@@ -3,6 +3,7 @@
 //!
 //! - [`launch`]: a loop's start, supervision and end, for every command that runs one.
 //! - [`live`]: `up`, and `down`, `status` and `swap` on a running loop.
+//! - [`tune`]: `get` and `set`, live tuning of a running loop.
 //! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`],
 //!   [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
 //!   [`positions`], [`export`].
@@ -26,6 +27,7 @@ mod run;
 mod sampling;
 mod supervisor;
 mod sweep;
+mod tune;
 
 use clap::{Parser, Subcommand};
 use flexloop_runtime::shutdown;
@@ -57,10 +59,14 @@ enum Command {
     Export(export::ExportArgs),
     /// Stop a running loop (with several running: --prefix P, or --all).
     Down(live::DownArgs),
-    /// Live counters and latency percentiles of a running loop.
-    Status(live::PrefixArg),
+    /// Live counters and latency percentiles of a running loop (--scenario: its scenario as it stands).
+    Status(live::StatusArgs),
     /// Replace a running loop's controller or observer by one designed from SCENARIO.
     Swap(live::SwapArgs),
+    /// A running loop's tunables and their current values.
+    Get(tune::GetArgs),
+    /// Change tunables of a running loop: checked, then handed over bumplessly through the swap path.
+    Set(tune::SetArgs),
     /// Run the loop, measure this machine's floors, print the latency table and a verdict
     /// (or, with --sweep, one run per point of a grid; with --logging-cost, with and without the logger).
     Bench(bench::BenchArgs),
@@ -114,8 +120,10 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Positions(args) => positions::positions(args),
         Command::Export(args) => export::export(args),
         Command::Down(args) => live::down(args),
-        Command::Status(args) => live::status(args.prefix),
+        Command::Status(args) => live::status(args),
         Command::Swap(args) => live::swap(args),
+        Command::Get(args) => tune::get(args),
+        Command::Set(args) => tune::set_command(args),
         Command::Bench(args) => bench::dispatch(args),
         Command::Chaos(args) => chaos::chaos(args),
     }

@@ -18,5 +18,6 @@ mod sensor_scan;
 mod swap;
 mod thesis;
 mod tick;
+mod tune;
 mod util;
 mod verdicts;

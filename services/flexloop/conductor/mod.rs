@@ -11,7 +11,8 @@
 //! - [`ports`]: the channels it reads and publishes.
 //! - [`replay`]: the measurements replayed to a restarted observer.
 //! - [`record`]: the events file and the list of live processes.
-//! - [`requests`]: `flexloop swap`'s request/answer files.
+//! - [`requests`]: `flexloop swap`'s and `set`'s request/answer files.
+//! - [`tuning`]: the scenario as it stands, and a `set` checked and planned.
 
 mod decide;
 mod measure;
@@ -23,7 +24,8 @@ mod requests;
 mod roster;
 mod shell;
 mod switch;
+mod tuning;
 
-pub use requests::request_swap;
+pub use requests::{request_set, request_swap};
 pub use shell::Conductor;
 pub use switch::Switch;

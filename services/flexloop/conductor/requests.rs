@@ -1,13 +1,16 @@
-//! The file-based request/answer protocol between `flexloop swap` and the
-//! supervisor: a request file in the run's `requests/` folder, answered by a
-//! file beside it (each written whole, then renamed: never read half-done).
+//! The file-based request/answer protocol between `flexloop swap` or
+//! `flexloop set` and the supervisor: a request file in the run's
+//! `requests/` folder (`*.request` a swap, `*.set` a set), answered by a file
+//! beside it (each written whole, then renamed: never read half-done).
 
 use super::shell::{DRAIN_TIMEOUT, SHADOW_TIMEOUT};
 use anyhow::{Context, Result, bail};
 use flexloop_node::Role;
 use flexloop_runfiles::FileError;
 use flexloop_runfiles::json::{read_json, write_json_atomically};
-use flexloop_runfiles::supervision::{self, SwapAnswer};
+use flexloop_runfiles::supervision::{self, SetAnswer, SetRequest, SwapAnswer};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -21,14 +24,25 @@ pub struct SwapRequest {
     pub scenario: PathBuf,
 }
 
-/// Request files waiting for the supervisor, oldest first.
+/// The extension of a `flexloop set` request.
+const SET_EXTENSION: &str = "set";
+
+/// Whether a pending request file is a set (else a swap).
+pub fn is_set(path: &Path) -> bool {
+    path.extension().is_some_and(|x| x == SET_EXTENSION)
+}
+
+/// Request files waiting for the supervisor (swaps and sets), oldest first.
 pub fn pending(run_dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(run_dir.join(REQUESTS_DIR)) else {
         return Vec::new();
     };
     let mut found: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "request"))
+        .filter(|p| {
+            p.extension()
+                .is_some_and(|x| x == "request" || x == SET_EXTENSION)
+        })
         .collect();
     found.sort();
     found
@@ -55,8 +69,13 @@ fn answer_path(request: &Path) -> PathBuf {
     request.with_extension("answer")
 }
 
+/// Reads one set request file.
+pub fn read_set(path: &Path) -> Result<SetRequest> {
+    Ok(read_json(path)?)
+}
+
 /// Answers a request (best effort: who asked gives up after a while).
-pub fn answer(request: &Path, answer: &SwapAnswer) {
+pub fn answer(request: &Path, answer: &impl Serialize) {
     let _ = std::fs::remove_file(request);
     let _ = write_json_atomically(&answer_path(request), answer);
 }
@@ -64,26 +83,50 @@ pub fn answer(request: &Path, answer: &SwapAnswer) {
 /// `flexloop swap`: leaves a request in the loop's run directory and waits
 /// for the supervisor's answer (as long as a swap may take, and then some).
 pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<SwapAnswer> {
-    let patience = SHADOW_TIMEOUT + DRAIN_TIMEOUT + Duration::from_secs(10);
-    let dir = run_dir.join(REQUESTS_DIR);
-    std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
     let scenario =
         std::fs::canonicalize(scenario).with_context(|| format!("{}", scenario.display()))?;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let request = dir.join(format!("{stamp}-{}.request", std::process::id()));
     let body = supervision::SwapRequest {
         role: role.to_string(),
         scenario: scenario.display().to_string(),
     };
-    // Atomically: the supervisor lists `*.request` files and reads them whole.
-    write_json_atomically(&request, &body)?;
+    ask(run_dir, "request", &body, SHADOW_TIMEOUT + DRAIN_TIMEOUT)
+        .context("the supervisor did not answer the swap request")
+}
+
+/// `flexloop set`: as [`request_swap`], for a set (up to two swaps: the
+/// observer's and the controller's).
+pub fn request_set(run_dir: &Path, request: &SetRequest) -> Result<SetAnswer> {
+    ask(
+        run_dir,
+        SET_EXTENSION,
+        request,
+        2 * (SHADOW_TIMEOUT + DRAIN_TIMEOUT),
+    )
+    .context("the supervisor did not answer the set request")
+}
+
+/// Leaves `body` as a request file with `extension` and waits up to
+/// `longest` (plus 10 s) for the answer.
+fn ask<A: DeserializeOwned>(
+    run_dir: &Path,
+    extension: &str,
+    body: &impl Serialize,
+    longest: Duration,
+) -> Result<A> {
+    let patience = longest + Duration::from_secs(10);
+    let dir = run_dir.join(REQUESTS_DIR);
+    std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let request = dir.join(format!("{stamp}-{}.{extension}", std::process::id()));
+    // Atomically: the supervisor lists request files and reads them whole.
+    write_json_atomically(&request, body)?;
     let answer = answer_path(&request);
     let since = Instant::now();
     while since.elapsed() < patience {
-        match read_json::<SwapAnswer>(&answer) {
+        match read_json::<A>(&answer) {
             Ok(read) => {
                 let _ = std::fs::remove_file(&answer);
                 return Ok(read);
@@ -97,7 +140,7 @@ pub fn request_swap(run_dir: &Path, role: &str, scenario: &Path) -> Result<SwapA
         }
     }
     let _ = std::fs::remove_file(&request);
-    bail!("the supervisor did not answer the swap request")
+    bail!("no answer within {patience:?}")
 }
 
 #[cfg(test)]
@@ -130,6 +173,20 @@ mod tests {
             message.contains(".request") && message.contains("missing field `scenario`"),
             "{message}"
         );
+    }
+
+    #[test]
+    fn swaps_and_sets_wait_in_one_queue_oldest_first() {
+        let run = std::env::temp_dir().join(format!("flexloop-pending-{}", std::process::id()));
+        let dir = run.join(REQUESTS_DIR);
+        std::fs::create_dir_all(&dir).unwrap();
+        for name in ["2-1.set", "1-1.request", "3-1.answer", "0-1.json.tmp"] {
+            std::fs::write(dir.join(name), "{}").unwrap();
+        }
+        let found = pending(&run);
+        let _ = std::fs::remove_dir_all(&run);
+        assert_eq!(found, vec![dir.join("1-1.request"), dir.join("2-1.set")]);
+        assert!(is_set(&found[1]) && !is_set(&found[0]));
     }
 
     #[test]

@@ -12,6 +12,7 @@ use super::record::RunFiles;
 use super::replay::Replay;
 use super::requests;
 use super::switch::Switch;
+use super::tuning::Tuning;
 use crate::supervisor::{Outcome, RunningLoop};
 use anyhow::{Result, anyhow, bail};
 use flexloop_design::LoopDesign;
@@ -19,7 +20,8 @@ use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
-use flexloop_runfiles::supervision::SwapAnswer;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::{SetAnswer, SetOutcome, SwapAnswer};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
 use flexloop_scenario::{Overrides, Scenario};
@@ -63,6 +65,8 @@ pub struct Conductor {
     pub switches: Vec<Switch>,
     /// A process died and its node's shared memory is not cleaned yet.
     dead_nodes: bool,
+    /// The scenario as it stands after requested swaps and sets.
+    tuning: Tuning,
 }
 
 impl Conductor {
@@ -92,6 +96,7 @@ impl Conductor {
             overrides: overrides.clone(),
             switches: Vec::new(),
             dead_nodes: false,
+            tuning: Tuning::default(),
         })
     }
 
@@ -270,9 +275,27 @@ impl Conductor {
             }
         }
         for request in requests::pending(self.files.run_dir()) {
-            let answer = match requests::read(&request)
-                .and_then(|r| self.swap(running, r.role, &r.scenario))
-            {
+            if requests::is_set(&request) {
+                let answer = match requests::read_set(&request).and_then(|r| self.set(running, &r))
+                {
+                    Ok(outcome) => SetAnswer {
+                        outcome: Some(outcome),
+                        error: None,
+                    },
+                    Err(e) => SetAnswer {
+                        outcome: None,
+                        error: Some(format!("{e:#}")),
+                    },
+                };
+                self.publish_files();
+                requests::answer(&request, &answer);
+                continue;
+            }
+            let answer = match requests::read(&request).and_then(|r| {
+                let switch = self.swap(running, r.role, &r.scenario)?;
+                self.note_swapped(r.role, &r.scenario);
+                Ok(switch)
+            }) {
                 Ok(switch) => SwapAnswer::done(switch.record()),
                 Err(e) => SwapAnswer::refused(format!("{e:#}")),
             };
@@ -281,6 +304,70 @@ impl Conductor {
             requests::answer(&request, &answer);
         }
         None
+    }
+
+    /// `role` runs `scenario` now: the scenario as it stands follows (a
+    /// file that cannot be written is said, the swap stands).
+    fn note_swapped(&mut self, role: Role, scenario: &Path) {
+        let run_dir = RunDir::new(self.files.run_dir());
+        if let Err(e) = self
+            .tuning
+            .swapped(&run_dir, &self.scenario, role, scenario)
+        {
+            eprintln!("flexloop: the scenario as it stands: {e:#}");
+        }
+    }
+
+    /// `flexloop set`: the changed scenario checked and written (refused
+    /// with the reason, the loop untouched), then handed to the controller
+    /// through the swap path; one `set` event after the swap's names the
+    /// fields, their old and new values, the file and the switch.
+    fn set(
+        &mut self,
+        running: &mut RunningLoop,
+        request: &flexloop_runfiles::supervision::SetRequest,
+    ) -> Result<SetOutcome> {
+        let since = Instant::now();
+        let run_dir = RunDir::new(self.files.run_dir());
+        let plan = self
+            .tuning
+            .plan(&run_dir, &self.scenario, &self.overrides, request)?;
+        let check_s = since.elapsed().as_secs_f64();
+        let Some(plan) = plan else {
+            return Ok(SetOutcome {
+                fields: Vec::new(),
+                file: None,
+                switches: Vec::new(),
+                check_s,
+                handover_s: 0.0,
+            });
+        };
+        // The controller's fields alone are set (the observer's hand-over
+        // is not bumpless across designs: `flexloop_scenario::tune`).
+        let switch = self
+            .swap(running, Role::Controller, &plan.file)
+            .map_err(|e| {
+                e.context(format!(
+                    "the controller did not take {}",
+                    plan.file.display()
+                ))
+            })?;
+        self.note_swapped(Role::Controller, &plan.file);
+        let outcome = SetOutcome {
+            fields: plan.fields,
+            file: Some(plan.file.display().to_string()),
+            switches: vec![switch.record()],
+            check_s,
+            handover_s: since.elapsed().as_secs_f64() - check_s,
+        };
+        self.record_action(self.core.note(
+            "set",
+            Role::Controller,
+            Some(switch.generation),
+            json!(outcome),
+        ));
+        self.publish_files();
+        Ok(outcome)
     }
 
     fn publish_files(&mut self) {

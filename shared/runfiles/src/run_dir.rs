@@ -26,6 +26,11 @@ impl RunDir {
     pub const PROCESSES: &str = "processes.json";
     /// Where `flexloop swap` leaves requests and finds the answers.
     pub const REQUESTS: &str = "requests";
+    /// `flexloop set`'s changed scenarios, one file per change (`tuned/001.toml`).
+    pub const TUNED: &str = "tuned";
+    /// The scenario as it stands after swaps and sets (absent until the
+    /// first); `flexloop status --scenario` prints it.
+    pub const SCENARIO_NOW: &str = "scenario-now.toml";
     /// `flexloop run`'s control metrics.
     pub const METRICS: &str = "metrics.json";
     /// `flexloop bench`'s results.
@@ -81,6 +86,14 @@ impl RunDir {
 
     pub fn processes(&self) -> PathBuf {
         self.join(Self::PROCESSES)
+    }
+
+    pub fn tuned(&self) -> PathBuf {
+        self.join(Self::TUNED)
+    }
+
+    pub fn scenario_now(&self) -> PathBuf {
+        self.join(Self::SCENARIO_NOW)
     }
 
     pub fn requests(&self) -> PathBuf {
@@ -225,6 +238,8 @@ pub fn is_run_file(name: &str) -> bool {
         RunDir::EVENTS,
         RunDir::PROCESSES,
         RunDir::REQUESTS,
+        RunDir::TUNED,
+        RunDir::SCENARIO_NOW,
         RunDir::METRICS,
         RunDir::BENCH,
     ]

@@ -98,6 +98,54 @@ impl SwapAnswer {
     }
 }
 
+/// A `flexloop set` request (`requests/*.set`): tunables and their new
+/// values as TOML text (`controller.bandwidth_hz`, `60`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SetRequest {
+    pub changes: Vec<FieldValue>,
+}
+
+/// A dotted field and a value in TOML.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FieldValue {
+    pub field: String,
+    pub value: String,
+}
+
+/// One field a set changed: its value before and after, in TOML (`unset`
+/// for an optional field that was not given).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FieldChange {
+    pub field: String,
+    pub old: String,
+    pub new: String,
+}
+
+/// What a set did: the fields, the scenario file written for it, and the
+/// swaps that handed the loop over (none when nothing changed).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SetOutcome {
+    pub fields: Vec<FieldChange>,
+    /// The changed scenario (`tuned/NNN.toml`); None when nothing changed.
+    pub file: Option<String>,
+    pub switches: Vec<SwitchRecord>,
+    /// Seconds the supervisor took to design and check the changed loop,
+    /// and then to hand the loop over (the last switch passed).
+    #[serde(default)]
+    pub check_s: f64,
+    #[serde(default)]
+    pub handover_s: f64,
+}
+
+/// The supervisor's answer to a [`SetRequest`] (`requests/*.answer`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SetAnswer {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outcome: Option<SetOutcome>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,6 +10,7 @@
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`tick`]: `realtime.tick`, where it applies and where it falls back.
+//! - [`tune`]: the fields live tuning (`flexloop set`) may change.
 //! - [`error`]: errors that name the file, the field and the reason.
 
 pub mod error;
@@ -19,6 +20,7 @@ pub mod plant_description;
 pub mod schema;
 pub mod swap;
 pub mod tick;
+pub mod tune;
 mod validate;
 mod validate_plant;
 

@@ -32,11 +32,13 @@ pub fn swap_conflicts(running: &Scenario, new: &Scenario, swapped: Swapped) -> V
     check("loop.mode", running.timing.mode != new.timing.mode);
     // (loop.duration_s is the plant's alone: it ends the run.)
     plant_conflicts(&running.plant, &new.plant, &mut check);
-    // The same file name next to another scenario is another file.
-    check(
-        "plant.file",
-        running.plant_file_path() != new.plant_file_path(),
-    );
+    // The same file name next to another scenario is another file, and the
+    // same file by another path (relative, absolute) the same.
+    let model_file = |s: &Scenario| {
+        s.plant_file_path()
+            .map(|p| std::fs::canonicalize(&p).unwrap_or(p))
+    };
+    check("plant.file", model_file(running) != model_file(new));
     reference_conflicts(&running.reference, &new.reference, &mut check);
     // The loop delay: when each command applies, and so the tick the
     // feedforward is issued for and the observer's inputs.

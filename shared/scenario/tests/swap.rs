@@ -171,8 +171,8 @@ fn a_model_file_is_the_same_plant_only_when_it_is_the_same_file() {
         assert_eq!(swap_conflicts(&a, &elsewhere, swapped), vec!["plant.file"]);
         assert_eq!(swap_conflicts(&a, &a.clone(), swapped), Vec::<&str>::new());
         assert_eq!(swap_conflicts(&a, &absolute, swapped), Vec::<&str>::new());
-        // `..` is not resolved: a path spelled otherwise is refused rather
-        // than taken for the same file.
+        // These files do not exist, so they cannot be resolved: a path
+        // spelled otherwise is refused rather than taken for the same file.
         assert_eq!(swap_conflicts(&a, &same, swapped), vec!["plant.file"]);
     }
 }
@@ -252,4 +252,31 @@ fn inline_arrays_and_lumped_fields_are_the_plant() {
             "{to}"
         );
     }
+}
+
+#[test]
+fn the_model_file_is_the_same_by_any_path_and_another_by_another() {
+    let dir = std::env::temp_dir().join(format!("flexloop-swap-file-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("other")).unwrap();
+    std::fs::write(dir.join("model.npz"), b"").unwrap();
+    std::fs::write(dir.join("other/model.npz"), b"").unwrap();
+    let with_file = |source: &Path, file: &str| {
+        let mut s = shipped("default");
+        s.source = source.to_path_buf();
+        s.plant.file = Some(file.into());
+        s
+    };
+    // A scenario in `dir` (reached by a detour, as a relative path from
+    // another directory is) naming its model relatively; a tuned copy
+    // elsewhere naming the same file absolutely (`flexloop set` does).
+    let running = with_file(&dir.join("other/../a.toml"), "model.npz");
+    let absolute = dir.join("model.npz").display().to_string();
+    let tuned = with_file(&dir.join("other/tuned.toml"), &absolute);
+    assert!(swap_conflicts(&running, &tuned, Swapped::Controller).is_empty());
+    let elsewhere = with_file(&dir.join("other/b.toml"), "model.npz");
+    assert_eq!(
+        swap_conflicts(&running, &elsewhere, Swapped::Controller),
+        vec!["plant.file"]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

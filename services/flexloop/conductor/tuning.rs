@@ -1,0 +1,297 @@
+//! Live tuning on the supervisor's side: the scenario as it stands (after
+//! swaps and sets), and a `flexloop set` turned into a checked scenario
+//! file and the roles to hand over to it (docs/architecture.md, "Live
+//! tuning"). The hand-over itself is the swap's (`shell.rs`).
+
+use anyhow::{Context, Result, bail};
+use flexloop_design::acceptance::{Accepted, accept_text};
+use flexloop_node::Role;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::{FieldChange, SetRequest};
+use flexloop_scenario::tune::{self, Change};
+use flexloop_scenario::{Overrides, Scenario};
+use std::path::{Path, PathBuf};
+
+const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
+
+/// What a set will do once checked: the file to hand the controller over
+/// to and the fields it changes.
+#[derive(Debug)]
+pub struct SetPlan {
+    pub file: PathBuf,
+    pub fields: Vec<FieldChange>,
+}
+
+/// The scenario as it stands, as a TOML table (loaded from the run's copy
+/// when first needed) and the number of changed files written so far.
+#[derive(Debug, Default)]
+pub struct Tuning {
+    now: Option<toml::Table>,
+    written: u32,
+}
+
+impl Tuning {
+    /// The table of the loop as it runs now: the run's copy of its scenario
+    /// with the rate and mode it was started with written in (they shape
+    /// every block), and `plant.file` made absolute (a changed file lives
+    /// in `tuned/`, where a relative path would find nothing).
+    fn now(&mut self, run_dir: &RunDir, running: &Scenario) -> Result<&toml::Table> {
+        if self.now.is_none() {
+            let path = run_dir.scenario_copy();
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            let mut table: toml::Table =
+                toml::from_str(&text).with_context(|| format!("{}", path.display()))?;
+            let timing = [
+                Change {
+                    field: "loop.rate_hz".into(),
+                    value: toml::Value::Float(running.timing.rate_hz),
+                },
+                Change {
+                    field: "loop.mode".into(),
+                    value: toml::Value::String(running.timing.mode.as_str().into()),
+                },
+            ];
+            table = tune::with_changes(&table, &timing)?;
+            if let Some(file) = running.plant_file_path() {
+                let absolute = std::fs::canonicalize(&file)
+                    .with_context(|| format!("plant.file {}", file.display()))?;
+                let change = Change {
+                    field: "plant.file".into(),
+                    value: toml::Value::String(absolute.display().to_string()),
+                };
+                table = tune::with_changes(&table, &[change])?;
+            }
+            self.now = Some(table);
+        }
+        Ok(self.now.as_ref().expect("loaded above"))
+    }
+
+    /// Checks `request` against the loop as it stands: only tunables, each
+    /// field of the format and its value valid, the changed scenario
+    /// accepted as every command accepts a file, and its loop meeting the
+    /// 6 dB rule and stable at the loop's real delay (flexloop-analysis'
+    /// `loop_check`). Writes the changed file (`tuned/NNN.toml`); None
+    /// when no value changes.
+    pub fn plan(
+        &mut self,
+        run_dir: &RunDir,
+        running: &Scenario,
+        overrides: &Overrides,
+        request: &SetRequest,
+    ) -> Result<Option<SetPlan>> {
+        let changes = request
+            .changes
+            .iter()
+            .map(|c| {
+                tune::parse_value(&c.field, &c.value).map(|value| Change {
+                    field: c.field.clone(),
+                    value,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        if changes.is_empty() {
+            bail!("nothing to set");
+        }
+        let now = self.now(run_dir, running)?.clone();
+        let now_path = run_dir.scenario_now();
+        tune::check_changes(&changes, |field| tune::known_field(&now, field))?;
+        let table = tune::with_changes(&now, &changes)?;
+        let old = Scenario::from_text(&now_path, &toml::to_string(&now)?, overrides)
+            .context("the running loop's scenario")?;
+        let index = self.written + 1;
+        let file = run_dir.tuned().join(format!("{index:03}.toml"));
+        let text = toml::to_string(&table)?;
+        // The values as the scenario reads them (`60` is 60.0), before
+        // anything is designed: a set of the running values changes nothing.
+        let read = Scenario::parse(&file, &text).context(NOT_VALID)?;
+        let fields: Vec<FieldChange> = changes
+            .iter()
+            .filter_map(|change| {
+                let t = tune::tunable(&change.field)?;
+                let (before, after) = ((t.value)(&old), (t.value)(&read));
+                (before != after).then(|| FieldChange {
+                    field: change.field.clone(),
+                    old: tune::shown(before.as_ref()),
+                    new: tune::shown(after.as_ref()),
+                })
+            })
+            .collect();
+        if fields.is_empty() {
+            return Ok(None);
+        }
+        let Accepted {
+            scenario: new,
+            design,
+        } = accept_text(
+            &file,
+            &text,
+            overrides,
+            flexloop_runtime::realtime::online_cpus(),
+        )
+        .context(NOT_VALID)?;
+        let report = flexloop_analysis::loop_report::loop_check(&new, &design)
+            .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
+        if !report.meets_6db_rule {
+            bail!(
+                "the changed loop at {} Hz with {} sample(s) of loop delay: {}",
+                new.timing.rate_hz,
+                design.loop_delay_samples,
+                report.rule_verdict()
+            );
+        }
+        std::fs::create_dir_all(run_dir.tuned())
+            .with_context(|| format!("{}", run_dir.tuned().display()))?;
+        std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;
+        self.written = index;
+        Ok(Some(SetPlan { file, fields }))
+    }
+
+    /// `role` now runs `file` (a swap or a set's hand-over): its part of
+    /// the scenario as it stands is now that file's, rewritten in
+    /// `scenario-now.toml`. The controller's part is `[controller]` and
+    /// `supervision.estimate_watchdog_ticks`; the observer's `[observer]`.
+    pub fn swapped(
+        &mut self,
+        run_dir: &RunDir,
+        running: &Scenario,
+        role: Role,
+        file: &Path,
+    ) -> Result<()> {
+        let text = std::fs::read_to_string(file).with_context(|| format!("{}", file.display()))?;
+        let from: toml::Table =
+            toml::from_str(&text).with_context(|| format!("{}", file.display()))?;
+        self.now(run_dir, running)?;
+        let now = self.now.as_mut().expect("loaded above");
+        match role {
+            Role::Observer => take(now, &from, "observer"),
+            _ => {
+                take(now, &from, "controller");
+                let ticks = from
+                    .get("supervision")
+                    .and_then(|s| s.get("estimate_watchdog_ticks"))
+                    .cloned();
+                let supervision = now
+                    .entry("supervision")
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                if let toml::Value::Table(supervision) = supervision {
+                    match ticks {
+                        Some(v) => supervision.insert("estimate_watchdog_ticks".into(), v),
+                        None => supervision.remove("estimate_watchdog_ticks"),
+                    };
+                }
+            }
+        }
+        let text = toml::to_string(now)?;
+        let path = run_dir.scenario_now();
+        let tmp = path.with_extension("toml.tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("{}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("{}", path.display()))?;
+        Ok(())
+    }
+}
+
+/// `table`'s section `name` replaced by `from`'s (removed if it has none).
+fn take(table: &mut toml::Table, from: &toml::Table, name: &str) {
+    match from.get(name) {
+        Some(section) => table.insert(name.into(), section.clone()),
+        None => table.remove(name),
+    };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flexloop_runfiles::supervision::FieldValue;
+
+    fn default_scenario() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/default.toml")
+    }
+
+    /// A run directory holding the default scenario's copy, and the
+    /// scenario as the supervisor runs it.
+    fn run_dir(test: &str) -> (RunDir, Scenario) {
+        let dir =
+            std::env::temp_dir().join(format!("flexloop-tuning-{test}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let run_dir = RunDir::new(&dir);
+        std::fs::copy(default_scenario(), run_dir.scenario_copy()).unwrap();
+        let overrides = Overrides {
+            rate_hz: Some(5_000.0),
+            ..Overrides::default()
+        };
+        (
+            run_dir,
+            Scenario::load(&default_scenario(), &overrides).unwrap(),
+        )
+    }
+
+    fn now(run_dir: &RunDir) -> toml::Table {
+        toml::from_str(&std::fs::read_to_string(run_dir.scenario_now()).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_swap_moves_its_role_s_part_of_the_scenario_as_it_stands_and_no_other() {
+        let (run_dir, running) = run_dir("swapped");
+        let file = run_dir.path().join("other.toml");
+        let text = std::fs::read_to_string(default_scenario())
+            .unwrap()
+            .replace("bandwidth_hz = 43.5", "bandwidth_hz = 40.0")
+            .replace("q_nu = 1000.0", "q_nu = 500.0");
+        std::fs::write(
+            &file,
+            format!("{text}\n[supervision]\nestimate_watchdog_ticks = 3\n"),
+        )
+        .unwrap();
+        let mut tuning = Tuning::default();
+        tuning
+            .swapped(&run_dir, &running, Role::Controller, &file)
+            .unwrap();
+        let table = now(&run_dir);
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        assert_eq!(table["controller"]["bandwidth_hz"].as_float(), Some(40.0));
+        assert_eq!(
+            table["supervision"]["estimate_watchdog_ticks"].as_integer(),
+            Some(3)
+        );
+        // The observer is not the controller's: it stays the running one's.
+        assert_eq!(table["observer"]["q_nu"].as_float(), Some(1000.0));
+        // The rate the loop was started with is the scenario's now.
+        assert_eq!(table["loop"]["rate_hz"].as_float(), Some(5_000.0));
+    }
+
+    #[test]
+    fn a_set_of_a_field_that_is_not_the_controller_s_writes_nothing() {
+        let (run_dir, running) = run_dir("refused");
+        let request = |field: &str, value: &str| SetRequest {
+            changes: vec![FieldValue {
+                field: field.into(),
+                value: value.into(),
+            }],
+        };
+        let mut tuning = Tuning::default();
+        for (field, value, says) in [
+            ("plant.output", "3", "a swap may not change it"),
+            ("observer.q_nu", "500.0", "not set live"),
+            ("controller.bandwith_hz", "40", "no such field"),
+        ] {
+            let e = tuning
+                .plan(
+                    &run_dir,
+                    &running,
+                    &Overrides::default(),
+                    &request(field, value),
+                )
+                .unwrap_err();
+            let message = format!("{e:#}");
+            assert!(
+                message.contains(field) && message.contains(says),
+                "{message}"
+            );
+        }
+        let written = run_dir.tuned().exists() || run_dir.scenario_now().exists();
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        assert!(!written);
+    }
+}

@@ -1,0 +1,163 @@
+//! Live tuning from the command line: `flexloop get` shows a running loop's
+//! tunables, `flexloop set` changes them through the swap path, and
+//! `flexloop status --scenario` prints the scenario as it stands. [`set`]
+//! and [`current`] are what a live server calls too: a set is the loop's
+//! prefix and field/value pairs in, an outcome or a refusal with its reason
+//! out (docs/architecture.md, "Live tuning").
+
+use crate::live::PrefixArg;
+use crate::registry;
+use anyhow::{Context, bail};
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::supervision::{FieldValue, SetOutcome, SetRequest};
+use flexloop_scenario::Scenario;
+use flexloop_scenario::tune::{self, Change, TUNABLES};
+use std::fmt;
+use std::path::PathBuf;
+
+/// `get [FIELD] [--prefix P]`.
+#[derive(Debug, clap::Args)]
+pub struct GetArgs {
+    /// One tunable (`controller.bandwidth_hz`); absent: every one
+    pub field: Option<String>,
+    #[command(flatten)]
+    pub which: PrefixArg,
+}
+
+/// `set FIELD=VALUE... [--prefix P]`.
+#[derive(Debug, clap::Args)]
+pub struct SetArgs {
+    /// Tunables and their new values as TOML (`controller.bandwidth_hz=60`,
+    /// `controller.notches_hz=[900.0]`), all handed over together
+    #[arg(required = true, value_name = "FIELD=VALUE")]
+    pub changes: Vec<String>,
+    #[command(flatten)]
+    pub which: PrefixArg,
+}
+
+/// Why a set was not made; the loop runs on as it was.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refused {
+    pub reason: String,
+}
+
+impl fmt::Display for Refused {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.reason)
+    }
+}
+
+impl std::error::Error for Refused {}
+
+fn refused(reason: impl fmt::Display) -> Refused {
+    Refused {
+        reason: format!("{reason:#}"),
+    }
+}
+
+/// The one running loop `prefix` names.
+fn running_loop(prefix: Option<&str>) -> Result<registry::Entry, Refused> {
+    match registry::matching(prefix).as_slice() {
+        [] => Err(refused("no loop running")),
+        [one] => Ok(one.clone()),
+        _ => Err(refused("several loops are running: name one with --prefix")),
+    }
+}
+
+/// Changes `changes` (dotted field, value as TOML text) on the loop
+/// `prefix` names, as `flexloop set` does: the supervisor checks the
+/// changed scenario and hands the loop over to it, or refuses it.
+pub fn set(prefix: Option<&str>, changes: &[(String, String)]) -> Result<SetOutcome, Refused> {
+    // Syntax first, before the loop is asked anything.
+    for (field, value) in changes {
+        tune::parse_value(field, value).map_err(refused)?;
+    }
+    let entry = running_loop(prefix)?;
+    let request = SetRequest {
+        changes: changes
+            .iter()
+            .map(|(field, value)| FieldValue {
+                field: field.clone(),
+                value: value.clone(),
+            })
+            .collect(),
+    };
+    let answer = crate::conductor::request_set(&entry.run_dir, &request).map_err(refused)?;
+    match (answer.outcome, answer.error) {
+        (Some(outcome), _) => Ok(outcome),
+        (None, error) => Err(refused(error.as_deref().unwrap_or("no reason given"))),
+    }
+}
+
+/// The scenario of the loop `prefix` names as it stands (after swaps and
+/// sets), as TOML text, and the file it was read from.
+pub fn current(prefix: Option<&str>) -> Result<(PathBuf, String), Refused> {
+    let entry = running_loop(prefix)?;
+    let run_dir = RunDir::new(&entry.run_dir);
+    // Before the first swap or set the loop runs the copy made at its start.
+    let path = [run_dir.scenario_now(), run_dir.scenario_copy()]
+        .into_iter()
+        .find(|p| p.is_file())
+        .ok_or_else(|| refused(format!("{}: no scenario file", entry.run_dir.display())))?;
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}", path.display()))
+        .map_err(refused)?;
+    Ok((path, text))
+}
+
+pub fn get(args: GetArgs) -> anyhow::Result<i32> {
+    let (path, text) = current(args.which.prefix.as_deref())?;
+    let scenario = Scenario::parse(&path, &text)?;
+    match args.field {
+        Some(field) => {
+            let Some(t) = tune::tunable(&field) else {
+                let table: toml::Table = toml::from_str(&text)?;
+                bail!(tune::refusal(&field, tune::known_field(&table, &field)));
+            };
+            println!("{}", tune::shown((t.value)(&scenario).as_ref()));
+        }
+        None => {
+            for t in TUNABLES {
+                match (t.value)(&scenario) {
+                    Some(v) => println!("{} = {v}", t.field),
+                    None => println!("# {} unset", t.field),
+                }
+            }
+        }
+    }
+    Ok(0)
+}
+
+pub fn set_command(args: SetArgs) -> anyhow::Result<i32> {
+    let mut changes = Vec::new();
+    for text in &args.changes {
+        let change = Change::parse(text)?;
+        let value = text
+            .split_once('=')
+            .map(|(_, v)| v.trim().to_string())
+            .unwrap_or_default();
+        changes.push((change.field, value));
+    }
+    let outcome = set(args.which.prefix.as_deref(), &changes)
+        .map_err(|e| anyhow::anyhow!("set refused: {e}"))?;
+    if outcome.fields.is_empty() {
+        println!("flexloop: nothing changed: every value is the running one");
+        return Ok(0);
+    }
+    for f in &outcome.fields {
+        println!("flexloop: {} {} -> {}", f.field, f.old, f.new);
+    }
+    for s in &outcome.switches {
+        println!(
+            "flexloop: {} generation {} active from sample {}; |Δu| at the switch {:.3e}, largest ordinary |Δu| over 100 samples before {:.3e} and after {:.3e}",
+            s.role, s.generation, s.from_seq, s.du_switch, s.du_before, s.du_after
+        );
+    }
+    if let Some(file) = &outcome.file {
+        println!(
+            "flexloop: the loop runs {file} (checked in {:.2} s, handed over in {:.2} s)",
+            outcome.check_s, outcome.handover_s
+        );
+    }
+    Ok(0)
+}

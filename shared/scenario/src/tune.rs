@@ -1,0 +1,463 @@
+//! Live tuning: the fields of a running loop that `flexloop set` may
+//! change, their current values, and a scenario's table with some of them
+//! changed.
+//!
+//! A tunable is a field that a swap of the controller or the observer
+//! carries bumplessly ([`crate::swap`], docs/architecture.md "What a swap
+//! may change" and "Live tuning"). Some fields a swap may differ in are
+//! still not tunables, because no swapped process reads them:
+//! `supervision.safe_action` and `supervision.command_watchdog_ticks` are
+//! the plant's (read once at its start; the plant is never swapped), and
+//! `safe_action = "standby"` also sets what the supervisor keeps running.
+//!
+//! The observer's fields are shown but not set: a swap to another observer
+//! design is not bumpless today. The new observer cannot take over the
+//! running one's state (it takes a state only from an identical design,
+//! `ObserverCore::load`), so it starts from its own initial state in shadow
+//! and is still far from the loop's at the boundary: on `default`,
+//! `observer.damping_increase` 0.035 → 0.05 put u_d at 3 100 N at the
+//! switch and u on its ±2 000 N limit for the next samples (measured with
+//! `flexloop set` before this refusal). Setting them waits for a hand-over
+//! that carries the estimate across observer designs of the same model.
+
+use crate::schema::{PidBandwidth, Scenario};
+use std::fmt;
+
+/// Which process runs a tunable, and so which one a change hands over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TunedRole {
+    Controller,
+    Observer,
+}
+
+impl TunedRole {
+    pub fn name(self) -> &'static str {
+        match self {
+            TunedRole::Controller => "controller",
+            TunedRole::Observer => "observer",
+        }
+    }
+}
+
+/// One tunable field.
+pub struct Tunable {
+    /// Dotted, as the scenario file names it.
+    pub field: &'static str,
+    pub role: TunedRole,
+    /// Its value in `s` (defaults written out); None: not set.
+    pub value: fn(&Scenario) -> Option<toml::Value>,
+}
+
+fn float(v: f64) -> Option<toml::Value> {
+    Some(toml::Value::Float(v))
+}
+
+fn feedforward_gain(
+    s: &Scenario,
+    gain: fn(&crate::schema::FeedforwardSection) -> f64,
+) -> Option<toml::Value> {
+    s.controller
+        .feedforward
+        .as_ref()
+        .and_then(|f| float(gain(f)))
+}
+
+/// Every tunable, in the order `flexloop get` lists them (the observer's
+/// shown, not set: see the module's doc).
+pub const TUNABLES: &[Tunable] = &[
+    Tunable {
+        field: "controller.bandwidth_hz",
+        role: TunedRole::Controller,
+        value: |s| match s.controller.bandwidth_hz {
+            PidBandwidth::Hz(hz) => float(hz),
+            PidBandwidth::Auto => Some(toml::Value::String("auto".into())),
+        },
+    },
+    Tunable {
+        field: "controller.notches_hz",
+        role: TunedRole::Controller,
+        value: |s| {
+            Some(toml::Value::Array(
+                s.controller
+                    .notches_hz
+                    .iter()
+                    .map(|hz| toml::Value::Float(*hz))
+                    .collect(),
+            ))
+        },
+    },
+    Tunable {
+        field: "controller.feedforward.snap",
+        role: TunedRole::Controller,
+        value: |s| feedforward_gain(s, |f| f.snap),
+    },
+    Tunable {
+        field: "controller.feedforward.jerk",
+        role: TunedRole::Controller,
+        value: |s| feedforward_gain(s, |f| f.jerk),
+    },
+    Tunable {
+        field: "controller.feedforward.acc",
+        role: TunedRole::Controller,
+        value: |s| feedforward_gain(s, |f| f.acc),
+    },
+    Tunable {
+        field: "controller.feedforward.vel",
+        role: TunedRole::Controller,
+        value: |s| feedforward_gain(s, |f| f.vel),
+    },
+    Tunable {
+        field: "controller.feedforward_form",
+        role: TunedRole::Controller,
+        value: |s| Some(toml::Value::String(s.controller.feedforward_form.clone())),
+    },
+    Tunable {
+        field: "supervision.estimate_watchdog_ticks",
+        role: TunedRole::Controller,
+        value: |s| {
+            Some(toml::Value::Integer(i64::from(
+                s.supervision.estimate_watchdog_ticks,
+            )))
+        },
+    },
+    Tunable {
+        field: "observer.damping_increase",
+        role: TunedRole::Observer,
+        value: |s| float(s.observer.damping_increase),
+    },
+    Tunable {
+        field: "observer.damping_target",
+        role: TunedRole::Observer,
+        value: |s| s.observer.damping_target.and_then(float),
+    },
+    Tunable {
+        field: "observer.bandpass_q",
+        role: TunedRole::Observer,
+        value: |s| float(s.observer.bandpass_q),
+    },
+    Tunable {
+        field: "observer.q_nu",
+        role: TunedRole::Observer,
+        value: |s| s.observer.q_nu.and_then(float),
+    },
+];
+
+/// The tunable named `field`, if it is one.
+pub fn tunable(field: &str) -> Option<&'static Tunable> {
+    TUNABLES.iter().find(|t| t.field == field)
+}
+
+/// One `FIELD=VALUE` of `flexloop set`, the value parsed as TOML.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Change {
+    pub field: String,
+    pub value: toml::Value,
+}
+
+impl Change {
+    /// Parses `FIELD=VALUE` (`controller.notches_hz=[900.0]`).
+    pub fn parse(text: &str) -> Result<Self, TuneError> {
+        let Some((field, value)) = text.split_once('=') else {
+            return Err(TuneError::Syntax(text.to_string()));
+        };
+        let field = field.trim();
+        if field.is_empty() {
+            return Err(TuneError::Syntax(text.to_string()));
+        }
+        let value = parse_value(field, value.trim())?;
+        Ok(Self {
+            field: field.to_string(),
+            value,
+        })
+    }
+}
+
+/// `text` as one TOML value (`60`, `"auto"`, `[900.0]`).
+pub fn parse_value(field: &str, text: &str) -> Result<toml::Value, TuneError> {
+    let bad = |reason: String| TuneError::BadValue {
+        field: field.to_string(),
+        value: text.to_string(),
+        reason,
+    };
+    let table: toml::Table =
+        toml::from_str(&format!("v = {text}")).map_err(|e| bad(e.message().trim().to_string()))?;
+    match table.into_iter().next() {
+        Some((key, value)) if key == "v" => Ok(value),
+        _ => Err(bad("not one TOML value".into())),
+    }
+}
+
+/// Why a change is refused before any design is made.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TuneError {
+    /// Not `FIELD=VALUE`.
+    Syntax(String),
+    /// The value is not one TOML value.
+    BadValue {
+        field: String,
+        value: String,
+        reason: String,
+    },
+    /// The scenario format has no such field.
+    UnknownField(String),
+    /// A field a swap may not change (the plant, rate, set-point, delay).
+    NotSwappable(String),
+    /// A field the plant or the supervisor reads once at the start.
+    ReadAtStart(String),
+    /// Another field a swap may differ in but that is no tunable.
+    NotTunable(String),
+    /// An observer field: shown, not set (see the module's doc).
+    ObserverHandOver(String),
+    /// The same field twice in one change.
+    Repeated(String),
+}
+
+impl fmt::Display for TuneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let tunables = || {
+            TUNABLES
+                .iter()
+                .filter(|t| t.role == TunedRole::Controller)
+                .map(|t| t.field)
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        match self {
+            TuneError::Syntax(text) => {
+                write!(
+                    f,
+                    "`{text}`: expected FIELD=VALUE (controller.bandwidth_hz=60)"
+                )
+            }
+            TuneError::BadValue {
+                field,
+                value,
+                reason,
+            } => write!(f, "{field}: `{value}` is not a TOML value: {reason}"),
+            TuneError::UnknownField(field) => {
+                write!(f, "{field}: no such field (tunables: {})", tunables())
+            }
+            TuneError::NotSwappable(field) => write!(
+                f,
+                "{field}: a swap may not change it: the loop's rate, mode, plant, set-point and \
+                 loop delay stay as they run (docs/architecture.md#what-a-swap-may-change)"
+            ),
+            TuneError::ReadAtStart(field) => write!(
+                f,
+                "{field}: not tunable: the plant reads it once at its start and is never swapped \
+                 (docs/architecture.md#live-tuning)"
+            ),
+            TuneError::NotTunable(field) => {
+                write!(f, "{field}: not a tunable (tunables: {})", tunables())
+            }
+            TuneError::ObserverHandOver(field) => write!(
+                f,
+                "{field}: not set live: a new observer design takes over from its own initial \
+                 state, not the running observer's, and steps the command at the switch (u_d \
+                 3 100 N on `default`); change it in the scenario and start the loop again \
+                 (docs/architecture.md#live-tuning)"
+            ),
+            TuneError::Repeated(field) => write!(f, "{field}: given twice"),
+        }
+    }
+}
+
+impl std::error::Error for TuneError {}
+
+/// Why `field` (not a tunable) may not be set: a known field of the format
+/// is refused for what it is; anything else is unknown. `known` says
+/// whether the format has the field.
+pub fn refusal(field: &str, known: bool) -> TuneError {
+    if !known {
+        return TuneError::UnknownField(field.to_string());
+    }
+    let section = field.split('.').next().unwrap_or_default();
+    match field {
+        "supervision.safe_action" | "supervision.command_watchdog_ticks" => {
+            TuneError::ReadAtStart(field.to_string())
+        }
+        "loop.duration_s" => TuneError::NotTunable(field.to_string()),
+        "controller.extra_delay_samples" | "controller.feedback" => {
+            TuneError::NotSwappable(field.to_string())
+        }
+        _ if matches!(section, "loop" | "plant" | "reference") => {
+            TuneError::NotSwappable(field.to_string())
+        }
+        _ => TuneError::NotTunable(field.to_string()),
+    }
+}
+
+/// `table` (a scenario's) with `changes` written in: each dotted field set,
+/// the tables on its way made if absent. Checks nothing but the syntax of
+/// the path; [`check_changes`] says whether they may be made.
+pub fn with_changes(table: &toml::Table, changes: &[Change]) -> Result<toml::Table, TuneError> {
+    let mut out = table.clone();
+    for change in changes {
+        let mut keys: Vec<&str> = change.field.split('.').collect();
+        let Some(last) = keys.pop() else {
+            return Err(TuneError::Syntax(change.field.clone()));
+        };
+        let mut at = &mut out;
+        for key in keys {
+            let entry = at
+                .entry(key.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            at = match entry {
+                toml::Value::Table(inner) => inner,
+                _ => return Err(TuneError::UnknownField(change.field.clone())),
+            };
+        }
+        at.insert(last.to_string(), change.value.clone());
+    }
+    Ok(out)
+}
+
+/// Whether the scenario format has `field`: `table` (a scenario's) with it
+/// written in parses, or fails for its value's sake rather than as an
+/// unknown field.
+pub fn known_field(table: &toml::Table, field: &str) -> bool {
+    // Any value: only an unknown field's error says "unknown field".
+    let change = Change {
+        field: field.into(),
+        value: toml::Value::Boolean(false),
+    };
+    let Ok(with) = with_changes(table, &[change]) else {
+        return false;
+    };
+    let Ok(text) = toml::to_string(&with) else {
+        return false;
+    };
+    match Scenario::parse(std::path::Path::new("-"), &text) {
+        Ok(_) => true,
+        Err(e) => !e.reason.contains("unknown field"),
+    }
+}
+
+/// Refuses a change of anything but tunables, and a field given twice.
+/// `known(field)` says whether the scenario format has the field.
+pub fn check_changes(changes: &[Change], known: impl Fn(&str) -> bool) -> Result<(), TuneError> {
+    for (i, change) in changes.iter().enumerate() {
+        if changes[..i].iter().any(|c| c.field == change.field) {
+            return Err(TuneError::Repeated(change.field.clone()));
+        }
+        match tunable(&change.field) {
+            None => return Err(refusal(&change.field, known(&change.field))),
+            Some(t) if t.role == TunedRole::Observer => {
+                return Err(TuneError::ObserverHandOver(change.field.clone()));
+            }
+            Some(_) => {}
+        }
+    }
+    Ok(())
+}
+
+/// A tunable's value as the events and `flexloop get` show it ("unset"
+/// for an optional field not given).
+pub fn shown(value: Option<&toml::Value>) -> String {
+    value.map_or_else(|| "unset".to_string(), ToString::to_string)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_assignment_is_a_field_and_one_toml_value() {
+        let c = Change::parse("controller.bandwidth_hz=60").unwrap();
+        assert_eq!(c.field, "controller.bandwidth_hz");
+        assert_eq!(c.value, toml::Value::Integer(60));
+        let c = Change::parse("controller.notches_hz=[900.0, 1200]").unwrap();
+        assert_eq!(c.value.as_array().map(Vec::len), Some(2));
+        let e = Change::parse("controller.bandwidth_hz=sixty").unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("controller.bandwidth_hz: `sixty`"),
+            "{e}"
+        );
+        assert!(matches!(
+            Change::parse("bandwidth"),
+            Err(TuneError::Syntax(_))
+        ));
+        assert!(matches!(Change::parse("=3"), Err(TuneError::Syntax(_))));
+    }
+
+    #[test]
+    fn only_tunables_may_change_and_each_refusal_says_why() {
+        let known = |f: &str| !f.contains("bogus");
+        let one = |field: &str| {
+            check_changes(
+                &[Change {
+                    field: field.into(),
+                    value: toml::Value::Integer(1),
+                }],
+                known,
+            )
+        };
+        assert!(one("controller.bandwidth_hz").is_ok());
+        assert!(matches!(
+            one("observer.q_nu"),
+            Err(TuneError::ObserverHandOver(_))
+        ));
+        assert!(matches!(
+            one("plant.output"),
+            Err(TuneError::NotSwappable(_))
+        ));
+        assert!(matches!(
+            one("loop.rate_hz"),
+            Err(TuneError::NotSwappable(_))
+        ));
+        assert!(matches!(
+            one("controller.extra_delay_samples"),
+            Err(TuneError::NotSwappable(_))
+        ));
+        assert!(matches!(
+            one("supervision.safe_action"),
+            Err(TuneError::ReadAtStart(_))
+        ));
+        assert!(matches!(
+            one("realtime.profile"),
+            Err(TuneError::NotTunable(_))
+        ));
+        let e = one("controller.bogus").unwrap_err();
+        assert!(matches!(e, TuneError::UnknownField(_)));
+        assert!(e.to_string().contains("controller.bogus"), "{e}");
+        let twice = Change::parse("controller.notches_hz=[]").unwrap();
+        assert!(matches!(
+            check_changes(&[twice.clone(), twice], known),
+            Err(TuneError::Repeated(_))
+        ));
+    }
+
+    #[test]
+    fn a_field_is_known_by_the_format_whatever_its_value() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenarios/default.toml");
+        let table: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        assert!(known_field(&table, "plant.output"));
+        assert!(known_field(&table, "loop.rate_hz"));
+        assert!(known_field(&table, "controller.bandwidth_hz"));
+        assert!(known_field(&table, "supervision.safe_action"));
+        assert!(!known_field(&table, "controller.bandwith_hz"));
+        assert!(!known_field(&table, "plant.output.x"));
+        assert!(!known_field(&table, "nonsense.field"));
+    }
+
+    #[test]
+    fn changes_are_written_into_the_table_and_nothing_else_moves() {
+        let table: toml::Table =
+            toml::from_str("name = \"x\"\n[controller]\nbandwidth_hz = 40.0\n").unwrap();
+        let changes = [
+            Change::parse("controller.bandwidth_hz=60").unwrap(),
+            Change::parse("controller.feedforward.acc=2.5").unwrap(),
+        ];
+        let out = with_changes(&table, &changes).unwrap();
+        assert_eq!(out["name"], table["name"]);
+        assert_eq!(out["controller"]["bandwidth_hz"], toml::Value::Integer(60));
+        assert_eq!(
+            out["controller"]["feedforward"]["acc"],
+            toml::Value::Float(2.5)
+        );
+        // A value where a table is needed is no field of the format.
+        let e = with_changes(&table, &[Change::parse("name.x=1").unwrap()]).unwrap_err();
+        assert!(matches!(e, TuneError::UnknownField(_)));
+    }
+}
