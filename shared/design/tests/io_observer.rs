@@ -97,21 +97,36 @@ fn a_missing_or_empty_correction_file_is_refused_by_name() {
     assert_eq!(field, "observer.correction_file", "{message}");
     assert!(message.contains("no-such-k.npz"), "{message}");
     // A plant file is not a correction filter: its arrays are named.
-    let own = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios");
-    let npz = std::fs::read_dir(&own)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .find(|p| p.extension().is_some_and(|e| e == "npz"));
-    if let Some(npz) = npz {
-        let name = npz.file_name().unwrap().to_string_lossy().to_string();
-        let text = text.replace("no-such-k.npz", &name);
-        let (field, message) = refusal(&path, &text);
-        assert_eq!(field, "observer.correction_file", "{message}");
-        assert!(message.contains(&name), "{message}");
-        assert!(
-            message.contains("not part of a correction filter"),
-            "{message}"
-        );
+    let name = "flexible-joint/k100.npz";
+    let text = text.replace("no-such-k.npz", name);
+    let (field, message) = refusal(&path, &text);
+    assert_eq!(field, "observer.correction_file", "{message}");
+    assert!(message.contains(name), "{message}");
+    assert!(
+        message.contains("`B`, `C`, `K`, `M` are not part of a correction filter"),
+        "{message}"
+    );
+}
+
+#[test]
+fn the_flexible_joint_population_is_designed_with_an_io_observer() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios");
+    for name in [
+        "flexible-joint",
+        "flexible-joint-k080",
+        "flexible-joint-k093",
+        "flexible-joint-k107",
+        "flexible-joint-k120",
+    ] {
+        let path = dir.join(format!("{name}.toml"));
+        let s = Scenario::load(&path, &Overrides::default()).unwrap();
+        let d = match LoopDesign::from_scenario(&s) {
+            Ok(d) => d,
+            Err(e) => panic!("{e}"),
+        };
+        // Two currents in, two hub angles out; 2 rigid + 2 flexible modes.
+        assert_eq!((d.n_inputs, d.output_names.len()), (2, 2), "{name}");
+        // The Kalman gain as K: no filter states beyond the model's 8.
+        assert_eq!(d.observer.estimate_map.nrows(), 8, "{name}");
     }
 }

@@ -250,6 +250,9 @@ impl Scenario {
             .notches_hz
             .iter()
             .map(|hz| ("controller.notches_hz", *hz));
+        // The pole bandwidths act on the state-feedback design only: their
+        // defaults must not refuse a slow loop that does not use them.
+        let poles = self.observer.design == "state-feedback";
         for (field, hz) in [
             (
                 "observer.observer_bandwidth_hz",
@@ -259,9 +262,10 @@ impl Scenario {
                 "observer.feedback_bandwidth_hz",
                 self.observer.feedback_bandwidth_hz,
             ),
-            ("reference.frequency_hz", self.reference.frequency_hz),
         ]
         .into_iter()
+        .filter(|_| poles)
+        .chain([("reference.frequency_hz", self.reference.frequency_hz)])
         .chain(
             self.controller
                 .bandwidth_hz
