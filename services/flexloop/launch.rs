@@ -159,26 +159,36 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
     })
 }
 
-/// The plant's model file beside the run's copy of the scenario, where the
-/// copy's relative `plant.file` finds it (`run`, `report` and `tune-ff`
+/// The plant's model file and the IO observer's correction file beside the
+/// run's copy of the scenario, where the copy's relative `plant.file` and
+/// `observer.correction_file` find them (`run`, `report` and `tune-ff`
 /// design the run again from the copy). An absolute path, or one leaving the
 /// scenario's directory, is read where it is.
 fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {
-    let (Some(file), Some(from)) = (&scenario.plant.file, scenario.plant_file_path()) else {
-        return Ok(());
-    };
-    let inside = file
-        .components()
-        .all(|c| matches!(c, std::path::Component::Normal(_)));
-    if !inside {
-        return Ok(());
+    let files = [
+        (&scenario.plant.file, scenario.plant_file_path()),
+        (
+            &scenario.observer.correction_file,
+            scenario.correction_file_path(),
+        ),
+    ];
+    for (file, from) in files {
+        let (Some(file), Some(from)) = (file, from) else {
+            continue;
+        };
+        let inside = file
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if !inside {
+            continue;
+        }
+        let to = run_dir.join(file);
+        if let Some(dir) = to.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        std::fs::copy(&from, &to)
+            .with_context(|| format!("cannot copy the model file {}", from.display()))?;
     }
-    let to = run_dir.join(file);
-    if let Some(dir) = to.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
-    std::fs::copy(&from, &to)
-        .with_context(|| format!("cannot copy the model file {}", from.display()))?;
     Ok(())
 }
 

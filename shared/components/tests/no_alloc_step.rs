@@ -228,3 +228,20 @@ fn hand_over_path_does_not_allocate() {
     });
     assert!(loaded > TICKS / 2, "the shadow took over the state");
 }
+
+#[test]
+fn an_io_observer_does_not_allocate() {
+    // The input-output observer compiles into the same block form: MC, AD
+    // and the step are the Kalman observer's (docs/control.md §12.3).
+    let mut s = default_scenario();
+    s.observer.design = "io".into();
+    s.observer.correction = Some("observer-based".into());
+    s.validate().unwrap();
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    let (l, [u_ff, u_d, y_flex]) = run_guarded(&design);
+    assert!(
+        u_ff > 0.0 && u_d > 0.0 && y_flex > 0.0,
+        "{u_ff} {u_d} {y_flex}"
+    );
+    assert_eq!(l.plant.counters.misses, 0);
+}

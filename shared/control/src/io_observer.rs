@@ -21,11 +21,19 @@
 //! [`observer_based_correction`] builds a K(z) from any stabilising pair
 //! (F, L) by separation, and [`IoObserver::new`] accepts any K(z) designed
 //! elsewhere and refuses it if the error dynamics are unstable.
+//!
+//! # In the loop
+//! With s = [x̂; w] the observer is a predictor on the model augmented with
+//! K's states (see [`IoObserver::predictor`]), so [`IoObserver::compile`]
+//! puts it into the loop's [`ObserverBlock`] unchanged: the observer
+//! process, MC, AD and live swaps treat it as any predictor. The estimate
+//! layout is the model's states first, K's states after.
 
 use crate::design_error::{DesignError, check_matrix};
 use crate::linalg::{eigenvalues, spectral_radius};
 use crate::lti::DiscreteStateSpace;
 use crate::matrix_error::MatrixError;
+use crate::observer_block::{ObserverBlock, ObserverDesign, compile_observer_block};
 use crate::step_error::{StepError, check_slice};
 use nalgebra::{Complex, DMatrix, DVector, DVectorView};
 
@@ -159,6 +167,98 @@ impl IoObserver {
             DMatrix::zeros(n, p + nu),
             m.ts,
         )?)
+    }
+
+    /// Spectral radius of K(z)'s own dynamics A_K (0 for a static K).
+    pub fn filter_radius(&self) -> Result<f64, DesignError> {
+        if self.filter.states() == 0 {
+            return Ok(0.0);
+        }
+        Ok(spectral_radius(&self.filter.a)?)
+    }
+
+    /// The observer as a predictor on the model augmented with K's states,
+    /// s = [x̂; w]:
+    ///
+    ///   A_s = [[A, E C_K], [0, A_K]], B_s = [B; 0], C_s = [C, 0], D_s = D,
+    ///   L_s = [E D_K; B_K],
+    ///
+    /// so that s(k+1) = A_s s + B_s u + L_s (y − C_s s − D_s u) is the
+    /// module doc's recursion. Returns (model, gain).
+    pub fn predictor(&self) -> Result<(DiscreteStateSpace, DMatrix<f64>), DesignError> {
+        let (m, k, e) = (&self.model, &self.filter, &self.correction_input);
+        let (n, nk, p, nu) = (m.states(), k.states(), m.outputs(), m.inputs());
+        let mut a = DMatrix::zeros(n + nk, n + nk);
+        a.view_mut((0, 0), (n, n)).copy_from(&m.a);
+        a.view_mut((0, n), (n, nk)).copy_from(&(e * &k.c));
+        a.view_mut((n, n), (nk, nk)).copy_from(&k.a);
+        let mut b = DMatrix::zeros(n + nk, nu);
+        b.view_mut((0, 0), (n, nu)).copy_from(&m.b);
+        let mut c = DMatrix::zeros(p, n + nk);
+        c.view_mut((0, 0), (p, n)).copy_from(&m.c);
+        let mut l = DMatrix::zeros(n + nk, p);
+        l.view_mut((0, 0), (n, p)).copy_from(&(e * &k.d));
+        l.view_mut((n, 0), (nk, p)).copy_from(&k.b);
+        Ok((DiscreteStateSpace::new(a, b, c, m.d.clone(), m.ts)?, l))
+    }
+
+    /// The observer as the loop's [`ObserverBlock`] (layout in
+    /// [`crate::observer_block`]), block state [x̂; w; AD states], estimate
+    /// [x̂; w]. `compensation` is C_f (n_y × n, over the model's states) for
+    /// MC, `damping` the AD map from the model's n states to u_d; both see
+    /// zeros for K's states, which are not part of the plant.
+    pub fn compile(
+        &self,
+        compensation: Option<&DMatrix<f64>>,
+        damping: Option<&DiscreteStateSpace>,
+        extra_delay_samples: usize,
+    ) -> Result<ObserverBlock, DesignError> {
+        let (n, nk, p) = (
+            self.model.states(),
+            self.filter.states(),
+            self.model.outputs(),
+        );
+        let (model, gain) = self.predictor()?;
+        let compensation = match compensation {
+            Some(cf) => {
+                check_matrix(cf, "C_f (outputs x model states)", p, n)?;
+                let mut padded = DMatrix::zeros(p, n + nk);
+                padded.view_mut((0, 0), (p, n)).copy_from(cf);
+                Some(padded)
+            }
+            None => None,
+        };
+        let feedback = match damping {
+            Some(ad) => {
+                if ad.inputs() != n {
+                    return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
+                        what: "active-damping map (outputs x model states)",
+                        expected: (ad.outputs(), n),
+                        found: (ad.outputs(), ad.inputs()),
+                    }));
+                }
+                let (na, nd) = (ad.states(), ad.outputs());
+                let mut b = DMatrix::zeros(na, n + nk);
+                b.view_mut((0, 0), (na, n)).copy_from(&ad.b);
+                let mut d = DMatrix::zeros(nd, n + nk);
+                d.view_mut((0, 0), (nd, n)).copy_from(&ad.d);
+                Some(DiscreteStateSpace::new(
+                    ad.a.clone(),
+                    b,
+                    ad.c.clone(),
+                    d,
+                    ad.ts,
+                )?)
+            }
+            None => None,
+        };
+        let design = ObserverDesign {
+            model,
+            gain,
+            compensation,
+            feedback,
+        };
+        compile_observer_block(&design, extra_delay_samples)
     }
 
     /// The allocation-free per-sample runner, starting at x̂ = 0, w = 0.
@@ -442,6 +542,63 @@ mod tests {
             );
             assert!(o.radius() < 1.0);
         }
+    }
+
+    #[test]
+    fn compiled_block_runs_the_observer_with_the_filter_states_after_the_model() {
+        let model = joint();
+        let l = kalman_gain(&model);
+        let f = robust_place(
+            &model.a,
+            &model.b,
+            &[
+                Complex::new(0.95, 0.02),
+                Complex::new(0.95, -0.02),
+                Complex::new(0.96, 0.03),
+                Complex::new(0.96, -0.03),
+                Complex::new(0.9, 0.1),
+                Complex::new(0.9, -0.1),
+                Complex::new(0.92, 0.12),
+                Complex::new(0.92, -0.12),
+            ],
+        )
+        .unwrap()
+        .gain;
+        let k = observer_based_correction(&model, &f, &l).unwrap();
+        let obs = IoObserver::input_correction(model.clone(), k).unwrap();
+        // MC reads the first output row of C, AD feeds back −0.1 of state 1.
+        let cf = model.c.clone();
+        let mut ad_gain = DMatrix::zeros(2, 8);
+        ad_gain[(0, 1)] = -0.1;
+        let ad = DiscreteStateSpace::gain(ad_gain.clone(), model.ts).unwrap();
+        let block = obs.compile(Some(&cf), Some(&ad), 0).unwrap();
+        assert_eq!(block.estimate_map.shape(), (16, 16));
+        assert_eq!((block.n_y, block.n_u), (2, 2));
+        let mut run = obs.runner();
+        let mut lti = LtiRunner::new(block.system.clone());
+        let mut plant = LtiRunner::new(model.clone());
+        plant.set_state(&[0.1, 0.0, -0.05, 0.2, 0.01, 0.0, 0.0, -0.02]);
+        for k in 0..400 {
+            let u = excitation(k);
+            let y = plant.step(&u).to_vec();
+            let est = &block.estimate_map * DVector::from_column_slice(lti.state());
+            let scale = est.amax().max(1e-12);
+            for (a, b) in est.iter().zip(run.estimate()) {
+                assert!((a - b).abs() <= 1e-12 * scale, "{k}: {a} vs {b}");
+            }
+            // ŷ_flex = C_f x̂(k|k−1), u_d = K_AD x̂(k+1|k).
+            let out = lti.step(&[y[0], y[1], u[0], u[1]]).to_vec();
+            let x = run.step(&y, &u).unwrap().to_vec();
+            let x = DVector::from_column_slice(&x);
+            let yf = &cf * DVector::from_column_slice(&est.as_slice()[..8]);
+            let ud = &ad_gain * &x;
+            for (a, b) in out.iter().zip(yf.iter().chain(ud.iter())) {
+                assert!((a - b).abs() <= 1e-12 * scale, "{k}: {a} vs {b}");
+            }
+        }
+        // AD that does not read the model's states is refused.
+        let wrong = DiscreteStateSpace::gain(DMatrix::zeros(2, 16), model.ts).unwrap();
+        assert!(obs.compile(None, Some(&wrong), 0).is_err());
     }
 
     #[test]

@@ -11,6 +11,8 @@
 //! - [`plants`]: the plant models and what each brings (observer, feedback
 //!   and feedforward plans).
 //! - [`observer`]: the modal Kalman observer of a scenario, or none.
+//! - [`io_observer`]: the input–output observer with a correction filter
+//!   K(z) (`observer.design = "io"`).
 //! - [`feedback`]: the PID of `controller.feedback = "pid"`.
 //! - [`pid_bandwidth`]: its f_bw, as given or chosen by `"auto"`.
 //! - [`feedforward`]: the feedforward gains and Appendix A's modified form.
@@ -24,6 +26,7 @@ pub mod acceptance;
 pub mod checks;
 pub mod feedback;
 pub mod feedforward;
+pub mod io_observer;
 pub mod loop_design;
 pub mod observer;
 pub mod pid_bandwidth;

@@ -1,6 +1,7 @@
 //! The observer a scenario asks for on a modal model: the steady-state
 //! Kalman predictor of the reduced model with MC, AD and the noise model as
-//! the file says, or no observer at all.
+//! the file says, the input–output observer on the same reduced model
+//! ([`crate::io_observer`]), or no observer at all.
 
 use flexloop_control::closed_loop::discrete_modes;
 use flexloop_control::damping::DampingMethod;
@@ -77,11 +78,15 @@ pub fn modal_observer(
             };
             Ok((designed.block, prediction, modes))
         }
+        "io" => {
+            let (reduced, model_weights) = reduced()?;
+            crate::io_observer::io_observer(s, ts, extra_delay, &reduced, model_weights)
+        }
         "none" => {
             if o.mc || o.ad {
                 return Err(err(
                     "observer.design",
-                    "MC and AD need an observer: use design = \"kalman\"".into(),
+                    "MC and AD need an observer: use design = \"kalman\" or \"io\"".into(),
                 ));
             }
             Ok((
@@ -97,7 +102,7 @@ pub fn modal_observer(
         other => Err(err(
             "observer.design",
             format!(
-                "unknown design `{other}` for `{}` (expected kalman or none)",
+                "unknown design `{other}` for `{}` (expected kalman, io or none)",
                 s.plant.model
             ),
         )),

@@ -250,6 +250,9 @@ pub struct ObserverSection {
     /// `state-feedback`: predictor observer with state feedback u = -L x̂(k+1|k)
     /// (the lecture's double integrator). `kalman`: steady-state Kalman
     /// predictor on the reduced modal model with T_DC, driving MC and AD.
+    /// `io`: the input–output observer (docs/control.md §12.2): the same
+    /// reduced model run on u and corrected by a filter K(z) of the
+    /// innovation, from `correction` or `correction_file`/`correction_arrays`.
     /// `none`: no observer (the thesis' original loop).
     pub design: String,
     /// Observer poles: continuous natural frequency and damping, mapped by e^{sT}.
@@ -311,6 +314,17 @@ pub struct ObserverSection {
     /// grid in node units (0.25: the thesis' 29 points over the chain).
     #[serde(default = "default_scheduling_step")]
     pub scheduling_step: f64,
+    /// `io`: the correction filter K(z) built from the scenario:
+    /// `observer-based` is the Kalman predictor gain as a static K
+    /// correcting the state (E = I), which is the `kalman` observer.
+    pub correction: Option<String>,
+    /// `io`: a file (.npz or .mat, relative to the scenario's directory)
+    /// holding K(z) as A_K, B_K, C_K, D_K (innovation in, input correction
+    /// out, E = B), discrete with `ts` (the loop's period) or continuous
+    /// without it (Tustin).
+    pub correction_file: Option<PathBuf>,
+    /// `io`: the same arrays inline, instead of a file (rows as arrays).
+    pub correction_arrays: Option<toml::Table>,
 }
 
 fn default_scheduling() -> String {
@@ -747,6 +761,15 @@ impl Scenario {
     /// `plant.file` resolved against the scenario's directory.
     pub fn plant_file_path(&self) -> Option<PathBuf> {
         let file = self.plant.file.as_ref()?;
+        Some(match self.source.parent() {
+            Some(dir) if file.is_relative() => dir.join(file),
+            _ => file.clone(),
+        })
+    }
+
+    /// `observer.correction_file` resolved against the scenario's directory.
+    pub fn correction_file_path(&self) -> Option<PathBuf> {
+        let file = self.observer.correction_file.as_ref()?;
         Some(match self.source.parent() {
             Some(dir) if file.is_relative() => dir.join(file),
             _ => file.clone(),

@@ -43,6 +43,7 @@ impl Scenario {
         self.validate_applicability()?;
         self.validate_plant_description()?;
         self.validate_kalman_weights()?;
+        self.validate_correction()?;
         let (mass_min, mass_max) = limits::MASS_KG;
         self.within(
             "plant.mass_kg",
@@ -250,6 +251,9 @@ impl Scenario {
             .notches_hz
             .iter()
             .map(|hz| ("controller.notches_hz", *hz));
+        // The pole bandwidths act on the state-feedback design only: their
+        // defaults must not refuse a slow loop that does not use them.
+        let poles = self.observer.design == "state-feedback";
         for (field, hz) in [
             (
                 "observer.observer_bandwidth_hz",
@@ -259,9 +263,10 @@ impl Scenario {
                 "observer.feedback_bandwidth_hz",
                 self.observer.feedback_bandwidth_hz,
             ),
-            ("reference.frequency_hz", self.reference.frequency_hz),
         ]
         .into_iter()
+        .filter(|_| poles)
+        .chain([("reference.frequency_hz", self.reference.frequency_hz)])
         .chain(
             self.controller
                 .bandwidth_hz
@@ -374,7 +379,15 @@ impl Scenario {
             (
                 "observer.design",
                 self.observer.design.as_str(),
-                &["state-feedback", "kalman", "none"][..],
+                &["state-feedback", "kalman", "io", "none"][..],
+            ),
+            (
+                "observer.correction",
+                self.observer
+                    .correction
+                    .as_deref()
+                    .unwrap_or("observer-based"),
+                &["observer-based"][..],
             ),
             (
                 "controller.feedback",
@@ -473,9 +486,12 @@ impl Scenario {
     fn validate_applicability(&self) -> Result<(), ScenarioError> {
         let model = self.plant.model.as_str();
         let o = &self.observer;
-        let kalman = o.design == "kalman";
+        // The IO observer runs on the Kalman design's reduced model, with its
+        // MC and AD; with `correction = "observer-based"` also its weights.
+        let modal = o.design == "kalman" || o.design == "io";
+        let kalman = o.design == "kalman" || o.correction.as_deref() == Some("observer-based");
         let shape = self.reference.shape.as_str();
-        let rules: [(&[&str], bool, String); 9] = [
+        let rules: [(&[&str], bool, String); 10] = [
             (
                 &["plant.mass_kg"],
                 model == "double-integrator",
@@ -501,16 +517,18 @@ impl Scenario {
             ),
             (
                 &["observer.mc", "observer.ad", "observer.flexible_modes"],
-                kalman,
+                modal,
                 format!(
-                    "acts on a `kalman` observer; the observer is `{}`",
+                    "acts on a `kalman` or `io` observer; the observer is `{}`",
                     o.design
                 ),
             ),
             (
                 &["observer.q_nu"],
                 kalman && o.mc,
-                "the noise model is part of MC: it needs design = \"kalman\" and mc = true".into(),
+                "the noise model is part of the Kalman model's MC: it needs mc = true and \
+                 design = \"kalman\" (or \"io\" with correction = \"observer-based\")"
+                    .into(),
             ),
             (
                 &[
@@ -518,8 +536,20 @@ impl Scenario {
                     "observer.damping_target",
                     "observer.bandpass_q",
                 ],
-                kalman && o.ad,
-                "tunes active damping: it needs design = \"kalman\" and ad = true".into(),
+                modal && o.ad,
+                "tunes active damping: it needs design = \"kalman\" or \"io\" and ad = true".into(),
+            ),
+            (
+                &[
+                    "observer.correction",
+                    "observer.correction_file",
+                    "observer.correction_arrays",
+                ],
+                o.design == "io",
+                format!(
+                    "the correction filter of an `io` observer; the observer is `{}`",
+                    o.design
+                ),
             ),
             (
                 &["observer.scheduling", "observer.scheduling_step"],
@@ -590,6 +620,59 @@ impl Scenario {
             return Err(self.err(
                 "observer.damping_increase",
                 "does not apply: observer.damping_target replaces it; give one of the two",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The IO observer's correction filter: exactly one source, a known
+    /// construction, and a plant it can run on.
+    fn validate_correction(&self) -> Result<(), ScenarioError> {
+        let o = &self.observer;
+        let sources = [
+            ("observer.correction", o.correction.is_some()),
+            ("observer.correction_file", o.correction_file.is_some()),
+            ("observer.correction_arrays", o.correction_arrays.is_some()),
+        ];
+        if o.design != "io" {
+            return match sources.iter().find(|(_, given)| *given) {
+                Some((field, _)) => Err(self.err(
+                    field,
+                    format!(
+                        "does not apply: the correction filter of an `io` observer; the \
+                         observer is `{}`",
+                        o.design
+                    ),
+                )),
+                None => Ok(()),
+            };
+        }
+        let given: Vec<&str> = sources
+            .iter()
+            .filter(|(_, given)| *given)
+            .map(|(field, _)| *field)
+            .collect();
+        match given.as_slice() {
+            [_] => {}
+            [] => {
+                return Err(self.err(
+                    "observer.correction",
+                    "an `io` observer needs its correction filter K(z): correction = \
+                     \"observer-based\", correction_file or [observer.correction_arrays]",
+                ));
+            }
+            [_, second, ..] => {
+                return Err(self.err(
+                    second,
+                    format!("give one of {}, not several", given.join(", ")),
+                ));
+            }
+        }
+        if self.plant.sensor_scan.is_some() {
+            return Err(self.err(
+                "observer.design",
+                "the observer scheduled on a scanned sensor is a Kalman one: use design = \
+                 \"kalman\" with plant.sensor_scan",
             ));
         }
         Ok(())

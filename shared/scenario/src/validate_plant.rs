@@ -264,13 +264,25 @@ impl Scenario {
 
     pub(crate) fn validate_kalman_weights(&self) -> Result<(), ScenarioError> {
         let o = &self.observer;
-        let kalman = o.design == "kalman";
+        // The IO observer with the Kalman gain as its correction is weighted
+        // as the Kalman one; with a K(z) of its own only its model is reduced.
+        let kalman = o.design == "kalman" || o.correction.as_deref() == Some("observer-based");
+        let modal = o.design == "kalman" || o.design == "io";
+        if !modal && o.max_mode_hz.is_some() {
+            return Err(self.err(
+                "observer.max_mode_hz",
+                format!(
+                    "does not apply: it reduces the model of a `kalman` or `io` observer; the \
+                     observer is `{}`",
+                    o.design
+                ),
+            ));
+        }
         for (field, given) in [
             ("observer.process_noise", o.process_noise.is_some()),
             ("observer.measurement_noise", o.measurement_noise.is_some()),
             ("observer.kalman_q", o.kalman_q.is_some()),
             ("observer.kalman_r", o.kalman_r.is_some()),
-            ("observer.max_mode_hz", o.max_mode_hz.is_some()),
         ] {
             if given && !kalman {
                 return Err(self.err(

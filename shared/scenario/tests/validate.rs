@@ -318,3 +318,71 @@ fn a_name_that_is_not_one_plain_path_component_is_refused() {
     }
     assert!(validated(&LECTURE.replace("name = \"t\"", "name = \"my run-2\"")).is_ok());
 }
+
+#[test]
+fn an_io_observer_takes_exactly_one_correction_filter() {
+    let default = shipped_text("default");
+    let io =
+        |extra: &str| default.replace("design = \"kalman\"", &format!("design = \"io\"\n{extra}"));
+    // The Kalman gain as K: the Kalman observer's fields all act.
+    validated(&io("correction = \"observer-based\"")).unwrap();
+    // A K of one's own: no Kalman weights, no noise model.
+    let file = io("correction_file = \"k.npz\"").replace("q_nu = 1000.0\n", "");
+    validated(&file).unwrap();
+    let cases = [
+        (
+            io("").replace("q_nu = 1000.0\n", ""),
+            "observer.correction",
+            "needs its correction filter",
+        ),
+        (
+            io("correction = \"observer-based\"\ncorrection_file = \"k.npz\""),
+            "observer.correction_file",
+            "not several",
+        ),
+        (
+            io("correction = \"luenberger\""),
+            "observer.correction",
+            "expected one of observer-based",
+        ),
+        (
+            io("correction_file = \"k.npz\""),
+            "observer.q_nu",
+            "does not apply",
+        ),
+        (
+            file.replace("bandpass_q = 2.0", "bandpass_q = 2.0\nprocess_noise = 0.01"),
+            "observer.process_noise",
+            "does not apply",
+        ),
+        (
+            default.replace(
+                "q_nu = 1000.0",
+                "q_nu = 1000.0\ncorrection_file = \"k.npz\"",
+            ),
+            "observer.correction_file",
+            "does not apply",
+        ),
+        (
+            default.replace(
+                "q_nu = 1000.0",
+                "q_nu = 1000.0\n[observer.correction_arrays]\nD_K = 1.0",
+            ),
+            "observer.correction_arrays",
+            "does not apply",
+        ),
+        (
+            shipped_text("thesis-sensor-scan-ad").replace(
+                "design = \"kalman\"",
+                "design = \"io\"\ncorrection = \"observer-based\"",
+            ),
+            "observer.design",
+            "scanned sensor",
+        ),
+    ];
+    for (text, field, words) in cases {
+        let (got, message) = refusal(&text);
+        assert_eq!(got, field, "{message}");
+        assert!(message.contains(words), "{message}");
+    }
+}
