@@ -178,7 +178,7 @@ fn write_variant(scenario: &Path, variant: &Path, kills: u32) -> Result<()> {
         .with_context(|| format!("cannot read {}", scenario.display()))?;
     let mut table: toml::Table =
         toml::from_str(&text).with_context(|| format!("{}", scenario.display()))?;
-    flexloop_scenario::plant_description::anchor_model_file(&mut table, scenario);
+    flexloop_scenario::plant_description::anchor_files(&mut table, scenario);
     let supervision = table
         .entry("supervision")
         .or_insert_with(|| toml::Value::Table(toml::Table::new()))

@@ -50,7 +50,7 @@ impl Options {
 /// (none applies to a loop without one: the scenario check refuses them).
 fn without_logger(text: &str, scenario: &Path) -> anyhow::Result<String> {
     let mut table: toml::Table = toml::from_str(text)?;
-    flexloop_scenario::plant_description::anchor_model_file(&mut table, scenario);
+    flexloop_scenario::plant_description::anchor_files(&mut table, scenario);
     let mut logger = toml::Table::new();
     logger.insert("enabled".into(), false.into());
     table.insert("logger".into(), logger.into());

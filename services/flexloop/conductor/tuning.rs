@@ -53,15 +53,9 @@ impl Tuning {
                 },
             ];
             table = tune::with_changes(&table, &timing)?;
-            if let Some(file) = running.plant_file_path() {
-                let absolute = std::fs::canonicalize(&file)
-                    .with_context(|| format!("plant.file {}", file.display()))?;
-                let change = Change {
-                    field: "plant.file".into(),
-                    value: toml::Value::String(absolute.display().to_string()),
-                };
-                table = tune::with_changes(&table, &[change])?;
-            }
+            // The tuned files live under the run directory: their model and
+            // correction files are the running scenario's.
+            flexloop_scenario::plant_description::anchor_files(&mut table, &running.source);
             self.now = Some(table);
         }
         Ok(self.now.as_ref().expect("loaded above"))

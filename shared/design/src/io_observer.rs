@@ -142,18 +142,8 @@ pub fn correction_filter(
         }
     };
     let source = arrays.source().to_string();
-    let unused = arrays.unused(&FILTER_ARRAYS);
-    if !unused.is_empty() {
-        return Err(err(format!(
-            "{source}: {} {} not part of a correction filter (it takes {})",
-            unused
-                .iter()
-                .map(|n| format!("`{n}`"))
-                .collect::<Vec<_>>()
-                .join(", "),
-            if unused.len() == 1 { "is" } else { "are" },
-            FILTER_ARRAYS.join(", ")
-        )));
+    if let Some(reason) = arrays.not_taken(&FILTER_ARRAYS, "a correction filter") {
+        return Err(err(reason));
     }
     let d = arrays.matrix("D_K", VectorAs::Row).map_err(file_err)?;
     let dynamic = ["A_K", "B_K", "C_K"].map(|n| arrays.names().contains(&n));

@@ -182,6 +182,27 @@ impl ModelArrays {
             .collect()
     }
 
+    /// The refusal of the arrays present that `what` (e.g. "a `second-order`
+    /// model") does not take, naming the source, those arrays and the ones
+    /// it takes; None when every array present is taken.
+    pub fn not_taken(&self, taken: &[&str], what: &str) -> Option<String> {
+        let unused = self.unused(taken);
+        if unused.is_empty() {
+            return None;
+        }
+        Some(format!(
+            "{}: {} {} not part of {what} (it takes {})",
+            self.source,
+            unused
+                .iter()
+                .map(|n| format!("`{n}`"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            if unused.len() == 1 { "is" } else { "are" },
+            taken.join(", ")
+        ))
+    }
+
     /// The first NaN or infinite entry, by row and column in a matrix of
     /// `columns` columns.
     fn check_finite(

@@ -147,35 +147,33 @@ impl<'de> Deserialize<'de> for Damper {
     }
 }
 
-/// Where a model's arrays come from: a file (.npz, .mat) relative to the
-/// scenario's directory, or inline.
-#[derive(Debug, Clone, PartialEq)]
-pub enum ArraysAt {
-    File(PathBuf),
-    Inline(toml::Table),
-}
+/// The fields that name a file relative to the scenario's directory: the
+/// plant's model and the IO observer's correction filter.
+const FILE_FIELDS: [(&str, &str); 2] = [("plant", "file"), ("observer", "correction_file")];
 
 /// A copy of a scenario written elsewhere (a variant `bench` or `chaos`
-/// runs) keeps its model file: a relative `plant.file` is made absolute,
-/// anchored at the directory of `scenario`, the file the table was read from.
-pub fn anchor_model_file(table: &mut toml::Table, scenario: &std::path::Path) {
-    let Some(plant) = table.get_mut("plant").and_then(|p| p.as_table_mut()) else {
-        return;
-    };
-    let Some(toml::Value::String(file)) = plant.get("file") else {
-        return;
-    };
-    let file = PathBuf::from(file);
-    if file.is_absolute() {
-        return;
-    }
+/// runs, a `flexloop set`) keeps its files: every relative file field
+/// ([`FILE_FIELDS`]) is made absolute, anchored at the directory of
+/// `scenario`, the file the table was read from.
+pub fn anchor_files(table: &mut toml::Table, scenario: &std::path::Path) {
     let dir = scenario
         .parent()
         .map(std::path::Path::to_path_buf)
         .unwrap_or_default();
     let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
-    plant.insert(
-        "file".into(),
-        toml::Value::String(dir.join(file).display().to_string()),
-    );
+    for (section, key) in FILE_FIELDS {
+        let Some(section) = table.get_mut(section).and_then(|p| p.as_table_mut()) else {
+            continue;
+        };
+        let Some(toml::Value::String(file)) = section.get(key) else {
+            continue;
+        };
+        let file = PathBuf::from(file);
+        if file.is_relative() {
+            section.insert(
+                key.into(),
+                toml::Value::String(dir.join(file).display().to_string()),
+            );
+        }
+    }
 }

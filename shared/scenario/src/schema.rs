@@ -760,19 +760,19 @@ pub struct Overrides {
 impl Scenario {
     /// `plant.file` resolved against the scenario's directory.
     pub fn plant_file_path(&self) -> Option<PathBuf> {
-        let file = self.plant.file.as_ref()?;
-        Some(match self.source.parent() {
-            Some(dir) if file.is_relative() => dir.join(file),
-            _ => file.clone(),
-        })
+        self.beside(self.plant.file.as_ref()?)
     }
 
     /// `observer.correction_file` resolved against the scenario's directory.
     pub fn correction_file_path(&self) -> Option<PathBuf> {
-        let file = self.observer.correction_file.as_ref()?;
+        self.beside(self.observer.correction_file.as_ref()?)
+    }
+
+    /// `file` as named from the scenario's directory.
+    fn beside(&self, file: &std::path::Path) -> Option<PathBuf> {
         Some(match self.source.parent() {
             Some(dir) if file.is_relative() => dir.join(file),
-            _ => file.clone(),
+            _ => file.to_path_buf(),
         })
     }
 

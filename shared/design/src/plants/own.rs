@@ -231,26 +231,10 @@ fn arrays_field(s: &Scenario) -> &'static str {
 /// Refuses arrays the model does not take: an array that does not act is an
 /// error, as a field that does not apply is.
 fn refuse_unused(s: &Scenario, arrays: &ModelArrays, used: &[&str]) -> Result<(), ScenarioError> {
-    let unused = arrays.unused(used);
-    if unused.is_empty() {
-        return Ok(());
+    match arrays.not_taken(used, &format!("a `{}` model", s.plant.model)) {
+        None => Ok(()),
+        Some(reason) => Err(ScenarioError::new(&s.source, Some(arrays_field(s)), reason)),
     }
-    Err(ScenarioError::new(
-        &s.source,
-        Some(arrays_field(s)),
-        format!(
-            "{}: {} {} not part of a `{}` model (it takes {})",
-            arrays.source(),
-            unused
-                .iter()
-                .map(|n| format!("`{n}`"))
-                .collect::<Vec<_>>()
-                .join(", "),
-            if unused.len() == 1 { "is" } else { "are" },
-            s.plant.model,
-            used.join(", ")
-        ),
-    ))
 }
 
 /// A conversion error, prefixed with where the arrays came from.
