@@ -132,24 +132,15 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
     assert!(out.status.success(), "{}", describe(&out));
     let run = dir.join("run");
     let log = LogReader::open(&run.join("samples.mcap")).unwrap();
-    let measurements: Vec<&Measurement> = log.measurements().collect();
-    let commands: Vec<&Command> = log.commands().collect();
-    assert_eq!(commands.len(), 5_000, "every sample has its command");
     // The set-point the law follows is the scenario's (1 mm at 2 Hz), and
     // the command is the law's from the first sample to the last.
-    let mut law = ReferencePid::example(1e-4, 100.0);
-    for (m, c) in measurements.iter().zip(&commands) {
-        assert_eq!(m.seq, c.seq);
-        let r = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (m.seq as f64 * 1e-4)).sin();
-        let u = law.step(r, m.y[0]);
-        assert!(
-            (c.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
-            "sample {}: the program sent {}, the law gives {u}",
-            c.seq,
-            c.u[0]
-        );
-        assert_eq!(c.generation, 0);
-    }
+    assert_eq!(
+        assert_commands_follow_the_law_from_tick_0(&log),
+        5_000,
+        "every sample has its command"
+    );
+    assert!(log.commands().all(|c| c.generation == 0));
+    let measurements: Vec<&Measurement> = log.measurements().collect();
     // The PID follows the sine: after the first half second the error is
     // a small fraction of the amplitude.
     let last = measurements.last().unwrap();
@@ -160,6 +151,65 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
         last.y[0]
     );
     assert_clean(&run);
+}
+
+/// Every command of the run equals the example's law stepped from tick 0
+/// on the recorded measurements (whichever generation sent it); returns
+/// how many there were.
+fn assert_commands_follow_the_law_from_tick_0(log: &LogReader) -> usize {
+    let measurements: Vec<&Measurement> = log.measurements().collect();
+    let commands: Vec<&Command> = log.commands().collect();
+    let mut law = ReferencePid::example(1e-4, 100.0);
+    for (m, c) in measurements.iter().zip(&commands) {
+        assert_eq!(m.seq, c.seq);
+        let r = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (m.seq as f64 * 1e-4)).sin();
+        let u = law.step(r, m.y[0]);
+        assert!(
+            (c.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
+            "sample {} (generation {}): the program sent {}, the law gives {u}",
+            c.seq,
+            c.generation,
+            c.u[0]
+        );
+    }
+    commands.len()
+}
+
+#[test]
+fn a_program_swapped_by_exec_to_itself_continues_its_own_state() {
+    let dir = temp_dir("own-controller-exec");
+    let scenario = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start_file(&dir, &scenario, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_500);
+    // `--exec`: the loop as it stands (its [controller.params] too), served
+    // by the program named on the command line: here the same law, which
+    // takes its predecessor's state (`load`) and so continues exactly.
+    let out = swap_to(
+        &prefix,
+        &["controller", "--exec", example_program().to_str().unwrap()],
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_500);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    for channel in ["measurement", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    let written = dir.join("tuned").join("exec-001.toml");
+    let table: toml::Table = toml::from_str(&std::fs::read_to_string(&written).unwrap()).unwrap();
+    assert_eq!(
+        table["controller"]["exec"][0].as_str(),
+        Some(example_program().to_str().unwrap())
+    );
+    assert_eq!(table["controller"]["params"]["kp"].as_float(), Some(9000.0));
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert!(assert_commands_follow_the_law_from_tick_0(&log) > 3_000);
+    assert_clean(&dir);
 }
 
 #[test]
