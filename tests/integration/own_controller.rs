@@ -111,6 +111,29 @@ impl ReferencePid {
     }
 }
 
+/// Waits (bounded) until the process `pid` is gone (the supervisor reaps
+/// its children at once).
+fn assert_gone(pid: i32) {
+    let since = std::time::Instant::now();
+    while Path::new(&format!("/proc/{pid}")).exists() {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "process {pid} is still there"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// An executable shell script `dir/name` with `body`.
+fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, format!("#!/bin/sh\n{body}\n")).unwrap();
+    let mut permissions = std::fs::metadata(&path).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&path, permissions).unwrap();
+    path
+}
+
 /// `flexloop swap --prefix P ARGS…` (`--exec` takes the rest of the line).
 fn swap_to(prefix: &str, args: &[&str]) -> std::process::Output {
     let mut c = flexloop();
@@ -237,14 +260,7 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     assert!(back.status.success(), "{}", describe(&back));
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 1_000);
-    assert!(
-        !pids_of(&dir, "controller").contains(&program_pid)
-            || processes(&dir)
-                .iter()
-                .any(|p| p["pid"] == program_pid && p["exit"].is_object()),
-        "the replaced program still serves: {:?}",
-        processes(&dir)
-    );
+    assert_gone(program_pid);
     stop(&prefix, child);
 
     let summary = summary(&dir);
@@ -368,11 +384,7 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
         "{stderr}\n{}",
         describe(&out)
     );
-    let crashing = dir.join("crashing");
-    std::fs::write(&crashing, "#!/bin/sh\nexit 7\n").unwrap();
-    let mut permissions = std::fs::metadata(&crashing).unwrap().permissions();
-    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
-    std::fs::set_permissions(&crashing, permissions).unwrap();
+    let crashing = script(&dir, "crashing", "exit 7");
     let out = swap_to(
         &prefix,
         &["controller", "--exec", crashing.to_str().unwrap()],
@@ -398,5 +410,88 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
     assert_eq!(summary["counters"]["misses"], 0, "{summary}");
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_program_that_never_follows_the_loop_is_stopped_and_its_swap_refused() {
+    let dir = temp_dir("own-controller-silent");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let controller = pid_on_duty(&dir, "controller", "active");
+    // Starts, opens nothing, publishes nothing.
+    let silent = script(&dir, "silent", "exec sleep 600");
+    let out = swap_to(&prefix, &["controller", "--exec", silent.to_str().unwrap()]);
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("did not follow the loop"),
+        "{}",
+        describe(&out)
+    );
+    // The supervisor stopped it; the built-in controller kept the loop.
+    let silent_pids: Vec<i32> = processes(&dir)
+        .iter()
+        .filter(|p| p["role"] == "controller" && p["generation"] == 1)
+        .filter_map(|p| p["pid"].as_i64().map(|pid| pid as i32))
+        .collect();
+    for pid in silent_pids {
+        assert_gone(pid);
+    }
+    assert!(processes_mentioning(silent.to_str().unwrap()).is_empty());
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), controller);
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    stop(&prefix, child);
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
+    let dir = temp_dir("own-controller-dies");
+    let program = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let out = swap_to(&prefix, &["controller", program.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let program_pid = pid_on_duty(&dir, "controller", "active");
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    // SAFETY: a process of this test's loop, by the pid its supervisor lists.
+    unsafe { libc::kill(program_pid, libc::SIGKILL) };
+    assert_gone(program_pid);
+    // The supervisor brings the built-in design that served before it back
+    // (a program that crashed once is likely to crash again).
+    let since = std::time::Instant::now();
+    let restart = loop {
+        if let Some(r) = events(&dir).into_iter().find(|e| e["kind"] == "restart") {
+            break r;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no restart: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(
+        restart["detail"]["rolled_back_from"].as_str(),
+        Some(program.to_str().unwrap()),
+        "{restart}"
+    );
+    assert!(
+        restart["detail"]["scenario"]
+            .as_str()
+            .is_some_and(|s| s.ends_with("lecture-double-integrator.toml")),
+        "{restart}"
+    );
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_000);
+    stop(&prefix, child);
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
     assert_clean(&dir);
 }
