@@ -343,6 +343,7 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         misses: t.misses,
         stall_misses: t.stall_misses,
     };
+    println!("  {}", grid.late_components(t.stale_estimates));
     println!("  verdict: {}", grid.verdict());
     Ok(grid.stalls_dominate())
 }
