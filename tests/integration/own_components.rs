@@ -599,3 +599,65 @@ fn the_example_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() 
     assert!((last.x_hat[0] - y).abs() < 1e-5, "{} vs {y}", last.x_hat[0]);
     assert_clean(&dir);
 }
+
+#[test]
+fn a_port_of_the_wrong_type_is_refused_and_a_flood_is_counted_not_applied() {
+    use flexloop_protocol::Estimate;
+    use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
+    use flexloop_transport::{Domain, Inlet, Outlet};
+    let dir = temp_dir("own-components-flood");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 500);
+    {
+        let domain = Domain::new(&prefix).unwrap();
+        let node = domain.node("bad-component").unwrap();
+        // A program whose command is of another type (size and type name):
+        // iceoryx2 refuses its port, so it never reaches the plant.
+        assert!(Outlet::<Estimate>::open(&node, &COMMAND).is_err());
+        // One that floods: 64 commands of a generation that owns no sample
+        // for every measurement. Each publisher has its own queue at the
+        // plant, so the flood overflows only its own: the active
+        // controller's commands all arrive.
+        let measurements = Inlet::<Measurement>::open_polling(&node, &MEASUREMENT, 16).unwrap();
+        let flood = Outlet::<Command>::open(&node, &COMMAND).unwrap();
+        let since = std::time::Instant::now();
+        while since.elapsed() < Duration::from_millis(500) {
+            while let Some(m) = measurements.receive().unwrap() {
+                for _ in 0..64 {
+                    flood
+                        .publish(|c| {
+                            c.seq = m.seq;
+                            c.generation = 7;
+                            c.n_inputs = 1;
+                            c.u[0] = 50.0;
+                        })
+                        .unwrap();
+                }
+                flood.notify().unwrap();
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 200);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    // The plant rejected the flood; the logger counted it apart and kept it
+    // out of the record: the loop's own commands, gaps and latencies only.
+    let counter = |name: &str| summary["counters"][name].as_u64().unwrap();
+    assert!(counter("rejected_commands") > 0, "{summary}");
+    assert!(counter("foreign_commands") > 0, "{summary}");
+    assert_eq!(counter("misses"), 0, "{summary}");
+    assert_eq!(counter("stale_estimates"), 0, "{summary}");
+    for channel in ["measurement", "estimate", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.measurements().all(|m| m.u_applied[0] != 50.0));
+    assert!(log.commands().all(|c| c.generation == 0 && c.u[0] != 50.0));
+    assert_eq!(
+        log.commands().count() as u64,
+        summary["samples"]["command"].as_u64().unwrap()
+    );
+    assert_clean(&dir);
+}

@@ -563,6 +563,11 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
             stale_estimates,
             fallback_ticks: m.fallback_ticks,
             rejected_commands: m.rejected_commands,
+            foreign_commands: own
+                .iter()
+                .flatten()
+                .map(|s| s.counters.foreign_commands)
+                .sum(),
         },
         samples,
         gaps,

@@ -189,6 +189,9 @@ pub struct Recorder<O: RecordSink> {
     pub stale_estimates: u64,
     /// The newest measurement (its counters are the plant's totals).
     pub last_measurement: Option<Measurement>,
+    /// Commands from an instance that owned neither their sample nor a
+    /// standby's duty: counted, not recorded (see [`Recorder::foreign_command`]).
+    pub foreign_commands: u64,
 }
 
 fn gap_json(channel: &str, first: u64, count: u64) -> String {
@@ -208,6 +211,7 @@ impl<O: RecordSink> Recorder<O> {
             commands: ChannelCount::default(),
             stale_estimates: 0,
             last_measurement: None,
+            foreign_commands: 0,
         }
     }
 
@@ -254,6 +258,14 @@ impl<O: RecordSink> Recorder<O> {
             self.stale_estimates += 1;
         }
         self.latencies.observe_command(c);
+    }
+
+    /// A command from an instance that owned neither its sample nor a
+    /// standby's duty (a stray or misbehaving program, which the plant
+    /// rejects): counted apart, not recorded, so that the sample file's
+    /// commands, the gaps and the latencies are the loop's own.
+    pub fn foreign_command(&mut self) {
+        self.foreign_commands += 1;
     }
 
     /// An event from elsewhere (the supervisor's, the logger's own), as JSON.

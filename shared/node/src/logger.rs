@@ -10,6 +10,7 @@
 //! counting, the histograms and the loop go on.
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
+use crate::handover::ActivationView;
 use crate::recording::{self, Files, Item, Queue};
 use crate::run_metadata::run_metadata;
 use crate::summary::run_summary;
@@ -84,6 +85,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     }
     estimates.connect()?;
     commands.connect()?;
+    let mut activation = ActivationView::open(&node)?;
+    activation.connect()?;
     // Measurements last: the plant starts once it sees this subscriber, and by
     // then the logger must already hear every other channel.
     let measurements = Inlet::<Measurement>::open_polling(
@@ -121,14 +124,15 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         ),
     );
     let start_ns = monotonic_ns();
-    let inlets = Inlets {
+    let mut inlets = Inlets {
         measurements: &measurements,
         estimates: &estimates,
         commands: &commands,
+        activation: &mut activation,
         telemetry: &telemetry,
         progress: &progress,
     };
-    let drained = drain(&mut recorder, &inlets, start_ns);
+    let drained = drain(&mut recorder, &mut inlets, start_ns);
 
     // Whatever ended the draining, the files are finished.
     let now = monotonic_ns();
@@ -243,6 +247,8 @@ struct Inlets<'a> {
     measurements: &'a Inlet<Measurement>,
     estimates: &'a Inlet<Estimate>,
     commands: &'a Inlet<Command>,
+    /// Which generation owns which sample: the commands of others are foreign.
+    activation: &'a mut ActivationView,
     telemetry: &'a Outlet<Telemetry>,
     progress: &'a Outlet<u64>,
 }
@@ -251,7 +257,7 @@ struct Inlets<'a> {
 /// tick) or a stop is requested (`None`).
 fn drain(
     recorder: &mut Recorder<Queue>,
-    ports: &Inlets<'_>,
+    ports: &mut Inlets<'_>,
     start_ns: u64,
 ) -> Result<Option<u64>, NodeError> {
     let mut next_interval_ns = start_ns + INTERVAL_NS;
@@ -272,7 +278,19 @@ fn drain(
         }
         // Two publishers during a hand-over: in sequence order (see `InOrder`).
         estimates.drain(ports.estimates, |e| e.seq, |e| recorder.estimate(e))?;
-        commands.drain(ports.commands, |c| c.seq, |c| recorder.command(c))?;
+        let activation = ports.activation.refresh()?;
+        commands.drain(
+            ports.commands,
+            |c| c.seq,
+            |c| {
+                if c.generation == activation.controller_for(c.seq) || c.flags & flags::STANDBY != 0
+                {
+                    recorder.command(c);
+                } else {
+                    recorder.foreign_command();
+                }
+            },
+        )?;
         if let Some(m) = recorder.last_measurement
             && Some(m.seq) != progress_sent
         {

@@ -98,6 +98,7 @@ pub fn run_summary<O: RecordSink>(
             stale_estimates: recorder.stale_estimates,
             fallback_ticks: m.fallback_ticks,
             rejected_commands: m.rejected_commands,
+            foreign_commands: recorder.foreign_commands,
         },
         samples: PerChannel {
             measurement: recorder.measurements.samples,

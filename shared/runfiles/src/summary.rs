@@ -99,6 +99,11 @@ pub struct Counters {
     pub stale_estimates: u64,
     pub fallback_ticks: u64,
     pub rejected_commands: u64,
+    /// Commands the logger saw from an instance that owned neither their
+    /// sample nor a standby's duty (a stray or misbehaving program): not
+    /// recorded, not in the latencies; the plant rejects them too.
+    #[serde(default)]
+    pub foreign_commands: u64,
 }
 
 /// One count per message channel.
