@@ -38,6 +38,37 @@ pub struct DesignArgs {
     json: bool,
 }
 
+/// The roles a program of one's own serves in `s`, with the program.
+fn programs_of(s: &flexloop_scenario::Scenario) -> anyhow::Result<serde_json::Value> {
+    let mut programs = serde_json::Map::new();
+    for role in flexloop_scenario::ProgramRole::ALL {
+        if let Some(p) = s.program(role)? {
+            programs.insert(
+                role.section().into(),
+                serde_json::json!(p.program.display().to_string()),
+            );
+        }
+    }
+    Ok(serde_json::Value::Object(programs))
+}
+
+/// What the report below is, when programs of one's own serve: flexloop
+/// does not know their laws, so it describes the built-in design the
+/// scenario's other fields give, not the loop that runs.
+pub fn programs_notice(programs: &serde_json::Value) -> Option<String> {
+    let programs = programs.as_object().filter(|p| !p.is_empty())?;
+    let named: Vec<String> = programs
+        .iter()
+        .map(|(role, path)| format!("the {role} by {}", path.as_str().unwrap_or("?")))
+        .collect();
+    Some(format!(
+        "Served by programs of one's own: {}. Their laws are theirs: what follows is the \
+         built-in design the scenario's other fields give, not the loop that runs with them \
+         (docs/components.md).",
+        named.join(", ")
+    ))
+}
+
 pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
     let DesignArgs {
         scenario,
@@ -96,10 +127,14 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         }
         None => None,
     };
+    let programs = programs_of(&s)?;
     if json {
-        let value = serde_json::json!({ "loop": own, "study": study_part });
+        let value = serde_json::json!({ "loop": own, "study": study_part, "programs": programs });
         println!("{}", serde_json::to_string_pretty(&value)?);
         return Ok(0);
+    }
+    if let Some(notice) = programs_notice(&programs) {
+        println!("{notice}\n");
     }
     print!("{}", own.render_text());
     if let Some([from, to]) = s.plant.sensor_scan {

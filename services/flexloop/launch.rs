@@ -208,6 +208,11 @@ pub fn pid_words(design: &flexloop_design::LoopDesign) -> Option<String> {
 /// defines both). The loop still starts: the scenario is valid, its design
 /// only questionable.
 pub fn warn_about_design(prepared: &Prepared) {
+    // A program's law is its own: the built-in design's rule does not judge it.
+    let scenario = &prepared.scenario;
+    if scenario.controller.exec.is_some() || scenario.observer.exec.is_some() {
+        return;
+    }
     match flexloop_analysis::loop_report::loop_check(&prepared.scenario, &prepared.design) {
         Ok(report) => {
             if let Some(line) = report.warning() {

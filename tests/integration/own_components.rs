@@ -162,6 +162,17 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
         .arg(dir.join("run"));
     let out = run_bounded(up, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
+    // `design` says its report is the built-in design, not the program's law.
+    let mut design = flexloop();
+    design.arg("design").arg(&scenario);
+    let report = run_bounded(design, Duration::from_secs(60));
+    assert!(report.status.success(), "{}", describe(&report));
+    let said = String::from_utf8_lossy(&report.stdout);
+    assert!(
+        said.starts_with("Served by programs of one's own: the controller by ")
+            && said.contains("not the loop that runs with them"),
+        "{said}"
+    );
     let run = dir.join("run");
     let log = LogReader::open(&run.join("samples.mcap")).unwrap();
     // The set-point the law follows is the scenario's (1 mm at 2 Hz), and
