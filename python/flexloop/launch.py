@@ -1,0 +1,244 @@
+"""What the supervisor hands a controller process: its command line and the
+parts of the scenario a controller in Python needs.
+
+The command line is the one every loop process shares (shared/node args.rs
+and overrides.rs): ``[--generation N] [--join|--restart|--standby]
+--scenario FILE --prefix P --run-dir DIR [--rate HZ] [--duration S]
+[--mode realtime|lockstep] [--no-realtime] [--tick WAIT]``. The scenario was
+validated by the supervisor before it started this process; what is read
+here is checked again, with errors naming the file and the field.
+"""
+
+import argparse
+import math
+import tomllib
+from dataclasses import dataclass, field
+
+
+class UsageError(Exception):
+    """A command line this process cannot serve."""
+
+
+class ScenarioError(Exception):
+    """A scenario field this process cannot use: names the file and the field."""
+
+    def __init__(self, path, field_name, reason):
+        super().__init__(f"{path}: {field_name}: {reason}")
+
+
+#: How a process enters the loop (shared/protocol joining.rs).
+AT_START = "at-start"
+REPLACEMENT = "replacement"
+RESTART = "restart"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise UsageError(message)
+
+
+def _parser():
+    p = _Parser(prog="flexloop-controller", add_help=False, allow_abbrev=False)
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--prefix", required=True)
+    p.add_argument("--run-dir", required=True)
+    p.add_argument("--generation", type=int, default=0)
+    joining = p.add_mutually_exclusive_group()
+    joining.add_argument("--join", action="store_true")
+    joining.add_argument("--restart", action="store_true")
+    joining.add_argument("--standby", action="store_true")
+    joining.add_argument("--spare", action="store_true")
+    p.add_argument("--rate", type=float)
+    p.add_argument("--duration", type=float)
+    p.add_argument("--mode", choices=["realtime", "lockstep"])
+    p.add_argument("--no-realtime", action="store_true")
+    p.add_argument("--tick", choices=["sleep", "sleep-then-spin"])
+    return p
+
+
+@dataclass
+class Args:
+    scenario: str
+    prefix: str
+    run_dir: str
+    generation: int
+    joining: str
+    rate_hz: float | None
+    duration_s: float | None
+    mode: str | None
+    no_realtime: bool
+
+
+def parse_args(argv):
+    """The command line (without the program name)."""
+    a = _parser().parse_args(argv)
+    if a.standby:
+        # A standby publishes its commands for the plant's safe action and
+        # is retired by the supervisor's spare orders; this package does
+        # neither yet, so it says so rather than half-serve.
+        raise UsageError("--standby: a Python controller cannot serve as the standby")
+    if a.spare:
+        raise UsageError("--spare: a controller started from `exec` is never a warm spare")
+    if a.generation < 0 or a.generation >= 2**32:
+        raise UsageError(f"--generation {a.generation}: not a generation (0 to 2^32-1)")
+    if a.rate is not None and not (math.isfinite(a.rate) and a.rate > 0):
+        raise UsageError(f"--rate {a.rate}: must be a positive number of Hz")
+    joining = REPLACEMENT if a.join else RESTART if a.restart else AT_START
+    return Args(
+        scenario=a.scenario,
+        prefix=a.prefix,
+        run_dir=a.run_dir,
+        generation=a.generation,
+        joining=joining,
+        rate_hz=a.rate,
+        duration_s=a.duration,
+        mode=a.mode,
+        no_realtime=a.no_realtime,
+    )
+
+
+@dataclass
+class Realtime:
+    """The controller's real-time set-up (shared/node args.rs realtime_settings)."""
+
+    priority: int | None = None
+    cpu: int | None = None
+    lock_memory: bool = False
+    timer_slack_ns: int = 1
+    #: The plant's CPU: start-up work stays off it.
+    avoid_cpu: int | None = None
+
+
+@dataclass
+class Settings:
+    """What a Python controller needs of its scenario, overrides applied."""
+
+    path: str
+    rate_hz: float
+    mode: str
+    params: dict = field(default_factory=dict)
+    realtime: Realtime = field(default_factory=Realtime)
+
+    @property
+    def period_ns(self):
+        return round(1e9 / self.rate_hz)
+
+    @property
+    def lockstep(self):
+        return self.mode == "lockstep"
+
+
+def _table(path, doc, name):
+    value = doc.get(name, {})
+    if not isinstance(value, dict):
+        raise ScenarioError(path, name, "must be a table")
+    return value
+
+
+def _process_realtime(path, table, role):
+    value = table.get(role, {})
+    if not isinstance(value, dict):
+        raise ScenarioError(path, f"realtime.{role}", "must be a table")
+    priority = value.get("priority")
+    if priority is not None and not (isinstance(priority, int) and 1 <= priority <= 99):
+        raise ScenarioError(path, f"realtime.{role}.priority", "must be an integer 1 to 99")
+    cpu = value.get("cpu")
+    if cpu is not None and not (isinstance(cpu, int) and cpu >= 0):
+        raise ScenarioError(path, f"realtime.{role}.cpu", "must be a CPU number")
+    return priority, cpu
+
+
+def load_settings(args):
+    """Reads the scenario ``args.scenario`` and applies the overrides."""
+    path = args.scenario
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except OSError as e:
+        raise ScenarioError(path, "(file)", e.strerror or str(e)) from e
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(path, "(syntax)", str(e)) from e
+    loop = _table(path, doc, "loop")
+    rate = loop.get("rate_hz", 10_000.0)
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
+        math.isfinite(rate) and rate > 0
+    ):
+        raise ScenarioError(path, "loop.rate_hz", "must be a positive number of Hz")
+    mode = loop.get("mode", "realtime")
+    if mode not in ("realtime", "lockstep"):
+        raise ScenarioError(path, "loop.mode", "must be \"realtime\" or \"lockstep\"")
+    controller = _table(path, doc, "controller")
+    params = controller.get("params", {})
+    if not isinstance(params, dict):
+        raise ScenarioError(path, "controller.params", "must be a table")
+    rt_table = _table(path, doc, "realtime")
+    priority, cpu = _process_realtime(path, rt_table, "controller")
+    _, plant_cpu = _process_realtime(path, rt_table, "plant")
+    lock_memory = rt_table.get("lock_memory", True)
+    slack = rt_table.get("timer_slack_ns", 1)
+    if not isinstance(slack, int) or isinstance(slack, bool) or slack < 1:
+        raise ScenarioError(path, "realtime.timer_slack_ns", "must be a positive integer")
+    settings = Settings(
+        path=path,
+        rate_hz=float(args.rate_hz if args.rate_hz is not None else rate),
+        mode=args.mode or mode,
+        params=params,
+    )
+    settings.realtime = Realtime(
+        # Lockstep runs flat out: under SCHED_FIFO it would starve its CPU.
+        priority=None if (args.no_realtime or settings.lockstep) else priority,
+        cpu=cpu,
+        lock_memory=bool(lock_memory) and not args.no_realtime,
+        timer_slack_ns=slack,
+        avoid_cpu=plant_cpu,
+    )
+    return settings
+
+
+class Params:
+    """A controller's ``[controller.params]``: read with :meth:`number`;
+    a field the controller never read is an error (:meth:`check_all_read`)."""
+
+    def __init__(self, path, table):
+        self.path = path
+        self._table = table
+        self._read = set()
+
+    def _name(self, name):
+        return f"controller.params.{name}"
+
+    def number(self, name, default=None, minimum=None, positive=False):
+        """The finite number ``name`` (or ``default`` when absent and given)."""
+        self._read.add(name)
+        if name not in self._table:
+            if default is None:
+                raise ScenarioError(self.path, self._name(name), "missing (a number)")
+            return float(default)
+        value = self._table[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ScenarioError(self.path, self._name(name), f"must be a number, not {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ScenarioError(self.path, self._name(name), "must be finite")
+        if positive and value <= 0:
+            raise ScenarioError(self.path, self._name(name), f"must be positive, not {value}")
+        if minimum is not None and value < minimum:
+            raise ScenarioError(
+                self.path, self._name(name), f"must be at least {minimum}, not {value}"
+            )
+        return value
+
+    def check_all_read(self):
+        unknown = sorted(set(self._table) - self._read)
+        if unknown:
+            raise ScenarioError(
+                self.path,
+                self._name(unknown[0]),
+                "unknown parameter (the controller reads "
+                + (", ".join(sorted(self._read)) or "none")
+                + ")",
+            )
+
+    def canonical(self):
+        """The parameters as a stable text, for the design's fingerprint."""
+        return repr(sorted((k, repr(v)) for k, v in self._table.items()))
