@@ -1,43 +1,48 @@
-"""A discrete PID in parallel form on e = r - y[0], r = 0, for flexloop.
+"""A PID controller of one's own, in Python: a discrete PID on the first
+output's error from the scenario's set-point, with a filtered derivative,
+gains from ``[controller.params]`` (kp, ki, kd, derivative_filter_rad_s).
+The Rust example (examples/pid-controller) is the same law, operation for
+operation, so that both give the same commands to the last bit.
 
-With T = 1 / rate_hz, from the first sample it steps (e(-1) = e(0), I = D = 0):
-    I(k) = I(k-1) + ki*T*e(k)
-    D(k) = (D(k-1) + kd*n*(e(k) - e(k-1))) / (1 + n*T)
-    u(k) = clamp(kp*e(k) + I(k) + D(k), -input_limit, input_limit)
-A bumpless hand-over adds the old command's difference to I.
-[controller.params]: kp, ki, kd, n (derivative filter, 1/s), input_limit.
+Run it as the controller of a loop with a scenario saying
+``[controller] exec = ["python3", "pid.py"]``, or swap it into a running one
+(``flexloop swap controller SCENARIO``).
 """
 
 import flexloop
 
 
 class Pid(flexloop.Controller):
-    def __init__(self, params, rate_hz):
-        super().__init__(params, rate_hz)
-        self.kp = params.number("kp")
-        self.ki_t = params.number("ki") * (1.0 / rate_hz)
-        self.kd_n = params.number("kd") * params.number("n", positive=True)
-        self.d_pole = 1.0 + params.number("n", positive=True) * (1.0 / rate_hz)
-        self.limit = params.number("input_limit", positive=True)
-        self.i = self.d = 0.0
-        self.e_prev = None
+    def __init__(self, setup):
+        super().__init__(setup)
+        p, ts = setup.params, setup.ts
+        n = p.number("derivative_filter_rad_s", positive=True)
+        self.reference, self.ts = setup.reference(), ts
+        self.kp, self.ki_ts = p.number("kp"), p.number("ki") * ts
+        # Backward-Euler filtered derivative: d(k) = a d(k-1) + b (e(k) - e(k-1)).
+        self.a, self.b = 1.0 / (1.0 + n * ts), p.number("kd") * n / (1.0 + n * ts)
+        self.limit = setup.input_limit
+        self.integral = self.derivative = self.last_error = 0.0
 
-    def step(self, measurement, estimate):
-        e = self.r[0] - measurement.y[0]
-        e_prev = e if self.e_prev is None else self.e_prev
-        self.i += self.ki_t * e
-        self.d = (self.d + self.kd_n * (e - e_prev)) / self.d_pole
-        self.e_prev = e
-        return min(max(self.kp * e + self.i + self.d, -self.limit), self.limit)
+    def step(self, m, estimate):
+        r = self.r[0] = self.reference.sample(m.seq * self.ts)
+        error = r - m.y[0]
+        self.integral += self.ki_ts * error
+        self.derivative = self.a * self.derivative + self.b * (error - self.last_error)
+        self.last_error = error
+        u = self.kp * error + self.integral + self.derivative
+        return min(max(u, -self.limit), self.limit)
 
+    # A successor of the same design takes the state; another one's
+    # difference at the switch goes into the integrator (bumpless).
     def save_state(self):
-        return (self.i, self.d, self.e_prev)
+        return (self.integral, self.derivative, self.last_error)
 
     def load_state(self, state):
-        self.i, self.d, self.e_prev = state
+        self.integral, self.derivative, self.last_error = state
 
     def shift_output(self, delta):
-        self.i += delta[0]
+        self.integral += delta[0]
 
 
 if __name__ == "__main__":

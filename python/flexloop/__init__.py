@@ -7,7 +7,7 @@ controller`` swaps it into a running loop). See python/README.md.
 """
 
 from .controller import Controller
-from .launch import Params, ScenarioError
+from .launch import Params, Reference, ScenarioError, Setup
 from .messages import Activation, Command, Estimate, Flags, Handover, Measurement
 from .runner import run
 
@@ -20,6 +20,8 @@ __all__ = [
     "Handover",
     "Measurement",
     "Params",
+    "Reference",
     "ScenarioError",
+    "Setup",
     "run",
 ]

@@ -13,22 +13,25 @@ shadow and, at its first sample, shifts its output by the old command minus
 its own at the last sample both computed (:meth:`Controller.shift_output`).
 """
 
-from .launch import Params
+from .launch import Setup
 
 
 class Controller:
-    """Derive, read the parameters in ``__init__``, implement :meth:`step`.
+    """Derive, read what the law needs from ``setup`` in ``__init__``,
+    implement :meth:`step`.
 
-    ``params``: the scenario's ``[controller.params]``, read with
-    ``params.number("kp")`` and the like (a parameter never read is an
-    error); ``rate_hz``: the loop's sample rate.
+    ``setup.params``: the scenario's ``[controller.params]``, read with
+    ``setup.params.number("kp")`` and the like (a parameter never read is
+    an error); ``setup.ts``, ``setup.rate_hz``: the sample time and rate;
+    ``setup.input_limit``: the plant's |u| limit; ``setup.reference()``:
+    the scenario's set-point r(t).
     """
 
-    def __init__(self, params: Params, rate_hz: float):
-        self.params = params
-        self.rate_hz = rate_hz
+    def __init__(self, setup: Setup):
+        self.setup = setup
         #: Set-point per output, written into each command's ``r`` and
-        #: ``e_meas`` (r - y); a law that tracks a reference updates it.
+        #: ``e_meas`` (r - y) for the record; a law that tracks a reference
+        #: updates it.
         self.r = [0.0] * 8
         # The default bumpless shift: an offset added to every output.
         self._offset = [0.0] * 8

@@ -118,6 +118,10 @@ class Settings:
     mode: str
     params: dict = field(default_factory=dict)
     realtime: Realtime = field(default_factory=Realtime)
+    #: The plant's |u| limit (``plant.input_limit``).
+    input_limit: float = 1000.0
+    #: The scenario's ``[reference]`` table as written.
+    reference: dict = field(default_factory=dict)
 
     @property
     def period_ns(self):
@@ -178,11 +182,19 @@ def load_settings(args):
     slack = rt_table.get("timer_slack_ns", 1)
     if not isinstance(slack, int) or isinstance(slack, bool) or slack < 1:
         raise ScenarioError(path, "realtime.timer_slack_ns", "must be a positive integer")
+    plant = _table(path, doc, "plant")
+    input_limit = plant.get("input_limit", 1000.0)
+    if isinstance(input_limit, bool) or not isinstance(input_limit, (int, float)) or not (
+        math.isfinite(input_limit) and input_limit > 0
+    ):
+        raise ScenarioError(path, "plant.input_limit", "must be a positive number of N")
     settings = Settings(
         path=path,
         rate_hz=float(args.rate_hz if args.rate_hz is not None else rate),
         mode=args.mode or mode,
         params=params,
+        input_limit=float(input_limit),
+        reference=_table(path, doc, "reference"),
     )
     settings.realtime = Realtime(
         # Lockstep runs flat out: under SCHED_FIFO it would starve its CPU.
@@ -242,3 +254,68 @@ class Params:
     def canonical(self):
         """The parameters as a stable text, for the design's fingerprint."""
         return repr(sorted((k, repr(v)) for k, v in self._table.items()))
+
+
+class Reference:
+    """The scenario's set-point r(t) as flexloop's controller samples it
+    (shared/design reference.rs), for the shapes that are closed-form here:
+    ``hold``, ``step`` and ``sine``. ``sample(t)`` is r at time t in s."""
+
+    def __init__(self, path, table):
+        shape = table.get("shape", "hold")
+
+        def number(name, default):
+            value = table.get(name, default)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ScenarioError(path, f"reference.{name}", f"must be a number, not {value!r}")
+            return float(value)
+
+        self.amplitude = number("amplitude", 0.0)
+        self.start_s = number("start_s", 0.0)
+        if shape == "hold":
+            self.sample = self._hold
+        elif shape == "step":
+            self.sample = self._step
+        elif shape == "sine":
+            self.omega = 2.0 * math.pi * number("frequency_hz", 1.0)
+            self.sample = self._sine
+        else:
+            raise ScenarioError(
+                path,
+                "reference.shape",
+                f"`{shape}`: a Python controller has only hold, step and sine",
+            )
+        if table.get("direction") is not None and shape != "hold":
+            raise ScenarioError(
+                path, "reference.direction", "a Python controller drives the first output only"
+            )
+
+    def _hold(self, t):
+        return 0.0
+
+    def _step(self, t):
+        return self.amplitude if t >= self.start_s else 0.0
+
+    def _sine(self, t):
+        if t < self.start_s:
+            return 0.0
+        return self.amplitude * math.sin(self.omega * (t - self.start_s))
+
+
+class Setup:
+    """What a controller is made from: its parameters and the loop's facts."""
+
+    def __init__(self, settings):
+        self._settings = settings
+        #: ``[controller.params]``.
+        self.params = Params(settings.path, settings.params)
+        self.rate_hz = settings.rate_hz
+        #: The sample time 1 / rate_hz in s.
+        self.ts = 1.0 / settings.rate_hz
+        #: The plant's |u| limit in N (``plant.input_limit``).
+        self.input_limit = settings.input_limit
+
+    def reference(self):
+        """The scenario's set-point (a :class:`Reference`); an error naming
+        the field for a shape it cannot reproduce."""
+        return Reference(self._settings.path, self._settings.reference)

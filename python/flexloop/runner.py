@@ -35,8 +35,8 @@ from . import realtime, transport
 from .launch import (
     AT_START,
     RESTART,
-    Params,
     ScenarioError,
+    Setup,
     UsageError,
     load_settings,
     parse_args,
@@ -256,9 +256,10 @@ class _Process:
         self.settings = load_settings(args)
         self.lockstep = self.settings.lockstep
         self.period_ns = self.settings.period_ns
-        params = Params(self.settings.path, self.settings.params)
+        setup = Setup(self.settings)
+        params = setup.params
         try:
-            self.law = controller_class(params, self.settings.rate_hz)
+            self.law = controller_class(setup)
         except ScenarioError:
             raise
         except Exception as e:
@@ -512,7 +513,7 @@ class _Process:
         except Exception as e:
             raise LawError(f"{type(law).__qualname__}.step at sample {m.seq} raised {e!r}") from e
         offset = law._offset
-        if type(u) is float:
+        if type(u) is float and self.n_inputs == 1:
             out[0] = u + offset[0]
             return
         try:

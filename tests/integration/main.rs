@@ -12,6 +12,7 @@ mod loop_processes;
 mod mimo;
 mod own_plant;
 mod positions;
+mod python_component;
 mod recording;
 mod report;
 mod sensor_scan;

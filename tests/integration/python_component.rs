@@ -1,0 +1,270 @@
+//! The Python package (python/): its messages against shared/protocol's
+//! tables, a Python subscriber on a running loop, and the Python PID
+//! example (python/examples/pid.py) swapped into a running lockstep loop
+//! and out again, its every command the law's.
+//!
+//! They run the Python of the tests' venv (tools/test installs the package
+//! and iceoryx2 there from tools/python-requirements.txt).
+
+use crate::util::*;
+use flexloop_components::LogReader;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+fn repo() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn python() -> String {
+    python_with(&["flexloop", "iceoryx2"])
+}
+
+#[test]
+fn python_messages_match_the_protocol_tables() {
+    let mut cmd = Command::new(python());
+    cmd.args(["-m", "unittest", "discover", "-s", "python/tests", "-v"])
+        .current_dir(repo());
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    // The runner's own count: a discovery that found nothing fails here.
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(text.contains("\nOK"), "{text}");
+    assert!(!text.contains("Ran 0 tests"), "{text}");
+}
+
+#[test]
+fn a_python_subscriber_receives_contiguous_measurements_from_a_running_loop() {
+    let dir = temp_dir("python-subscriber");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &[]);
+    wait_for_ticks(&dir, 100);
+    let mut cmd = Command::new(python());
+    cmd.arg(repo().join("python/tests/receive_measurements.py"))
+        .args([prefix.as_str(), "20000", "60"]);
+    let out = run_bounded(cmd, Duration::from_secs(90));
+    stop(&prefix, child);
+    assert!(out.status.success(), "{}", describe(&out));
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["received"], 20_000, "{report}");
+    assert_eq!(report["gaps"], 0, "{report}");
+    assert_eq!(
+        report["last"].as_u64().unwrap() - report["first"].as_u64().unwrap(),
+        19_999,
+        "{report}"
+    );
+    assert_eq!(report["type_name"], "flexloop.Measurement.v3");
+    assert_clean(&dir);
+}
+
+/// The example's gains (its Rust twin's, examples/pid-controller).
+const PID_PARAMS: [(&str, f64); 4] = [
+    ("kp", 9000.0),
+    ("ki", 90000.0),
+    ("kd", 110.0),
+    ("derivative_filter_rad_s", 3000.0),
+];
+
+/// The lecture scenario with the Python PID as its controller.
+fn python_pid_scenario(dir: &Path) -> PathBuf {
+    let params: String = PID_PARAMS
+        .iter()
+        .map(|(name, value)| format!("{name} = {value:?}\n"))
+        .collect();
+    let program = repo().join("python/examples/pid.py");
+    scenario_variant(
+        dir,
+        "lecture-double-integrator",
+        "python-pid.toml",
+        &[],
+        &format!(
+            "[controller]\nexec = [{:?}, {:?}]\n\n[controller.params]\n{params}",
+            python(),
+            program.display().to_string()
+        ),
+    )
+}
+
+/// python/examples/pid.py's law, operation for operation, from sample
+/// `from` on over the measured y: the lecture's 1 mm 2 Hz sine set-point,
+/// a filtered derivative, the plant's 100 N limit. `shift` adds the old
+/// command's difference to the integrator after sample `at` (the bumpless
+/// hand-over), returning each u.
+struct Pid {
+    kp: f64,
+    ki_ts: f64,
+    a: f64,
+    b: f64,
+    ts: f64,
+    integral: f64,
+    derivative: f64,
+    last_error: f64,
+}
+
+impl Pid {
+    fn new(rate_hz: f64) -> Self {
+        let p: HashMap<&str, f64> = PID_PARAMS.into_iter().collect();
+        let ts = 1.0 / rate_hz;
+        let n = p["derivative_filter_rad_s"];
+        Self {
+            kp: p["kp"],
+            ki_ts: p["ki"] * ts,
+            a: 1.0 / (1.0 + n * ts),
+            b: p["kd"] * n / (1.0 + n * ts),
+            ts,
+            integral: 0.0,
+            derivative: 0.0,
+            last_error: 0.0,
+        }
+    }
+
+    fn step(&mut self, seq: u64, y: f64) -> f64 {
+        let t = seq as f64 * self.ts;
+        let r = 0.001 * (2.0 * std::f64::consts::PI * 2.0 * t).sin();
+        let error = r - y;
+        self.integral += self.ki_ts * error;
+        self.derivative = self.a * self.derivative + self.b * (error - self.last_error);
+        self.last_error = error;
+        (self.kp * error + self.integral + self.derivative).clamp(-100.0, 100.0)
+    }
+}
+
+/// The first sample the Python law stepped, from its stderr line
+/// (`generation N: law stepped from sample K`) in the run directory.
+fn law_start(dir: &Path, generation: u32) -> u64 {
+    let needle = format!("generation {generation}: law stepped from sample ");
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
+        if let Some(at) = text.find(&needle) {
+            let rest = &text[at + needle.len()..];
+            let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+            return digits.parse().unwrap();
+        }
+    }
+    panic!("no stderr file in {} says `{needle}`", dir.display());
+}
+
+#[test]
+fn the_python_pid_swapped_into_a_lockstep_loop_commands_its_law_and_hands_back() {
+    let dir = temp_dir("python-pid-swap");
+    let pid_scenario = python_pid_scenario(&dir);
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 430);
+    let answer = swap_to(&prefix, &pid_scenario);
+    assert!(answer.contains("generation 1"), "{answer}");
+    let swapped_at = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, swapped_at + 3000);
+    let back = swap_to(&prefix, &scenario("lecture-double-integrator"));
+    assert!(back.contains("generation 2"), "{back}");
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    for counter in ["misses", "rejected_commands"] {
+        assert_eq!(summary["counters"][counter], 0, "{counter}: {summary}");
+    }
+    for channel in ["measurement", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
+    let u: HashMap<(u64, u32), f64> = log
+        .commands()
+        .map(|c| ((c.seq, c.generation), c.u[0]))
+        .collect();
+    let mut python: Vec<u64> = u.keys().filter(|(_, g)| *g == 1).map(|(s, _)| *s).collect();
+    python.sort();
+    let (from, last) = (python[0], *python.last().unwrap());
+    assert_eq!(
+        python.len() as u64,
+        last - from + 1,
+        "the Python controller's commands are contiguous"
+    );
+    assert!(python.len() >= 2000, "{} Python commands", python.len());
+    assert!(
+        u.contains_key(&(last + 1, 2)),
+        "generation 2 took over after the Python controller's last command {last}"
+    );
+
+    // Its law from the first sample it stepped, shifted at the switch by
+    // the old command minus its own (the bumpless hand-over), is what it sent.
+    let mut law = Pid::new(10_000.0);
+    let mut compared = 0;
+    for seq in law_start(&dir, 1)..=last {
+        let own = law.step(seq, y[&seq]);
+        if seq + 1 == from {
+            law.integral += u[&(seq, 0)] - own;
+        }
+        if seq >= from {
+            let sent = u[&(seq, 1)];
+            assert!(
+                (sent - own).abs() <= 1e-12,
+                "u({seq}) {sent} from Python, {own} from the law"
+            );
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, python.len());
+    // The Python controller exited when replaced; nothing of it is left.
+    assert_clean(&dir);
+}
+
+#[test]
+fn the_python_pid_runs_a_lockstep_loop_from_its_start() {
+    let dir = temp_dir("python-pid-start");
+    let pid_scenario = python_pid_scenario(&dir);
+    let run_dir = dir.join("run");
+    let mut cmd = flexloop();
+    cmd.arg("up")
+        .arg(&pid_scenario)
+        .args([
+            "--no-realtime",
+            "--mode",
+            "lockstep",
+            "--duration",
+            "0.3",
+            "--run-dir",
+        ])
+        .arg(&run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert_ran(&out);
+    let summary = summary(&run_dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = LogReader::open(&run_dir.join("samples.mcap")).unwrap();
+    let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
+    let mut commands: Vec<_> = log.commands().collect();
+    commands.sort_by_key(|c| c.seq);
+    assert_eq!(commands.len(), 3000, "0.3 s at 10 kHz");
+    assert_eq!(
+        law_start(&run_dir, 0),
+        0,
+        "the law steps from the first sample"
+    );
+    let mut law = Pid::new(10_000.0);
+    for (k, c) in commands.iter().enumerate() {
+        assert_eq!((c.seq, c.generation), (k as u64, 0));
+        let own = law.step(c.seq, y[&c.seq]);
+        assert!(
+            (c.u[0] - own).abs() <= 1e-12,
+            "u({k}) {} from Python, {own} from the law",
+            c.u[0]
+        );
+    }
+    assert_clean(&run_dir);
+}
+
+/// `flexloop swap controller FILE`; its answer.
+fn swap_to(prefix: &str, scenario_file: &Path) -> String {
+    let out = run_bounded(
+        {
+            let mut c = flexloop();
+            c.args(["swap", "controller"])
+                .arg(scenario_file)
+                .args(["--prefix", prefix]);
+            c
+        },
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
