@@ -318,6 +318,12 @@ class _Process:
                     "no first estimate yet"
                 )
             time.sleep(0.002)
+        # No collector pauses inside the loop: everything long-lived exists
+        # now, and the per-sample path makes no cycles. Done before the
+        # command port opens: the plant's tick 0 follows it by 2 ms.
+        gc.collect()
+        gc.freeze()
+        gc.disable()
         # The command port opens last: its appearance tells the plant that
         # the chain is ready for tick 0.
         self.commands = transport.Outlet(self.node, _COMMAND, msg.Command)
@@ -355,11 +361,6 @@ class _Process:
                 )
             else:
                 realtime.raise_priority(rt)
-            # No collector pauses inside the loop: everything long-lived
-            # exists now, and the per-sample path makes no cycles.
-            gc.collect()
-            gc.freeze()
-            gc.disable()
             self._loop()
         finally:
             gc.enable()
