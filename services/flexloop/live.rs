@@ -46,16 +46,23 @@ pub struct DownArgs {
     pub all: bool,
 }
 
-/// `swap controller|observer SCENARIO [--prefix P]`.
+/// `swap controller|observer SCENARIO [--prefix P]`, or
+/// `swap controller [--prefix P] --exec PROGRAM [ARGS]...`.
 #[derive(Debug, clap::Args)]
 pub struct SwapArgs {
     /// The component to replace
     #[arg(value_enum)]
     pub role: SwapRole,
     /// The scenario to design the new one from (same rate, [plant], [reference] and loop delay)
-    pub scenario: PathBuf,
+    #[arg(required_unless_present = "exec", conflicts_with = "exec")]
+    pub scenario: Option<PathBuf>,
     #[command(flatten)]
     pub which: PrefixArg,
+    /// The loop as it stands, served by this controller program (built on
+    /// flexloop-sdk or the Python package; docs/components.md); the rest of
+    /// the line is its arguments
+    #[arg(long, num_args = 1.., allow_hyphen_values = true, value_name = "PROGRAM [ARGS]")]
+    pub exec: Option<Vec<String>>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -185,12 +192,18 @@ fn say_finished_dead_loops(command: &str) {
 
 pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
     let role = args.role.name();
-    let scenario = resolve_scenario(Some(args.scenario))?;
     let loops = registry::matching(args.which.prefix.as_deref());
     let entry = match loops.as_slice() {
         [] => bail!("no loop running"),
         [one] => one.clone(),
         _ => bail!("several loops are running: name one with --prefix"),
+    };
+    let scenario = match (args.scenario, args.exec) {
+        (_, Some(exec)) if args.role == SwapRole::Controller => {
+            with_program(args.which.prefix.as_deref(), &entry.run_dir, &exec)?
+        }
+        (_, Some(_)) => bail!("--exec: only a controller runs as a program of its own"),
+        (scenario, None) => resolve_scenario(scenario)?,
     };
     let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)?;
     let switch = match (answer.ok, answer.switch) {
@@ -205,6 +218,49 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
         switch.generation, switch.from_seq, switch.du_switch, switch.du_before, switch.du_after
     );
     Ok(0)
+}
+
+/// The loop's scenario as it stands, with its controller served by the
+/// program `exec` (a path with a `/` is relative to the working directory,
+/// which the program runs in), written beside the run's other scenarios.
+fn with_program(
+    prefix: Option<&str>,
+    run_dir: &std::path::Path,
+    exec: &[String],
+) -> anyhow::Result<PathBuf> {
+    let (path, text) = crate::tune::current(prefix)?;
+    let mut table: toml::Table = toml::from_str(&text)?;
+    flexloop_scenario::plant_description::anchor_files(&mut table, &path);
+    let here = std::env::current_dir()?;
+    let mut exec = exec.to_vec();
+    if exec[0].contains('/') {
+        exec[0] = std::path::absolute(&exec[0])?.display().to_string();
+    }
+    let controller = table
+        .entry("controller")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let toml::Value::Table(controller) = controller else {
+        bail!("{}: [controller] is not a table", path.display());
+    };
+    for field in flexloop_scenario::program::BUILT_IN_ONLY {
+        controller.remove(field.trim_start_matches("controller."));
+    }
+    controller.insert(
+        "exec".into(),
+        toml::Value::Array(exec.into_iter().map(toml::Value::String).collect()),
+    );
+    controller.insert(
+        "workdir".into(),
+        toml::Value::String(here.display().to_string()),
+    );
+    let dir = RunDir::new(run_dir).tuned();
+    std::fs::create_dir_all(&dir)?;
+    let file = (1..)
+        .map(|i| dir.join(format!("exec-{i:03}.toml")))
+        .find(|f| !f.exists())
+        .expect("an unused name");
+    std::fs::write(&file, toml::to_string(&table)?)?;
+    Ok(file)
 }
 
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it),

@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_runtime::shutdown;
+use flexloop_scenario::{ComponentProgram, Scenario};
 use flexloop_transport::{Domain, cleanup_dead_nodes};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::os::unix::process::CommandExt;
@@ -81,6 +82,38 @@ fn binary(role: Role) -> std::io::Result<PathBuf> {
     let exe = std::env::current_exe()?;
     let dir = exe.parent().unwrap_or(Path::new("."));
     Ok(dir.join(format!("flexloop-{}", role.name())))
+}
+
+/// The scenario's own program for `role`, if it names one (a controller's
+/// `controller.exec`, docs/components.md); else the built-in process serves.
+pub fn own_program(role: Role, scenario: &Path) -> Result<Option<ComponentProgram>> {
+    if role != Role::Controller {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(scenario)
+        .with_context(|| format!("cannot read {}", scenario.display()))?;
+    Ok(Scenario::parse(scenario, &text)?.controller_program()?)
+}
+
+/// What to start for `role` joining as `joining` with `scenario`: its own
+/// program, or the built-in process in the supervisor's working directory.
+/// A spare is always built-in: it serves whatever scenario the next order
+/// names.
+fn program_for(role: Role, scenario: &Path, joining: Joining) -> Result<ComponentProgram> {
+    if joining != Joining::Spare
+        && let Some(mut program) = own_program(role, scenario)?
+    {
+        // Its own arguments first, then flexloop's after a `--`
+        // (flexloop_node::flexloop_args).
+        program.args.push("--".into());
+        return Ok(program);
+    }
+    let here = std::env::current_dir().context("cannot read the working directory")?;
+    Ok(ComponentProgram {
+        program: binary(role)?,
+        args: Vec::new(),
+        workdir: here,
+    })
 }
 
 /// Starts the processes; on any failure, stops those already started.
@@ -165,9 +198,16 @@ fn spawn(
     generation: u32,
     joining: Joining,
     stderr_file: &str,
-) -> std::io::Result<i32> {
-    let stderr = std::fs::File::create(plan.run_dir.join(stderr_file))?;
-    let mut cmd = Command::new(binary(role)?);
+) -> Result<i32> {
+    let program = program_for(role, scenario, joining)?;
+    let stderr_path = plan.run_dir.join(stderr_file);
+    let stderr = std::fs::File::create(&stderr_path)
+        .with_context(|| format!("cannot create {}", stderr_path.display()))?;
+    let mut cmd = Command::new(&program.program);
+    // Absolute: a program runs in its own working directory.
+    let scenario = std::path::absolute(scenario).context("the scenario's path")?;
+    let run_dir = std::path::absolute(&plan.run_dir).context("the run directory's path")?;
+    cmd.args(&program.args).current_dir(&program.workdir);
     if generation > 0 {
         cmd.arg("--generation").arg(generation.to_string());
     }
@@ -179,7 +219,7 @@ fn spawn(
         .arg("--prefix")
         .arg(&plan.prefix)
         .arg("--run-dir")
-        .arg(&plan.run_dir)
+        .arg(&run_dir)
         .args(plan.overrides.to_args())
         .stdin(Stdio::null())
         .stdout(Stdio::null())
@@ -194,7 +234,9 @@ fn spawn(
             Ok(())
         });
     }
-    let child = cmd.spawn()?;
+    let child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {}", program.program.display()))?;
     // Reaped by pid with wait4 (for its CPU time), not through `Child`.
     Ok(child.id() as i32)
 }

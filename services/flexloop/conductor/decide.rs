@@ -499,8 +499,10 @@ impl Core {
     /// one, else a new process. Not before tick 0: until then the plant
     /// counts on each spare to be there as a spare. `waited_out`: the wait
     /// for a spare still starting is over.
-    pub fn engagement(&self, role: Role, waited_out: bool) -> Engagement {
-        if !self.policy.warm_spares || !self.ticking() {
+    /// A scenario with its `own_program` for the role is always a new
+    /// process: a spare runs the built-in law.
+    pub fn engagement(&self, role: Role, waited_out: bool, own_program: bool) -> Engagement {
+        if !self.policy.warm_spares || !self.ticking() || own_program {
             return Engagement::Start;
         }
         if let Some(pid) = self.roster.idle_spare(role) {

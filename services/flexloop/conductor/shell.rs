@@ -482,12 +482,13 @@ impl Conductor {
         generation: u32,
         joining: Joining,
     ) -> Result<(i32, bool)> {
+        let own_program = crate::supervisor::own_program(role, scenario)?.is_some();
         let since = Instant::now();
         loop {
             self.observe(running);
             match self
                 .core
-                .engagement(role, since.elapsed() > SPARE_START_WAIT)
+                .engagement(role, since.elapsed() > SPARE_START_WAIT, own_program)
             {
                 Engagement::WaitForSpare => std::thread::sleep(Duration::from_millis(1)),
                 Engagement::Order(pid) => {

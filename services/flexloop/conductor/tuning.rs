@@ -90,6 +90,17 @@ impl Tuning {
         let now = self.now(run_dir, running)?.clone();
         let now_path = run_dir.scenario_now();
         tune::check_changes(&changes, |field| tune::known_field(&now, field))?;
+        let runs_program = now.get("controller").and_then(|c| c.get("exec")).is_some();
+        if let Some(change) = changes.iter().find(|c| c.field.starts_with("controller."))
+            && runs_program
+        {
+            bail!(
+                "{}: the controller is a program of its own (controller.exec), which the \
+                 built-in controller's fields do not tune; swap it to a scenario with other \
+                 [controller.params] (docs/components.md)",
+                change.field
+            );
+        }
         let table = tune::with_changes(&now, &changes)?;
         let old = Scenario::from_text(&now_path, &toml::to_string(&now)?, overrides)
             .context("the running loop's scenario")?;
@@ -153,8 +164,10 @@ impl Tuning {
         file: &Path,
     ) -> Result<()> {
         let text = std::fs::read_to_string(file).with_context(|| format!("{}", file.display()))?;
-        let from: toml::Table =
+        let mut from: toml::Table =
             toml::from_str(&text).with_context(|| format!("{}", file.display()))?;
+        // Its relative files and program as named from its own directory.
+        flexloop_scenario::plant_description::anchor_files(&mut from, file);
         self.now(run_dir, running)?;
         let now = self.now.as_mut().expect("loaded above");
         match role {

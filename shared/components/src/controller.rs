@@ -8,6 +8,7 @@
 //! - u_ff is the feedforward for the tick the command will be applied at,
 //!   advanced by the loop delay so that the delay does not cost tracking.
 
+use crate::control_law::{ControlLaw, ControllerSetup, SetupError, stamp_command};
 use crate::handover::{Fingerprint, bumpless_shift};
 use flexloop_control::lti::LtiRunner;
 use flexloop_design::LoopDesign;
@@ -307,9 +308,6 @@ impl ControllerCore {
         // An estimate a tick or two old (the observer was late) still serves;
         // older than the watchdog's ticks, the observer counts as silent.
         let age = m.seq.saturating_sub(estimate.seq);
-        if age > 0 {
-            command_flags |= flags::STALE_ESTIMATE;
-        }
         let observer_dropped = age > u64::from(self.estimate_watchdog);
         if observer_dropped {
             command_flags |= flags::OBSERVER_FALLBACK;
@@ -397,14 +395,40 @@ impl ControllerCore {
             }
             self.shift_output(&untracked[..nu]);
         }
-        out.seq = m.seq;
-        out.tick_ns = m.tick_ns;
-        out.measurement_published_ns = m.published_ns;
-        out.estimate_seq = estimate.seq;
-        out.estimate_published_ns = estimate.published_ns;
-        out.flags = command_flags | (m.flags & flags::LOCKSTEP);
-        out.generation = self.generation;
-        out.n_inputs = nu as u32;
-        out.n_outputs = ny as u32;
+        out.flags = command_flags;
+        stamp_command(out, m, estimate, self.generation, nu, ny);
+    }
+}
+
+/// The built-in law, on the API a user's law is written against.
+impl ControlLaw for ControllerCore {
+    fn new(setup: &ControllerSetup<'_>) -> Result<Self, SetupError> {
+        let mut core = ControllerCore::new(setup.design, setup.generation);
+        core.set_estimate_watchdog(setup.scenario.supervision.estimate_watchdog_ticks);
+        Ok(core)
+    }
+
+    fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
+        ControllerCore::step(self, m, estimate, out);
+    }
+
+    fn save(&self, out: &mut Handover) {
+        ControllerCore::save(self, out);
+    }
+
+    fn load(&mut self, from: &Handover) -> bool {
+        ControllerCore::load(self, from)
+    }
+
+    fn shift_output(&mut self, delta_u: &[f64]) {
+        ControllerCore::shift_output(self, delta_u);
+    }
+
+    fn load_feedforward(&mut self, from: &Handover) -> bool {
+        ControllerCore::load_feedforward(self, from)
+    }
+
+    fn fast_forward(&mut self, seq: u64) -> u64 {
+        ControllerCore::fast_forward(self, seq)
     }
 }

@@ -8,6 +8,8 @@
 //!   commands, stalls).
 //! - [`observer`]: runs the observer block on y(k), u_a(k) and prepares the
 //!   estimate for tick k+1.
+//! - [`control_law`]: the trait every controller law implements, the
+//!   built-in one and a user's (docs/components.md).
 //! - [`controller`]: finishes the observer's direct term, runs feedback,
 //!   feedforward and limits: u(k).
 //! - [`handover`]: design fingerprints and bumpless state shifts for swaps.
@@ -22,6 +24,7 @@
 //!   read off the samples.
 //! - [`noise`]: the seeded disturbance generator.
 
+pub mod control_law;
 pub mod controller;
 pub mod handover;
 pub mod in_process;
@@ -34,6 +37,7 @@ pub mod recorder;
 pub mod sample_file;
 pub mod storage;
 
+pub use control_law::{ControlLaw, ControllerSetup, SetupError};
 pub use controller::ControllerCore;
 pub use in_process::InProcessLoop;
 pub use observer::ObserverCore;

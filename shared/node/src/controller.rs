@@ -6,7 +6,7 @@ use crate::duty::Duty;
 use crate::handover::{ActivationView, HandoverRing};
 use crate::instance::{Component, Instance, Ports};
 use crate::{NodeError, await_peers};
-use flexloop_components::ControllerCore;
+use flexloop_components::control_law::{ControlLaw, ControllerSetup, stamp_command};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
 use flexloop_protocol::{
@@ -25,10 +25,11 @@ const HANDOVER_WAIT_LOCKSTEP_NS: u64 = 2_000_000_000;
 /// In lockstep, how long to wait for the observer before giving up.
 const LOCKSTEP_ESTIMATE_WAIT_NS: u64 = 5_000_000_000;
 
-/// A controller instance's own: its core and how it takes over.
-pub(crate) struct Controller {
-    core: ControllerCore,
+/// A controller instance's own: its law and how it takes over.
+pub(crate) struct Controller<L> {
+    core: L,
     n_inputs: usize,
+    n_outputs: usize,
     takeover: Takeover,
     backlog: Backlog,
     shadow_command: Command,
@@ -43,7 +44,7 @@ pub(crate) struct Own {
     ring: EstimateRing,
 }
 
-impl Component for Controller {
+impl<L: ControlLaw> Component for Controller<L> {
     const ROLE: Role = Role::Controller;
     const STATE: &'static Channel = &CONTROLLER_STATE;
     type Own = Own;
@@ -110,11 +111,16 @@ impl Component for Controller {
         scenario: &Scenario,
         generation: u32,
     ) -> Result<Self, NodeError> {
-        let mut core = ControllerCore::new(design, generation);
-        core.set_estimate_watchdog(scenario.supervision.estimate_watchdog_ticks);
+        let core = L::new(&ControllerSetup {
+            scenario,
+            design,
+            generation,
+        })
+        .map_err(|e| NodeError::Law(e.to_string()))?;
         Ok(Self {
             core,
             n_inputs: design.n_inputs,
+            n_outputs: design.n_outputs,
             takeover: Takeover::default(),
             backlog: Backlog::default(),
             shadow_command: Command::default(),
@@ -254,9 +260,10 @@ impl Component for Controller {
             self.take_over(instance, states_in, &m)?;
         }
         let mut sent_u = [0.0; MAX_INPUTS];
-        let core = &mut self.core;
+        let (core, n_inputs, n_outputs) = (&mut self.core, self.n_inputs, self.n_outputs);
         commands.publish(|c| {
             core.step(&m, estimate, c);
+            stamp_command(c, &m, estimate, generation, n_inputs, n_outputs);
             c.received_ns = received_ns;
             c.published_ns = monotonic_ns();
             sent_u = c.u;
@@ -284,7 +291,7 @@ impl Component for Controller {
     }
 }
 
-impl Controller {
+impl<L: ControlLaw> Controller<L> {
     /// Waits for the estimate of sample `m` (received at `received_ns`):
     /// in lockstep as long as the observer may take, in realtime at most
     /// half a period after the tick (the wake-up after a timed wait can
@@ -350,6 +357,14 @@ impl Controller {
         self.takeover
             .follow(&mut self.core, &instance.handovers, m.seq, true);
         self.core.step(m, estimate, &mut self.shadow_command);
+        stamp_command(
+            &mut self.shadow_command,
+            m,
+            estimate,
+            instance.generation(),
+            self.n_inputs,
+            self.n_outputs,
+        );
         self.takeover.shadow_u = self.shadow_command.u;
         self.takeover.shadow_seq = m.seq;
         if duty == Duty::Standby {
@@ -430,7 +445,7 @@ impl Controller {
 /// per sample since the start, that must not run at real-time priority
 /// beside the loop). False if a shutdown came first.
 fn catch_up_with_loop(
-    core: &mut ControllerCore,
+    core: &mut impl ControlLaw,
     measurements: &Inlet<Measurement>,
     states_in: &Inlet<Handover>,
     handovers: &mut HandoverRing,
@@ -531,7 +546,7 @@ impl Takeover {
     /// is, once, and replays its feedforward from there.
     fn follow(
         &mut self,
-        core: &mut ControllerCore,
+        core: &mut impl ControlLaw,
         handovers: &HandoverRing,
         seq: u64,
         newest_too: bool,
@@ -554,7 +569,7 @@ impl Takeover {
 
     fn activate(
         &mut self,
-        core: &mut ControllerCore,
+        core: &mut impl ControlLaw,
         handovers: &HandoverRing,
         seq: u64,
         n_inputs: usize,

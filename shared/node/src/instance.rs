@@ -121,13 +121,14 @@ impl<Own> Ports<Own> {
         node: &LoopNode,
         args: &ServiceArgs,
         scenario: &Scenario,
+        spares: Spares,
     ) -> Result<Option<Self>, NodeError> {
         let measurements = C::open_measurements(node, args, scenario)?;
         let mut activation = ActivationView::open(node)?;
         let states_in =
             Inlet::<Handover>::open_polling(node, C::STATE, C::STATE.qos.loop_buffer_size)?;
         let states_out = Outlet::<Handover>::open(node, C::STATE)?;
-        let spare = if scenario.supervision.warm_spares {
+        let spare = if scenario.supervision.warm_spares && spares == Spares::Serves {
             Some(SpareDuty::open(node)?)
         } else {
             None
@@ -165,10 +166,25 @@ impl<Own> Ports<Own> {
     }
 }
 
+/// Whether a process can be a warm spare: a spare serves whatever scenario
+/// the next order names, which only the built-in processes can (a user's
+/// program serves its own law alone, and exits when replaced).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Spares {
+    Serves,
+    Never,
+}
+
 /// A process's life: start-up, then it serves the loop as started (a spare
 /// waits for an order first) and, with warm spares, idles after each
 /// replacement until the next order.
-pub(crate) fn run<C: Component>(args: &ServiceArgs) -> Result<(), NodeError> {
+pub(crate) fn run<C: Component>(args: &ServiceArgs, spares: Spares) -> Result<(), NodeError> {
+    if spares == Spares::Never && args.joining == Joining::Spare {
+        return Err(NodeError::Usage(format!(
+            "--spare: a {} program serves its own law only and is never a spare",
+            C::ROLE.name()
+        )));
+    }
     let clock = StartupClock::start();
     // A spare designs its scenario now too, so that an order to serve it
     // starts at once (see `prepared`).
@@ -178,7 +194,7 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs) -> Result<(), NodeError> {
     let _memory = realtime::apply(C::ROLE.name(), &rt.memory_part());
     let domain = Domain::new(&args.prefix)?;
     let node = domain.node(C::ROLE.name())?;
-    let Some(mut ports) = Ports::open::<C>(&node, args, &scenario)? else {
+    let Some(mut ports) = Ports::open::<C>(&node, args, &scenario, spares)? else {
         return Ok(());
     };
     let is_spare = Duty::entering(args.joining) == Duty::Spare;

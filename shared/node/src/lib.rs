@@ -21,10 +21,12 @@ pub mod startup;
 pub mod summary;
 pub mod tick;
 
+use std::ffi::OsString;
 use std::fmt;
 use std::time::{Duration, Instant};
 
 pub use args::{Role, ServiceArgs};
+use flexloop_components::{ControlLaw, ControllerCore};
 
 /// Why a loop process stopped with an error.
 #[derive(Debug)]
@@ -42,6 +44,8 @@ pub enum NodeError {
     RunFile(flexloop_runfiles::FileError),
     /// A supervisor's order this process cannot serve.
     Order(String),
+    /// The controller's law could not be built for this loop.
+    Law(String),
 }
 
 impl fmt::Display for NodeError {
@@ -51,7 +55,7 @@ impl fmt::Display for NodeError {
             NodeError::Scenario(e) => e.fmt(f),
             NodeError::Transport(e) => e.fmt(f),
             NodeError::Io { path, error } => write!(f, "{path}: {error}"),
-            NodeError::Peer(m) | NodeError::Order(m) => f.write_str(m),
+            NodeError::Peer(m) | NodeError::Order(m) | NodeError::Law(m) => f.write_str(m),
             NodeError::RunFile(e) => e.fmt(f),
         }
     }
@@ -105,10 +109,32 @@ pub(crate) fn await_peers(
     }
 }
 
-/// Runs the process for `role` with the command line `args` (without argv[0]);
-/// returns the exit code. Used by every service main.
+/// Runs the process for `role` with this process's command line; returns
+/// the exit code. Used by every service main.
 pub fn main_for(role: Role) -> i32 {
-    let args = match ServiceArgs::parse(role, std::env::args_os().skip(1)) {
+    serve_role(role, |args| match role {
+        Role::Plant => plant::run(args),
+        Role::Observer => instance::run::<observer::Observer>(args, instance::Spares::Serves),
+        Role::Controller => {
+            instance::run::<controller::Controller<ControllerCore>>(args, instance::Spares::Serves)
+        }
+        Role::Logger => logger::run(args),
+    })
+}
+
+/// Runs a controller process around the law `L` (a user's program, built on
+/// flexloop-sdk): the life the built-in controller has, but never as a warm
+/// spare. Returns the exit code.
+pub fn run_controller<L: ControlLaw>() -> i32 {
+    serve_role(Role::Controller, |args| {
+        instance::run::<controller::Controller<L>>(args, instance::Spares::Never)
+    })
+}
+
+/// The command line, the signal handlers, `serve`, and the stderr line and
+/// exit code of its result.
+fn serve_role(role: Role, serve: impl FnOnce(&ServiceArgs) -> Result<(), NodeError>) -> i32 {
+    let args = match ServiceArgs::parse(role, flexloop_args(std::env::args_os().skip(1))) {
         Ok(a) => a,
         Err(e) => {
             eprintln!("flexloop-{}: {e}", role.name());
@@ -122,17 +148,46 @@ pub fn main_for(role: Role) -> i32 {
         );
         return 1;
     }
-    let result = match role {
-        Role::Plant => plant::run(&args),
-        Role::Observer => instance::run::<observer::Observer>(&args),
-        Role::Controller => instance::run::<controller::Controller>(&args),
-        Role::Logger => logger::run(&args),
-    };
-    match result {
+    match serve(&args) {
         Ok(()) => 0,
         Err(e) => {
             eprintln!("flexloop-{}: {e}", role.name());
             1
         }
+    }
+}
+
+/// The arguments flexloop gives a process: all of them for a built-in one;
+/// for a user's program, those after the last `--`, since its own come
+/// first (`exec = ["python3", "law.py", "--gain", "2"]` runs
+/// `python3 law.py --gain 2 -- --scenario …`).
+pub fn flexloop_args(args: impl IntoIterator<Item = OsString>) -> Vec<OsString> {
+    let args: Vec<OsString> = args.into_iter().collect();
+    match args.iter().rposition(|a| a == "--") {
+        Some(at) => args[at + 1..].to_vec(),
+        None => args,
+    }
+}
+
+/// A user's program's own arguments: those before the `--` that starts
+/// flexloop's (see [`flexloop_args`]); all of them if there is none.
+pub fn own_args() -> Vec<String> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.iter().rposition(|a| a == "--") {
+        Some(at) => args[..at].to_vec(),
+        None => args,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_programs_own_arguments_come_before_flexloops() {
+        let line = ["--gain", "2", "--", "--scenario", "s.toml"].map(OsString::from);
+        assert_eq!(flexloop_args(line.clone()), ["--scenario", "s.toml"]);
+        let built_in = ["--scenario", "s.toml"].map(OsString::from);
+        assert_eq!(flexloop_args(built_in.clone()), built_in);
     }
 }

@@ -7,6 +7,7 @@
 //! - `validate`: ranges, consistency, and the machine's fitness for the profile.
 //! - [`plant_description`]: the plant a user brings (lumped networks, model
 //!   files, the chain's parameters, modal damping).
+//! - [`program`]: a user's program serving a role (`controller.exec`).
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`tick`]: `realtime.tick`, where it applies and where it falls back.
@@ -17,6 +18,7 @@ pub mod error;
 pub mod limits;
 mod load;
 pub mod plant_description;
+pub mod program;
 pub mod schema;
 pub mod swap;
 pub mod tick;
@@ -25,6 +27,7 @@ mod validate;
 mod validate_plant;
 
 pub use error::ScenarioError;
+pub use program::ComponentProgram;
 pub use schema::{
     DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario, TickWait,
 };

@@ -149,12 +149,16 @@ impl<'de> Deserialize<'de> for Damper {
 
 /// The fields that name a file relative to the scenario's directory: the
 /// plant's model and the IO observer's correction filter.
-const FILE_FIELDS: [(&str, &str); 2] = [("plant", "file"), ("observer", "correction_file")];
+const FILE_FIELDS: [(&str, &str); 3] = [
+    ("plant", "file"),
+    ("observer", "correction_file"),
+    ("controller", "workdir"),
+];
 
 /// A copy of a scenario written elsewhere (a variant `bench` or `chaos`
 /// runs, a `flexloop set`) keeps its files: every relative file field
-/// ([`FILE_FIELDS`]) is made absolute, anchored at the directory of
-/// `scenario`, the file the table was read from.
+/// ([`FILE_FIELDS`]) and a controller program is made absolute, anchored at
+/// the directory of `scenario`, the file the table was read from.
 pub fn anchor_files(table: &mut toml::Table, scenario: &std::path::Path) {
     let dir = scenario
         .parent()
@@ -175,5 +179,25 @@ pub fn anchor_files(table: &mut toml::Table, scenario: &std::path::Path) {
                 toml::Value::String(dir.join(file).display().to_string()),
             );
         }
+    }
+    // A controller program: its path (one with a `/`) and, absent, its
+    // working directory (the scenario's) are relative to the directory too.
+    let Some(controller) = table.get_mut("controller").and_then(|c| c.as_table_mut()) else {
+        return;
+    };
+    let Some(toml::Value::Array(exec)) = controller.get_mut("exec") else {
+        return;
+    };
+    if let Some(toml::Value::String(program)) = exec.first_mut()
+        && program.contains('/')
+        && std::path::Path::new(program.as_str()).is_relative()
+    {
+        *program = dir.join(program.as_str()).display().to_string();
+    }
+    if !controller.contains_key("workdir") {
+        controller.insert(
+            "workdir".into(),
+            toml::Value::String(dir.display().to_string()),
+        );
     }
 }

@@ -375,6 +375,16 @@ pub struct ControllerSection {
     /// feedback driven by the reference, so that MC and AD do not react to it.
     #[serde(default = "default_feedforward_form")]
     pub feedforward_form: String,
+    /// A program that serves the controller role in place of the built-in
+    /// one: `[program, args…]` (docs/components.md). The program with a `/`
+    /// is relative to the scenario's directory, a bare name is found on PATH.
+    pub exec: Option<Vec<String>>,
+    /// The program's working directory (relative to the scenario's
+    /// directory); absent: the scenario's directory. Only with `exec`.
+    pub workdir: Option<PathBuf>,
+    /// The program's own tunables, handed to its law as they are written
+    /// (docs/components.md). Only with `exec`.
+    pub params: Option<toml::Table>,
 }
 
 fn default_feedforward_form() -> String {
@@ -390,6 +400,9 @@ impl Default for ControllerSection {
             extra_delay_samples: 0,
             feedforward: None,
             feedforward_form: default_feedforward_form(),
+            exec: None,
+            workdir: None,
+            params: None,
         }
     }
 }

@@ -14,6 +14,7 @@ impl Scenario {
     /// Checks ranges and consistency; the design step checks the maths.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         self.validate_name()?;
+        self.validate_program()?;
         let (rate_min, rate_max) = limits::RATE_HZ;
         self.within(
             "loop.rate_hz",

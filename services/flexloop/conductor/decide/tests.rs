@@ -281,26 +281,32 @@ fn warm() -> Policy {
 fn a_spare_is_ordered_only_once_it_reported_idle_and_the_loop_ticks() {
     let mut f = Fixture::new(warm());
     // Before tick 0 the plant counts on each spare to stay a spare.
-    assert_eq!(f.core.engagement(Role::Observer, false), Engagement::Start);
+    assert_eq!(
+        f.core.engagement(Role::Observer, false, false),
+        Engagement::Start
+    );
     f.sample(0);
     // Still starting: worth waiting for, until the wait is over.
     assert_eq!(
-        f.core.engagement(Role::Observer, false),
+        f.core.engagement(Role::Observer, false, false),
         Engagement::WaitForSpare
     );
-    assert_eq!(f.core.engagement(Role::Observer, true), Engagement::Start);
+    assert_eq!(
+        f.core.engagement(Role::Observer, true, false),
+        Engagement::Start
+    );
     f.core.handle(Event::SpareIdle {
         pid: SPARE_OBSERVER,
     });
     assert_eq!(
-        f.core.engagement(Role::Observer, false),
+        f.core.engagement(Role::Observer, false, false),
         Engagement::Order(SPARE_OBSERVER)
     );
     // Without warm spares, always a new process.
     let mut cold = Fixture::new(policy());
     cold.sample(0);
     assert_eq!(
-        cold.core.engagement(Role::Observer, false),
+        cold.core.engagement(Role::Observer, false, false),
         Engagement::Start
     );
 }
@@ -861,9 +867,15 @@ fn a_spare_taken_as_the_standby_is_replaced_at_the_next_stage_of_the_same_tick()
         standby[..],
         [Action::StartStandby { generation: 1, .. }]
     ));
+    // A scenario with its own controller program never goes to a spare
+    // (which runs the built-in law)...
+    assert_eq!(
+        f.core.engagement(Role::Controller, false, true),
+        Engagement::Start
+    );
     // The shell orders the spare to stand by...
     assert_eq!(
-        f.core.engagement(Role::Controller, false),
+        f.core.engagement(Role::Controller, false, false),
         Engagement::Order(SPARE_CONTROLLER)
     );
     f.core.ordered(

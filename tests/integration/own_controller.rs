@@ -1,0 +1,352 @@
+//! A controller of one's own (docs/components.md): the example on
+//! flexloop-sdk outside the workspace (examples/pid-controller), built as a
+//! user builds it, runs the loop from its start and swaps into a running
+//! loop and back; programs that cannot serve are refused before anything
+//! starts, or their swap is, and the loop runs on.
+
+use crate::util::*;
+use flexloop_components::LogReader;
+use flexloop_protocol::{Command, Measurement};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+/// The example's program, built once for every test here, into this
+/// build's target directory (its dependencies are the workspace's own).
+fn example_program() -> &'static Path {
+    static BUILT: OnceLock<PathBuf> = OnceLock::new();
+    BUILT.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let target = Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .parent()
+            .expect("target/tmp is in the target directory")
+            .to_path_buf();
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut build = std::process::Command::new(cargo);
+        build
+            .args(["build", "--offline", "--manifest-path"])
+            .arg(root.join("examples/pid-controller/Cargo.toml"))
+            .arg("--target-dir")
+            .arg(&target);
+        let out = run_bounded(build, Duration::from_secs(1_800));
+        assert!(out.status.success(), "{}", describe(&out));
+        target.join("debug/pid-controller")
+    })
+}
+
+/// The example's scenario, served by the built program, as `dir/file`.
+fn example_scenario(dir: &Path, file: &str, params: &str) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pid-controller/scenario.toml"),
+    )
+    .unwrap();
+    let exec = format!("exec = [{:?}]", example_program().display().to_string());
+    let mut text = text.replacen("exec = [\"./target/release/pid-controller\"]", &exec, 1);
+    if !params.is_empty() {
+        let start = text.find("[controller.params]").unwrap();
+        let end = text[start..].find("\n\n").map_or(text.len(), |e| start + e);
+        text.replace_range(start..end, params);
+    }
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The example's law, written again here from its documentation (a
+/// discrete PID with a backward-Euler filtered derivative): what the
+/// program's commands must equal.
+struct ReferencePid {
+    kp: f64,
+    ki_ts: f64,
+    a: f64,
+    b: f64,
+    limit: f64,
+    integral: f64,
+    derivative: f64,
+    last_error: f64,
+}
+
+impl ReferencePid {
+    fn example(ts: f64, limit: f64) -> Self {
+        let (kp, ki, kd, n) = (9000.0, 90000.0, 110.0, 3000.0);
+        Self {
+            kp,
+            ki_ts: ki * ts,
+            a: 1.0 / (1.0 + n * ts),
+            b: kd * n / (1.0 + n * ts),
+            limit,
+            integral: 0.0,
+            derivative: 0.0,
+            last_error: 0.0,
+        }
+    }
+
+    /// The example's law as it stands after its command `second`, the
+    /// sample after `first`: the unclamped commands (`u_fb`) and errors
+    /// (`e_meas`) of both give its integral and filtered derivative.
+    fn resumed(first: &Command, second: &Command) -> Self {
+        let mut law = Self::example(1e-4, 100.0);
+        let (u0, e0, u1, e1) = (
+            first.u_fb[0],
+            first.e_meas[0],
+            second.u_fb[0],
+            second.e_meas[0],
+        );
+        // u0 = kp e0 + I0 + D0;  u1 = kp e1 + I0 + ki_ts e1 + a D0 + b (e1 − e0).
+        let sum0 = u0 - law.kp * e0;
+        let d0 = (law.b * (e1 - e0) + sum0 - u1 + (law.kp + law.ki_ts) * e1) / (1.0 - law.a);
+        let i0 = sum0 - d0;
+        law.integral = i0 + law.ki_ts * e1;
+        law.derivative = law.a * d0 + law.b * (e1 - e0);
+        law.last_error = e1;
+        law
+    }
+
+    fn step(&mut self, r: f64, y: f64) -> f64 {
+        let error = r - y;
+        self.integral += self.ki_ts * error;
+        self.derivative = self.a * self.derivative + self.b * (error - self.last_error);
+        self.last_error = error;
+        (self.kp * error + self.integral + self.derivative).clamp(-self.limit, self.limit)
+    }
+}
+
+/// `flexloop swap --prefix P ARGS…` (`--exec` takes the rest of the line).
+fn swap_to(prefix: &str, args: &[&str]) -> std::process::Output {
+    let mut c = flexloop();
+    c.args(["swap", "--prefix", prefix]).args(args);
+    run_bounded(c, Duration::from_secs(150))
+}
+
+#[test]
+fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
+    let dir = temp_dir("own-controller-law");
+    let scenario = example_scenario(&dir, "pid.toml", "");
+    let mut up = flexloop();
+    up.arg("up")
+        .arg(&scenario)
+        .args(["--no-realtime", "--mode", "lockstep", "--duration", "0.5"])
+        .arg("--run-dir")
+        .arg(dir.join("run"));
+    let out = run_bounded(up, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let run = dir.join("run");
+    let log = LogReader::open(&run.join("samples.mcap")).unwrap();
+    let measurements: Vec<&Measurement> = log.measurements().collect();
+    let commands: Vec<&Command> = log.commands().collect();
+    assert_eq!(commands.len(), 5_000, "every sample has its command");
+    // The set-point the law follows is the scenario's (1 mm at 2 Hz), and
+    // the command is the law's from the first sample to the last.
+    let mut law = ReferencePid::example(1e-4, 100.0);
+    for (m, c) in measurements.iter().zip(&commands) {
+        assert_eq!(m.seq, c.seq);
+        let r = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (m.seq as f64 * 1e-4)).sin();
+        let u = law.step(r, m.y[0]);
+        assert!(
+            (c.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
+            "sample {}: the program sent {}, the law gives {u}",
+            c.seq,
+            c.u[0]
+        );
+        assert_eq!(c.generation, 0);
+    }
+    // The PID follows the sine: after the first half second the error is
+    // a small fraction of the amplitude.
+    let last = measurements.last().unwrap();
+    let r_last = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (last.seq as f64 * 1e-4)).sin();
+    assert!(
+        (last.y[0] - r_last).abs() < 2e-4,
+        "{} vs {r_last}",
+        last.y[0]
+    );
+    assert_clean(&run);
+}
+
+#[test]
+fn the_example_controller_swaps_into_a_running_loop_and_back() {
+    let dir = temp_dir("own-controller-swap");
+    let program = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 2_000);
+    let out = swap_to(&prefix, &["controller", program.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let said = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(said.contains("controller generation 1"), "{said}");
+    let program_pid = pid_on_duty(&dir, "controller", "active");
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 2_000);
+    // Back to the built-in controller; the program, replaced, exits (it is
+    // never a spare: a spare must serve whatever law the next order names).
+    let back = swap_to(
+        &prefix,
+        &[
+            "controller",
+            scenario("lecture-double-integrator").to_str().unwrap(),
+        ],
+    );
+    assert!(back.status.success(), "{}", describe(&back));
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_000);
+    assert!(
+        !pids_of(&dir, "controller").contains(&program_pid)
+            || processes(&dir)
+                .iter()
+                .any(|p| p["pid"] == program_pid && p["exit"].is_object()),
+        "the replaced program still serves: {:?}",
+        processes(&dir)
+    );
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    for channel in ["measurement", "estimate", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    // Into the program bumplessly: its integrator takes the old command
+    // over (the law's `shift_output`), so the switch steps no more than an
+    // ordinary sample does.
+    let swaps: Vec<_> = events(&dir)
+        .into_iter()
+        .filter(|e| e["kind"] == "swap")
+        .collect();
+    assert_eq!(swaps.len(), 2, "{swaps:?}");
+    let switch = &swaps[0]["detail"]["switch"];
+    let du = |k: &str| switch[k].as_f64().unwrap();
+    assert!(
+        du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
+        "{switch}"
+    );
+    // The program's commands from the switch on are its law's: its state
+    // at the switch is what the hand-over made it (two unknowns, the
+    // integral and the filtered derivative, solved from its first two
+    // commands); from there the law stepped on the recorded measurements
+    // gives every command it sent.
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let measurements: std::collections::HashMap<u64, &Measurement> =
+        log.measurements().map(|m| (m.seq, m)).collect();
+    let served: Vec<&Command> = log.commands().filter(|c| c.generation == 1).collect();
+    assert!(served.len() > 1_000, "{} commands", served.len());
+    let (first, second) = (served[0], served[1]);
+    let mut law = ReferencePid::resumed(first, second);
+    for c in &served[2..] {
+        let m = measurements[&c.seq];
+        let u = law.step(c.r[0], m.y[0]);
+        assert!(
+            (c.u[0] - u).abs() <= 1e-9 * u.abs().max(1.0),
+            "sample {}: the program sent {}, the law gives {u}",
+            c.seq,
+            c.u[0]
+        );
+    }
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
+    assert!(
+        !events(&dir).iter().any(|e| e["kind"] == "crash"),
+        "{:?}",
+        events(&dir)
+    );
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
+    let dir = temp_dir("own-controller-bad");
+    // Before anything starts: a program that does not exist, one that is
+    // not executable, parameters the law does not take.
+    let missing = scenario_variant(
+        &dir,
+        "lecture-double-integrator",
+        "missing.toml",
+        &[],
+        "[controller]\nexec = [\"./no-such-controller\"]",
+    );
+    let mut up = flexloop();
+    up.arg("up")
+        .arg(&missing)
+        .args(["--no-realtime", "--duration", "0.1", "--run-dir"])
+        .arg(dir.join("missing-run"));
+    let out = run_bounded(up, Duration::from_secs(60));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("missing.toml")
+            && err.contains("controller.exec")
+            && err.contains("no-such-controller"),
+        "{err}"
+    );
+    std::fs::write(dir.join("plain"), "not a program").unwrap();
+    let plain = scenario_variant(
+        &dir,
+        "lecture-double-integrator",
+        "plain.toml",
+        &[],
+        "[controller]\nexec = [\"./plain\"]",
+    );
+    let mut up = flexloop();
+    up.arg("up")
+        .arg(&plain)
+        .args(["--no-realtime", "--duration", "0.1", "--run-dir"])
+        .arg(dir.join("plain-run"));
+    let out = run_bounded(up, Duration::from_secs(60));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("not executable"),
+        "{}",
+        describe(&out)
+    );
+
+    // On a running loop: a law whose parameters do not read (it exits at
+    // its start, naming the field), a program that crashes at start, and
+    // `--exec` of a program that does not exist. Each swap is refused; the
+    // built-in controller keeps the loop.
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let controller = pid_on_duty(&dir, "controller", "active");
+    let bad_params = example_scenario(
+        &dir,
+        "bad-params.toml",
+        "[controller.params]\nkp = 9000.0\nki = 90000.0\nkd = 110.0\nderivative_filter = 3000.0",
+    );
+    let out = swap_to(&prefix, &["controller", bad_params.to_str().unwrap()]);
+    assert!(!out.status.success(), "{}", describe(&out));
+    let generation = 1;
+    let stderr = std::fs::read_to_string(dir.join(format!("controller.g{generation}.stderr")))
+        .unwrap_or_default();
+    assert!(
+        stderr.contains("controller.params") && stderr.contains("derivative_filter"),
+        "{stderr}\n{}",
+        describe(&out)
+    );
+    let crashing = dir.join("crashing");
+    std::fs::write(&crashing, "#!/bin/sh\nexit 7\n").unwrap();
+    let mut permissions = std::fs::metadata(&crashing).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&crashing, permissions).unwrap();
+    let out = swap_to(
+        &prefix,
+        &["controller", "--exec", crashing.to_str().unwrap()],
+    );
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("exited with 7"),
+        "{}",
+        describe(&out)
+    );
+    let out = swap_to(&prefix, &["controller", "--exec", "./no-such-controller"]);
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no-such-controller"),
+        "{}",
+        describe(&out)
+    );
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), controller);
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
