@@ -58,6 +58,8 @@ def _parser():
 
 @dataclass
 class Args:
+    #: The program's own arguments (before the ``--``).
+    own: list
     scenario: str
     prefix: str
     run_dir: str
@@ -69,8 +71,20 @@ class Args:
     no_realtime: bool
 
 
+def split_args(argv):
+    """(the program's own arguments, flexloop's): the supervisor starts a
+    program as ``program its-args… -- flexloop's-flags`` (shared/node
+    lib.rs ``flexloop_args``); without a ``--`` all are flexloop's."""
+    argv = list(argv)
+    at = max((i for i, a in enumerate(argv) if a == "--"), default=None)
+    if at is None:
+        return [], argv
+    return argv[:at], argv[at + 1 :]
+
+
 def parse_args(argv):
-    """The command line (without the program name)."""
+    """flexloop's part of the command line (without the program name)."""
+    own, argv = split_args(argv)
     a = _parser().parse_args(argv)
     if a.standby:
         # A standby publishes its commands for the plant's safe action and
@@ -85,6 +99,7 @@ def parse_args(argv):
         raise UsageError(f"--rate {a.rate}: must be a positive number of Hz")
     joining = REPLACEMENT if a.join else RESTART if a.restart else AT_START
     return Args(
+        own=own,
         scenario=a.scenario,
         prefix=a.prefix,
         run_dir=a.run_dir,
@@ -305,8 +320,10 @@ class Reference:
 class Setup:
     """What a controller is made from: its parameters and the loop's facts."""
 
-    def __init__(self, settings):
+    def __init__(self, settings, own_args=()):
         self._settings = settings
+        #: The program's own arguments: ``exec``'s after the program.
+        self.own_args = list(own_args)
         #: ``[controller.params]``.
         self.params = Params(settings.path, settings.params)
         self.rate_hz = settings.rate_hz

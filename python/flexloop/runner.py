@@ -256,7 +256,7 @@ class _Process:
         self.settings = load_settings(args)
         self.lockstep = self.settings.lockstep
         self.period_ns = self.settings.period_ns
-        setup = Setup(self.settings)
+        setup = Setup(self.settings, args.own)
         params = setup.params
         try:
             self.law = controller_class(setup)

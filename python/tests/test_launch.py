@@ -32,6 +32,11 @@ class CommandLine(unittest.TestCase):
         self.assertEqual(parse_args(_BASE).joining, AT_START)
         self.assertEqual(parse_args(["--restart", *_BASE]).joining, RESTART)
 
+    def test_the_programs_own_arguments_come_before_the_last_double_dash(self):
+        a = parse_args(["--gain", "2", "--", "x", "--", *_BASE, "--join"])
+        self.assertEqual((a.own, a.joining), (["--gain", "2", "--", "x"], REPLACEMENT))
+        self.assertEqual(parse_args(_BASE).own, [])
+
     def test_what_it_cannot_serve_is_a_usage_error(self):
         for argv, says in [
             (["--standby", *_BASE], "standby"),

@@ -13,7 +13,7 @@ use std::time::Duration;
 
 /// The example's program, built once for every test here, into this
 /// build's target directory (its dependencies are the workspace's own).
-fn example_program() -> &'static Path {
+pub(crate) fn example_program() -> &'static Path {
     static BUILT: OnceLock<PathBuf> = OnceLock::new();
     BUILT.get_or_init(|| {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));

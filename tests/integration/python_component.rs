@@ -253,6 +253,78 @@ fn the_python_pid_runs_a_lockstep_loop_from_its_start() {
     assert_clean(&run_dir);
 }
 
+/// examples/pid-controller/scenario.toml served by `exec`, as `dir/file`.
+fn example_scenario_with(dir: &Path, file: &str, exec: &[String]) -> PathBuf {
+    let text =
+        std::fs::read_to_string(repo().join("examples/pid-controller/scenario.toml")).unwrap();
+    let from = "exec = [\"./target/release/pid-controller\"]";
+    assert!(
+        text.contains(from),
+        "the example's scenario names its program"
+    );
+    let exec: Vec<String> = exec.iter().map(|a| format!("{a:?}")).collect();
+    let text = text.replacen(from, &format!("exec = [{}]", exec.join(", ")), 1);
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The recorded commands of a lockstep run of `scenario_file`, 0.5 s.
+fn lockstep_commands(scenario_file: &Path, run_dir: &Path) -> Vec<(u64, f64)> {
+    let mut cmd = flexloop();
+    cmd.arg("up")
+        .arg(scenario_file)
+        .args([
+            "--no-realtime",
+            "--mode",
+            "lockstep",
+            "--duration",
+            "0.5",
+            "--run-dir",
+        ])
+        .arg(run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert_ran(&out);
+    let log = LogReader::open(&run_dir.join("samples.mcap")).unwrap();
+    let mut commands: Vec<(u64, f64)> = log.commands().map(|c| (c.seq, c.u[0])).collect();
+    commands.sort_by_key(|c| c.0);
+    assert_clean(run_dir);
+    commands
+}
+
+#[test]
+fn the_python_pid_commands_a_lockstep_run_as_the_rust_example_does() {
+    let dir = temp_dir("python-pid-vs-rust");
+    let program = repo().join("python/examples/pid.py");
+    let python_file = example_scenario_with(
+        &dir,
+        "python.toml",
+        &[python(), program.display().to_string()],
+    );
+    let rust_file = example_scenario_with(
+        &dir,
+        "rust.toml",
+        &[crate::own_controller::example_program()
+            .display()
+            .to_string()],
+    );
+    let from_python = lockstep_commands(&python_file, &dir.join("python-run"));
+    let from_rust = lockstep_commands(&rust_file, &dir.join("rust-run"));
+    assert_eq!(from_python.len(), 5_000, "0.5 s at 10 kHz");
+    assert_eq!(from_python.len(), from_rust.len());
+    let mut largest = 0.0_f64;
+    for ((seq_p, u_p), (seq_r, u_r)) in from_python.iter().zip(&from_rust) {
+        assert_eq!(seq_p, seq_r);
+        assert!(
+            (u_p - u_r).abs() <= 1e-12,
+            "u({seq_p}): {u_p} from Python, {u_r} from Rust"
+        );
+        largest = largest.max(u_p.abs());
+    }
+    // The law did work: it drove the plant after the 1 mm sine.
+    assert!(largest > 1e-3, "largest |u| {largest}");
+}
+
 /// `flexloop swap controller FILE`; its answer.
 fn swap_to(prefix: &str, scenario_file: &Path) -> String {
     let out = run_bounded(
