@@ -279,6 +279,9 @@ class _Process:
         self.stale_estimates = 0
         self.stepped = 0
         self.commanded = 0
+        self.last_stepped = None
+        self.law_skipped = 0
+        self.first_law_gap = None
         self.end_of_run = False
         self.backlog = [msg.Measurement() for _ in range(FOLLOW_DEPTH + 1)]
         self.command = msg.Command()
@@ -393,6 +396,11 @@ class _Process:
             _eprint(
                 f"generation {self.generation}: {self.stepped} samples stepped, "
                 f"{self.commanded} commanded, {cpu_s / self.stepped * 1e6:.1f} µs of CPU per sample"
+            )
+        if self.law_skipped:
+            _eprint(
+                f"generation {self.generation}: law skipped {self.law_skipped} samples, "
+                f"the first after sample {self.first_law_gap}"
             )
         skipped = self.standing.skipped
         if self.stale_estimates + skipped > 0:
@@ -524,6 +532,13 @@ class _Process:
             _eprint(f"generation {self.generation}: law stepped from sample {m.seq}")
         law = self.law
         self.stepped += 1
+        if self.last_stepped is not None and m.seq != self.last_stepped + 1:
+            # A sample the law never saw (a shadow more than a queue
+            # behind, an active instance answering only the newest).
+            if self.law_skipped == 0:
+                self.first_law_gap = self.last_stepped
+            self.law_skipped += m.seq - self.last_stepped - 1
+        self.last_stepped = m.seq
         try:
             u = law.step(m, estimate)
         except Exception as e:

@@ -131,12 +131,19 @@ impl Pid {
 }
 
 /// The first sample the Python law stepped, from its stderr line
-/// (`generation N: law stepped from sample K`) in the run directory.
+/// (`generation N: law stepped from sample K`) in the run directory; the
+/// law must have stepped every sample since (its exit report says when it
+/// did not).
 fn law_start(dir: &Path, generation: u32) -> u64 {
     let needle = format!("generation {generation}: law stepped from sample ");
     for entry in std::fs::read_dir(dir).unwrap().flatten() {
         let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
         if let Some(at) = text.find(&needle) {
+            assert!(
+                !text.contains(&format!("generation {generation}: law skipped")),
+                "{}: {text}",
+                entry.path().display()
+            );
             let rest = &text[at + needle.len()..];
             let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
             return digits.parse().unwrap();
