@@ -236,6 +236,10 @@ fn with_program(
     if exec[0].contains('/') {
         exec[0] = std::path::absolute(&exec[0])?.display().to_string();
     }
+    // The built-in law's fields do not apply to a program (and are refused).
+    if let Some(toml::Value::Table(supervision)) = table.get_mut("supervision") {
+        supervision.remove("estimate_watchdog_ticks");
+    }
     let controller = table
         .entry("controller")
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));

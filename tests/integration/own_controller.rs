@@ -111,6 +111,29 @@ impl ReferencePid {
     }
 }
 
+/// Waits (bounded) until the process `pid` is gone (the supervisor reaps
+/// its children at once).
+fn assert_gone(pid: i32) {
+    let since = std::time::Instant::now();
+    while Path::new(&format!("/proc/{pid}")).exists() {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "process {pid} is still there"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// An executable shell script `dir/name` with `body`.
+fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, format!("#!/bin/sh\n{body}\n")).unwrap();
+    let mut permissions = std::fs::metadata(&path).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&path, permissions).unwrap();
+    path
+}
+
 /// `flexloop swap --prefix P ARGS…` (`--exec` takes the rest of the line).
 fn swap_to(prefix: &str, args: &[&str]) -> std::process::Output {
     let mut c = flexloop();
@@ -132,24 +155,15 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
     assert!(out.status.success(), "{}", describe(&out));
     let run = dir.join("run");
     let log = LogReader::open(&run.join("samples.mcap")).unwrap();
-    let measurements: Vec<&Measurement> = log.measurements().collect();
-    let commands: Vec<&Command> = log.commands().collect();
-    assert_eq!(commands.len(), 5_000, "every sample has its command");
     // The set-point the law follows is the scenario's (1 mm at 2 Hz), and
     // the command is the law's from the first sample to the last.
-    let mut law = ReferencePid::example(1e-4, 100.0);
-    for (m, c) in measurements.iter().zip(&commands) {
-        assert_eq!(m.seq, c.seq);
-        let r = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (m.seq as f64 * 1e-4)).sin();
-        let u = law.step(r, m.y[0]);
-        assert!(
-            (c.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
-            "sample {}: the program sent {}, the law gives {u}",
-            c.seq,
-            c.u[0]
-        );
-        assert_eq!(c.generation, 0);
-    }
+    assert_eq!(
+        assert_commands_follow_the_law_from_tick_0(&log),
+        5_000,
+        "every sample has its command"
+    );
+    assert!(log.commands().all(|c| c.generation == 0));
+    let measurements: Vec<&Measurement> = log.measurements().collect();
     // The PID follows the sine: after the first half second the error is
     // a small fraction of the amplitude.
     let last = measurements.last().unwrap();
@@ -160,6 +174,65 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
         last.y[0]
     );
     assert_clean(&run);
+}
+
+/// Every command of the run equals the example's law stepped from tick 0
+/// on the recorded measurements (whichever generation sent it); returns
+/// how many there were.
+fn assert_commands_follow_the_law_from_tick_0(log: &LogReader) -> usize {
+    let measurements: Vec<&Measurement> = log.measurements().collect();
+    let commands: Vec<&Command> = log.commands().collect();
+    let mut law = ReferencePid::example(1e-4, 100.0);
+    for (m, c) in measurements.iter().zip(&commands) {
+        assert_eq!(m.seq, c.seq);
+        let r = 1e-3 * (2.0 * std::f64::consts::PI * 2.0 * (m.seq as f64 * 1e-4)).sin();
+        let u = law.step(r, m.y[0]);
+        assert!(
+            (c.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
+            "sample {} (generation {}): the program sent {}, the law gives {u}",
+            c.seq,
+            c.generation,
+            c.u[0]
+        );
+    }
+    commands.len()
+}
+
+#[test]
+fn a_program_swapped_by_exec_to_itself_continues_its_own_state() {
+    let dir = temp_dir("own-controller-exec");
+    let scenario = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start_file(&dir, &scenario, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_500);
+    // `--exec`: the loop as it stands (its [controller.params] too), served
+    // by the program named on the command line: here the same law, which
+    // takes its predecessor's state (`load`) and so continues exactly.
+    let out = swap_to(
+        &prefix,
+        &["controller", "--exec", example_program().to_str().unwrap()],
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_500);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    for channel in ["measurement", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    let written = dir.join("tuned").join("exec-001.toml");
+    let table: toml::Table = toml::from_str(&std::fs::read_to_string(&written).unwrap()).unwrap();
+    assert_eq!(
+        table["controller"]["exec"][0].as_str(),
+        Some(example_program().to_str().unwrap())
+    );
+    assert_eq!(table["controller"]["params"]["kp"].as_float(), Some(9000.0));
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert!(assert_commands_follow_the_law_from_tick_0(&log) > 3_000);
+    assert_clean(&dir);
 }
 
 #[test]
@@ -187,14 +260,7 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     assert!(back.status.success(), "{}", describe(&back));
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 1_000);
-    assert!(
-        !pids_of(&dir, "controller").contains(&program_pid)
-            || processes(&dir)
-                .iter()
-                .any(|p| p["pid"] == program_pid && p["exit"].is_object()),
-        "the replaced program still serves: {:?}",
-        processes(&dir)
-    );
+    assert_gone(program_pid);
     stop(&prefix, child);
 
     let summary = summary(&dir);
@@ -318,11 +384,7 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
         "{stderr}\n{}",
         describe(&out)
     );
-    let crashing = dir.join("crashing");
-    std::fs::write(&crashing, "#!/bin/sh\nexit 7\n").unwrap();
-    let mut permissions = std::fs::metadata(&crashing).unwrap().permissions();
-    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
-    std::fs::set_permissions(&crashing, permissions).unwrap();
+    let crashing = script(&dir, "crashing", "exit 7");
     let out = swap_to(
         &prefix,
         &["controller", "--exec", crashing.to_str().unwrap()],
@@ -348,5 +410,88 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
     assert_eq!(summary["counters"]["misses"], 0, "{summary}");
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_program_that_never_follows_the_loop_is_stopped_and_its_swap_refused() {
+    let dir = temp_dir("own-controller-silent");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let controller = pid_on_duty(&dir, "controller", "active");
+    // Starts, opens nothing, publishes nothing.
+    let silent = script(&dir, "silent", "exec sleep 600");
+    let out = swap_to(&prefix, &["controller", "--exec", silent.to_str().unwrap()]);
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("did not follow the loop"),
+        "{}",
+        describe(&out)
+    );
+    // The supervisor stopped it; the built-in controller kept the loop.
+    let silent_pids: Vec<i32> = processes(&dir)
+        .iter()
+        .filter(|p| p["role"] == "controller" && p["generation"] == 1)
+        .filter_map(|p| p["pid"].as_i64().map(|pid| pid as i32))
+        .collect();
+    for pid in silent_pids {
+        assert_gone(pid);
+    }
+    assert!(processes_mentioning(silent.to_str().unwrap()).is_empty());
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), controller);
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    stop(&prefix, child);
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
+    let dir = temp_dir("own-controller-dies");
+    let program = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let out = swap_to(&prefix, &["controller", program.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let program_pid = pid_on_duty(&dir, "controller", "active");
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    // SAFETY: a process of this test's loop, by the pid its supervisor lists.
+    unsafe { libc::kill(program_pid, libc::SIGKILL) };
+    assert_gone(program_pid);
+    // The supervisor brings the built-in design that served before it back
+    // (a program that crashed once is likely to crash again).
+    let since = std::time::Instant::now();
+    let restart = loop {
+        if let Some(r) = events(&dir).into_iter().find(|e| e["kind"] == "restart") {
+            break r;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no restart: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(
+        restart["detail"]["rolled_back_from"].as_str(),
+        Some(program.to_str().unwrap()),
+        "{restart}"
+    );
+    assert!(
+        restart["detail"]["scenario"]
+            .as_str()
+            .is_some_and(|s| s.ends_with("lecture-double-integrator.toml")),
+        "{restart}"
+    );
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_000);
+    stop(&prefix, child);
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
     assert_clean(&dir);
 }

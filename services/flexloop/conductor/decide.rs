@@ -379,7 +379,15 @@ impl Core {
 
     /// How `role` comes back after its crash (the role's serving instance is
     /// dead). A controller with a standby that follows the loop promotes it.
-    pub fn plan_restart(&mut self, role: Role) -> Result<RestartPlan, Failure> {
+    /// A controller program of one's own (`is_program` says which scenario
+    /// names one) that dies is rolled back to the newest built-in design
+    /// that served before it, if one did: a law that crashed once is likely
+    /// to crash again, and the built-in one is known to hold the loop.
+    pub fn plan_restart(
+        &mut self,
+        role: Role,
+        is_program: &dyn Fn(&Path) -> bool,
+    ) -> Result<RestartPlan, Failure> {
         // The file of the generation that owned the loop (with spares the
         // order of the members is not the order they served in).
         let owner = match role {
@@ -409,10 +417,25 @@ impl Core {
                 generation,
             });
         }
+        let rollback = (role == Role::Controller && is_program(&scenario))
+            .then(|| {
+                self.roster
+                    .iter()
+                    .rev()
+                    // (One that served and was replaced may be a spare now.)
+                    .find(|m| m.role == role && m.generation.is_some() && !is_program(&m.scenario))
+                    .map(|m| m.scenario.clone())
+            })
+            .flatten();
+        let (scenario, rolled_back_from) = match rollback {
+            Some(built_in) => (built_in, Some(scenario)),
+            None => (scenario, None),
+        };
         Ok(RestartPlan::Fresh {
             scenario,
             generation,
             owns_from: self.restart_boundary(role),
+            rolled_back_from,
         })
     }
 

@@ -634,48 +634,53 @@ impl Conductor {
     /// Brings `role` back after its crash, as the core plans it.
     fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<()> {
         let start_seq = self.core.last_seq().unwrap_or(0);
-        let (scenario, generation, owns_from) = match self.core.plan_restart(role)? {
-            RestartPlan::Promote { generation } => {
-                let incoming = Incoming {
-                    role: Role::Controller,
-                    generation,
-                    start_seq,
-                    warm: true,
-                    old: None,
-                    announced: None,
-                };
-                let switch = self.activate(running, incoming)?;
-                self.record_action(self.core.note(
-                    "promote-standby",
-                    Role::Controller,
-                    Some(generation),
-                    json!(switch.record()),
-                ));
-                self.switches.push(switch);
-                return Ok(());
-            }
-            RestartPlan::Logger {
-                scenario,
-                generation,
-            } => {
-                // It only listens: nothing to hand over, no boundary to announce.
-                self.clean_dead_nodes();
-                running.launch(role, &scenario, generation, Joining::Restart)?;
-                self.track(running);
-                self.record_action(self.core.note(
-                    "restart",
-                    role,
-                    Some(generation),
-                    json!({"files": flexloop_runfiles::run_dir::logger_files(generation)}),
-                ));
-                return Ok(());
-            }
-            RestartPlan::Fresh {
-                scenario,
-                generation,
-                owns_from,
-            } => (scenario, generation, owns_from),
+        let is_program = |scenario: &Path| {
+            crate::supervisor::own_program(role, scenario).is_ok_and(|p| p.is_some())
         };
+        let (scenario, generation, owns_from, rolled_back_from) =
+            match self.core.plan_restart(role, &is_program)? {
+                RestartPlan::Promote { generation } => {
+                    let incoming = Incoming {
+                        role: Role::Controller,
+                        generation,
+                        start_seq,
+                        warm: true,
+                        old: None,
+                        announced: None,
+                    };
+                    let switch = self.activate(running, incoming)?;
+                    self.record_action(self.core.note(
+                        "promote-standby",
+                        Role::Controller,
+                        Some(generation),
+                        json!(switch.record()),
+                    ));
+                    self.switches.push(switch);
+                    return Ok(());
+                }
+                RestartPlan::Logger {
+                    scenario,
+                    generation,
+                } => {
+                    // It only listens: nothing to hand over, no boundary to announce.
+                    self.clean_dead_nodes();
+                    running.launch(role, &scenario, generation, Joining::Restart)?;
+                    self.track(running);
+                    self.record_action(self.core.note(
+                        "restart",
+                        role,
+                        Some(generation),
+                        json!({"files": flexloop_runfiles::run_dir::logger_files(generation)}),
+                    ));
+                    return Ok(());
+                }
+                RestartPlan::Fresh {
+                    scenario,
+                    generation,
+                    owns_from,
+                    rolled_back_from,
+                } => (scenario, generation, owns_from, rolled_back_from),
+            };
         if let Some(from_seq) = owns_from {
             self.announce(role, generation, from_seq)?;
         }
@@ -714,12 +719,12 @@ impl Conductor {
                 return Err(e);
             }
         };
-        self.record_action(self.core.note(
-            "restart",
-            role,
-            Some(generation),
-            json!(switch.record()),
-        ));
+        let mut detail = json!(switch.record());
+        if let Some(program) = rolled_back_from {
+            detail["rolled_back_from"] = json!(program);
+            detail["scenario"] = json!(scenario);
+        }
+        self.record_action(self.core.note("restart", role, Some(generation), detail));
         self.switches.push(switch);
         Ok(())
     }

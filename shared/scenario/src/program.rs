@@ -96,6 +96,15 @@ impl Scenario {
     /// the built-in controller's tuning only on the built-in controller.
     pub(crate) fn validate_program(&self) -> Result<(), ScenarioError> {
         if self.controller.exec.is_some() {
+            // The built-in law's watchdog: a program sees each estimate's
+            // sequence number and decides itself what a stale one means.
+            if self.given.contains("supervision.estimate_watchdog_ticks") {
+                return Err(self.err(
+                    "supervision.estimate_watchdog_ticks",
+                    "acts on the built-in controller's law, not on a program of one's own \
+                     (`controller.exec`), which sees each estimate's `seq` and decides itself",
+                ));
+            }
             for field in BUILT_IN_ONLY {
                 if self
                     .given
@@ -218,6 +227,15 @@ mod tests {
         assert_eq!(e.field.as_deref(), Some("controller.workdir"));
         let e = scenario_in(&dir, "exec = [\"sh\"]\nbandwidth_hz = 40.0").unwrap_err();
         assert_eq!(e.field.as_deref(), Some("controller.bandwidth_hz"));
+        let e = scenario_in(
+            &dir,
+            "exec = [\"sh\"]\n[supervision]\nestimate_watchdog_ticks = 3",
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.field.as_deref(),
+            Some("supervision.estimate_watchdog_ticks")
+        );
         let s = scenario_in(&dir, "exec = [\"sh\"]\n[controller.params]\nkp = 1.0").unwrap();
         assert_eq!(s.controller.params.unwrap()["kp"].as_float(), Some(1.0));
         std::fs::remove_dir_all(dir).unwrap();

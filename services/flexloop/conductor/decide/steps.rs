@@ -30,6 +30,9 @@ pub enum RestartPlan {
         scenario: PathBuf,
         generation: u32,
         owns_from: Option<u64>,
+        /// The crashed program's scenario, when `scenario` is the built-in
+        /// design it is rolled back to.
+        rolled_back_from: Option<PathBuf>,
     },
     /// A new logger: it only listens, nothing to hand over.
     Logger { scenario: PathBuf, generation: u32 },

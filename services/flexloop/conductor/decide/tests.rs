@@ -4,7 +4,7 @@
 use super::*;
 use flexloop_protocol::handover::FOLLOWING;
 use flexloop_protocol::{Handover, MAX_INPUTS};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 const OBSERVER: i32 = 10;
 const CONTROLLER: i32 = 20;
@@ -439,11 +439,12 @@ fn a_restarts_boundary_is_right_after_the_dead_instances_last_state() {
     f.exit(CONTROLLER, 1, 0);
     f.tick(100);
     assert_eq!(
-        f.core.plan_restart(Role::Controller),
+        f.core.plan_restart(Role::Controller, &no_program),
         Ok(RestartPlan::Fresh {
             scenario: PathBuf::from("loop.toml"),
             generation: 1,
             owns_from: Some(91),
+            rolled_back_from: None,
         })
     );
 }
@@ -684,12 +685,12 @@ fn a_crashed_controller_promotes_the_standby_that_follows() {
     f.tick(100);
     // Not following yet: a new controller instead.
     assert!(matches!(
-        f.core.plan_restart(Role::Controller),
+        f.core.plan_restart(Role::Controller, &no_program),
         Ok(RestartPlan::Fresh { generation: 2, .. })
     ));
     f.state(Role::Controller, 1, 100, FOLLOWING);
     assert_eq!(
-        f.core.plan_restart(Role::Controller),
+        f.core.plan_restart(Role::Controller, &no_program),
         Ok(RestartPlan::Promote { generation: 1 })
     );
     assert_eq!(f.member(23).duty, Duty::Active);
@@ -765,6 +766,52 @@ fn a_retiring_standby_becomes_a_spare_or_is_stopped_when_late() {
 
 // ---- what a restart brings back ----
 
+/// No scenario names a program of its own.
+fn no_program(_: &Path) -> bool {
+    false
+}
+
+#[test]
+fn a_crashed_program_is_rolled_back_to_the_built_in_design_before_it() {
+    let mut f = Fixture::new(policy());
+    f.sample(10);
+    // Generation 1, a program of one's own, took over from the built-in 0.
+    f.launch_with(
+        22,
+        Role::Controller,
+        1,
+        Joining::Replacement,
+        "own.toml".into(),
+    );
+    let owner = f.core.activation_for(Role::Controller, 1, 50);
+    f.core.announced(owner);
+    f.exit(CONTROLLER, 0, 0);
+    f.exit(22, 137, 0);
+    let is_program = |p: &Path| p == Path::new("own.toml");
+    assert_eq!(
+        f.core.plan_restart(Role::Controller, &is_program),
+        Ok(RestartPlan::Fresh {
+            scenario: PathBuf::from("loop.toml"),
+            generation: 2,
+            owns_from: None,
+            rolled_back_from: Some(PathBuf::from("own.toml")),
+        })
+    );
+    // A loop that started on the program has nothing to roll back to: the
+    // program comes back.
+    let mut g = Fixture::new(policy());
+    g.sample(10);
+    g.exit(CONTROLLER, 137, 0);
+    let all_programs = |_: &Path| true;
+    assert!(matches!(
+        g.core.plan_restart(Role::Controller, &all_programs),
+        Ok(RestartPlan::Fresh {
+            rolled_back_from: None,
+            ..
+        })
+    ));
+}
+
 #[test]
 fn a_restart_runs_the_file_of_the_generation_that_owned_the_loop() {
     let mut f = Fixture::new(policy());
@@ -781,7 +828,7 @@ fn a_restart_runs_the_file_of_the_generation_that_owned_the_loop() {
     f.core.announced(owner);
     f.exit(CONTROLLER, 0, 0);
     f.exit(22, 137, 0);
-    match f.core.plan_restart(Role::Controller) {
+    match f.core.plan_restart(Role::Controller, &no_program) {
         Ok(RestartPlan::Fresh {
             scenario,
             generation,
@@ -791,7 +838,7 @@ fn a_restart_runs_the_file_of_the_generation_that_owned_the_loop() {
     }
     f.exit(LOGGER, 1, 0);
     assert_eq!(
-        f.core.plan_restart(Role::Logger),
+        f.core.plan_restart(Role::Logger, &no_program),
         Ok(RestartPlan::Logger {
             scenario: PathBuf::from("loop.toml"),
             generation: 1
