@@ -260,6 +260,45 @@ fn the_python_pid_runs_a_lockstep_loop_from_its_start() {
     assert_clean(&run_dir);
 }
 
+#[test]
+fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
+    let dir = temp_dir("python-pid-self");
+    let pid_scenario = python_pid_scenario(&dir);
+    let (child, prefix) = start_file(&dir, &pid_scenario, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 430);
+    let answer = swap_to(&prefix, &pid_scenario);
+    assert!(answer.contains("generation 1"), "{answer}");
+    let swapped_at = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, swapped_at + 1000);
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
+    let mut commands: Vec<_> = log.commands().collect();
+    commands.sort_by_key(|c| c.seq);
+    let generations: std::collections::BTreeSet<u32> =
+        commands.iter().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    // The successor copied the state (same class, parameters and rate)
+    // before every sample it followed: the run is one law from tick 0,
+    // to the last bit, across the hand-over.
+    let mut law = Pid::new(10_000.0);
+    for (k, c) in commands.iter().enumerate() {
+        assert_eq!(c.seq, k as u64, "commands are contiguous");
+        let own = law.step(c.seq, y[&c.seq]);
+        assert_eq!(
+            c.u[0].to_bits(),
+            own.to_bits(),
+            "u({k}) {} from generation {}, {own} from the law",
+            c.u[0],
+            c.generation
+        );
+    }
+    assert_clean(&dir);
+}
+
 /// examples/pid-controller/scenario.toml served by `exec`, as `dir/file`.
 fn example_scenario_with(dir: &Path, file: &str, exec: &[String]) -> PathBuf {
     let text =
