@@ -30,6 +30,7 @@ class ScenarioError(Exception):
 AT_START = "at-start"
 REPLACEMENT = "replacement"
 RESTART = "restart"
+STANDBY = "standby"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -86,18 +87,15 @@ def parse_args(argv):
     """flexloop's part of the command line (without the program name)."""
     own, argv = split_args(argv)
     a = _parser().parse_args(argv)
-    if a.standby:
-        # A standby publishes its commands for the plant's safe action and
-        # is retired by the supervisor's spare orders; this package does
-        # neither yet, so it says so rather than half-serve.
-        raise UsageError("--standby: a Python controller cannot serve as the standby")
     if a.spare:
         raise UsageError("--spare: a controller started from `exec` is never a warm spare")
     if a.generation < 0 or a.generation >= 2**32:
         raise UsageError(f"--generation {a.generation}: not a generation (0 to 2^32-1)")
     if a.rate is not None and not (math.isfinite(a.rate) and a.rate > 0):
         raise UsageError(f"--rate {a.rate}: must be a positive number of Hz")
-    joining = REPLACEMENT if a.join else RESTART if a.restart else AT_START
+    joining = (
+        REPLACEMENT if a.join else RESTART if a.restart else STANDBY if a.standby else AT_START
+    )
     return Args(
         own=own,
         scenario=a.scenario,

@@ -43,10 +43,11 @@ def avoid_loop_cpu(rt):
             _say(f"cpus {sorted(cpus)} refused ({e.strerror})")
 
 
-def raise_priority(rt):
+def raise_priority(rt, cpu=True):
     """Onto the loop's CPU at the controller's priority (when named for a
-    boundary, or at once at the start)."""
-    if rt.cpu is not None:
+    boundary, or at once at the start); the priority alone without ``cpu``
+    (a standby, off the loop's CPU)."""
+    if cpu and rt.cpu is not None:
         try:
             os.sched_setaffinity(0, {rt.cpu})
         except OSError as e:

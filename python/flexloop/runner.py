@@ -35,6 +35,7 @@ from . import realtime, transport
 from .launch import (
     AT_START,
     RESTART,
+    STANDBY,
     ScenarioError,
     Setup,
     UsageError,
@@ -133,11 +134,11 @@ def _fingerprint(controller_class, params, rate_hz):
 class _Standing:
     """An instance's duty sample by sample (shared/node duty.rs ``Standing``)."""
 
-    SHADOW, ACTIVE, RETIRING = "shadow", "active", "retiring"
+    SHADOW, STANDBY, ACTIVE, RETIRING = "shadow", "standby", "active", "retiring"
 
-    def __init__(self, generation, late):
+    def __init__(self, generation, late, standby=False):
         self.generation = generation
-        self.duty = self.SHADOW
+        self.duty = self.STANDBY if standby else self.SHADOW
         self.priority_raised = not late
         self.next_seq = None
         self.skipped = 0
@@ -266,7 +267,7 @@ class _Process:
             raise LawError(f"{controller_class.__qualname__}: cannot be made: {e!r}") from e
         params.check_all_read()
         self.design_hash = _fingerprint(controller_class, params, self.settings.rate_hz)
-        self.standing = _Standing(self.generation, self.late)
+        self.standing = _Standing(self.generation, self.late, args.joining == STANDBY)
         self.handovers = _HandoverRing()
         self.estimates_ring = _EstimateRing(FOLLOW_DEPTH)
         # Bumpless hand-over (shared/node controller.rs ``Takeover``).
@@ -358,8 +359,12 @@ class _Process:
         try:
             if self.late:
                 self._drop_stale()
-                # Follows off the loop's CPU, without priority, until named.
+                # Follows off the loop's CPU, without priority, until named;
+                # a standby keeps its priority: its commands are the plant's
+                # safe action and must be on time.
                 realtime.avoid_loop_cpu(rt)
+                if self.args.joining == STANDBY:
+                    realtime.raise_priority(rt, cpu=False)
                 _eprint(
                     f"start-up {(time.monotonic() - started) * 1e3:.1f} ms, "
                     f"{time.process_time() * 1e3:.1f} ms of CPU"
@@ -450,8 +455,9 @@ class _Process:
         active = duty == _Standing.ACTIVE
         ring = self.estimates_ring
         ring.take(self.estimates, activation)
+        standby = duty == _Standing.STANDBY
         if (
-            (active or not self.copied)
+            (active or standby or not self.copied)
             and ring.find(m.seq) is None
             and not self._await_estimate(m, received_ns)
         ):
@@ -480,6 +486,10 @@ class _Process:
             self._follow(m.seq, newest_too=True)
             self._step(m, estimate, self.shadow_u)
             self.shadow_seq = m.seq
+            if standby:
+                # For the plant's safe action only (it applies it when the
+                # active controller falls silent).
+                self._publish_command(m, estimate, received_ns, self.shadow_u, msg.Flags.STANDBY)
             # Following once a handed-over state is there (the supervisor
             # announces the boundary once it sees this instance follow).
             if self.handovers.newest() is not None:
@@ -489,7 +499,7 @@ class _Process:
         if was != _Standing.ACTIVE:
             self._take_over(m)
         self._step(m, estimate, self.u)
-        self._publish_command(m, estimate, received_ns)
+        self._publish_command(m, estimate, received_ns, self.u, 0)
         self._publish_state(m.seq, self.u, msg.HandoverMark.ACTIVE)
         self.end_of_run |= bool(m.flags & msg.Flags.END_OF_RUN)
 
@@ -556,7 +566,9 @@ class _Process:
                 f"not a float or {self.n_inputs} floats"
             ) from e
 
-    def _publish_command(self, m, estimate, received_ns):
+    def _publish_command(self, m, estimate, received_ns, u, flags):
+        """Command ``u`` for ``m``; the active instance's (``flags`` 0)
+        wakes the plant in lockstep."""
         c = self.command
         c.seq = m.seq
         c.tick_ns = m.tick_ns
@@ -564,11 +576,10 @@ class _Process:
         c.received_ns = received_ns
         c.estimate_seq = estimate.seq
         c.estimate_published_ns = estimate.published_ns
-        c.flags = msg.Flags.STALE_ESTIMATE if estimate.seq != m.seq else 0
+        c.flags = flags | (msg.Flags.STALE_ESTIMATE if estimate.seq != m.seq else 0)
         c.generation = self.generation
         c.n_inputs = self.n_inputs
         c.n_outputs = n_outputs = m.n_outputs
-        u = self.u
         for i in range(self.n_inputs):
             c.u[i] = u[i]
             c.u_fb[i] = u[i]
@@ -578,9 +589,10 @@ class _Process:
             c.e_meas[i] = r[i] - m.y[i]
         c.published_ns = time.monotonic_ns()
         self.commands.publish(c)
-        self.commanded += 1
-        if self.lockstep:
-            self.commands.notify()
+        if flags == 0:
+            self.commanded += 1
+            if self.lockstep:
+                self.commands.notify()
 
     def _publish_state(self, seq, u, mark):
         h = self.state

@@ -11,6 +11,7 @@ from flexloop.launch import (
     AT_START,
     REPLACEMENT,
     RESTART,
+    STANDBY,
     Params,
     ScenarioError,
     Setup,
@@ -31,6 +32,7 @@ class CommandLine(unittest.TestCase):
         self.assertEqual((a.rate_hz, a.mode, a.no_realtime), (1000.0, "lockstep", True))
         self.assertEqual(parse_args(_BASE).joining, AT_START)
         self.assertEqual(parse_args(["--restart", *_BASE]).joining, RESTART)
+        self.assertEqual(parse_args(["--standby", *_BASE]).joining, STANDBY)
 
     def test_the_programs_own_arguments_come_before_the_last_double_dash(self):
         a = parse_args(["--gain", "2", "--", "x", "--", *_BASE, "--join"])
@@ -39,7 +41,6 @@ class CommandLine(unittest.TestCase):
 
     def test_what_it_cannot_serve_is_a_usage_error(self):
         for argv, says in [
-            (["--standby", *_BASE], "standby"),
             (["--spare", *_BASE], "spare"),
             (["--join", "--restart", *_BASE], "not allowed with"),
             (["--prefix", "p"], "required"),
@@ -126,6 +127,11 @@ class Duty(unittest.TestCase):
         self.assertEqual(s.on_sample(12, 12, 0, 1, True), ("shadow", "shadow", True))
         self.assertEqual(s.on_sample(13, 13, 1, 1, True), ("active", "shadow", False))
         self.assertEqual(s.on_sample(14, 14, 2, 2, True)[0], "retiring")
+
+    def test_a_standby_stands_by_until_promoted(self):
+        s = _Standing(3, late=True, standby=True)
+        self.assertEqual(s.on_sample(7, 7, 0, 0, True)[0], "standby")
+        self.assertEqual(s.on_sample(8, 8, 3, 3, True)[:2], ("active", "standby"))
 
     def test_skipped_measurements_count_as_the_rust_instance_counts_them(self):
         shadow = _Standing(1, late=True)

@@ -136,20 +136,28 @@ impl Pid {
 /// did not).
 fn law_start(dir: &Path, generation: u32) -> u64 {
     let needle = format!("generation {generation}: law stepped from sample ");
-    for entry in std::fs::read_dir(dir).unwrap().flatten() {
-        let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
-        if let Some(at) = text.find(&needle) {
-            assert!(
-                !text.contains(&format!("generation {generation}: law skipped")),
-                "{}: {text}",
-                entry.path().display()
-            );
-            let rest = &text[at + needle.len()..];
-            let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
-            return digits.parse().unwrap();
+    let Some((text, at)) = stderr_saying(dir, &needle) else {
+        panic!("no stderr file in {} says `{needle}`", dir.display());
+    };
+    assert!(
+        !text.contains(&format!("generation {generation}: law skipped")),
+        "{text}"
+    );
+    let rest = &text[at + needle.len()..];
+    let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+    digits.parse().unwrap()
+}
+
+/// The text of the stderr file in `dir` that says `needle`, and where.
+fn stderr_saying(dir: &Path, needle: &str) -> Option<(String, usize)> {
+    std::fs::read_dir(dir).unwrap().flatten().find_map(|entry| {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if !name.ends_with(".stderr") {
+            return None;
         }
-    }
-    panic!("no stderr file in {} says `{needle}`", dir.display());
+        let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
+        text.find(needle).map(|at| (text, at))
+    })
 }
 
 #[test]
@@ -296,6 +304,72 @@ fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
             c.generation
         );
     }
+    assert_clean(&dir);
+}
+
+#[test]
+fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
+    let dir = temp_dir("python-pid-standby");
+    let pid_scenario = python_pid_scenario(&dir);
+    let mut text = std::fs::read_to_string(&pid_scenario).unwrap();
+    text.push_str("\n[supervision]\nsafe_action = \"standby\"\n");
+    std::fs::write(&pid_scenario, text).unwrap();
+    let (child, prefix) = start_file(&dir, &pid_scenario, &["--rate", "1000"]);
+    wait_for_ticks(&dir, 100);
+    let standby = pid_on_duty(&dir, "controller", "standby");
+    // Once the standby steps its law (a Python start-up takes a while on a
+    // loaded machine) and has followed a while, kill the active controller.
+    let since = std::time::Instant::now();
+    while stderr_saying(&dir, "generation 1: law stepped from sample ").is_none() {
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "the standby never stepped its law"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    wait_for_ticks(&dir, recorded_ticks_in(&dir, "samples.mcap") + 300);
+    let active = pid_on_duty(&dir, "controller", "active");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(active, libc::SIGKILL) };
+    let since = std::time::Instant::now();
+    while !events(&dir).iter().any(|e| e["kind"] == "promote-standby") {
+        assert!(
+            since.elapsed() < Duration::from_secs(90),
+            "standby not promoted: {:?}",
+            events(&dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), standby);
+    wait_for_ticks(&dir, recorded_ticks_in(&dir, "samples.mcap") + 300);
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["rejected_commands"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    // The standby published its commands, marked, for the safe action, and
+    // after its promotion the loop's commands are its own.
+    let standby_commands = log
+        .commands()
+        .filter(|c| c.flags & flexloop_protocol::flags::STANDBY != 0)
+        .count();
+    assert!(
+        standby_commands > 100,
+        "{standby_commands} standby commands"
+    );
+    let promoted = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "promote-standby")
+        .unwrap();
+    let generation = promoted["generation"].as_u64().unwrap() as u32;
+    let served = log
+        .commands()
+        .filter(|c| c.generation == generation && c.flags & flexloop_protocol::flags::STANDBY == 0)
+        .count();
+    assert!(
+        served > 100,
+        "{served} commands after the promotion: {promoted}"
+    );
     assert_clean(&dir);
 }
 
