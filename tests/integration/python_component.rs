@@ -373,6 +373,55 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
     assert_clean(&dir);
 }
 
+#[test]
+fn a_python_law_with_parameters_it_cannot_use_is_refused_and_the_loop_runs_on() {
+    let dir = temp_dir("python-pid-bad-params");
+    let good = python_pid_scenario(&dir);
+    let text = std::fs::read_to_string(&good).unwrap();
+    // One parameter missing, one the law never reads.
+    let missing = dir.join("missing.toml");
+    std::fs::write(&missing, text.replace("kd = 110.0\n", "")).unwrap();
+    let unknown = dir.join("unknown.toml");
+    std::fs::write(
+        &unknown,
+        text.replace("kd = 110.0\n", "kd = 110.0\ngain = 2.0\n"),
+    )
+    .unwrap();
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 430);
+    for (file, says) in [
+        (&missing, "controller.params.kd: missing"),
+        (&unknown, "controller.params.gain: unknown parameter"),
+    ] {
+        let mut cmd = flexloop();
+        cmd.args(["swap", "controller"])
+            .arg(file)
+            .args(["--prefix", &prefix]);
+        let out = run_bounded(cmd, Duration::from_secs(120));
+        assert!(!out.status.success(), "{}", describe(&out));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("swap refused"),
+            "{}",
+            describe(&out)
+        );
+        // The program's own stderr names the file and the field.
+        assert!(
+            stderr_saying(&dir, says).is_some(),
+            "no stderr file in {} says `{says}`",
+            dir.display()
+        );
+    }
+    // The built-in controller kept the loop.
+    let served = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, served + 300);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(&dir);
+}
+
 /// examples/pid-controller/scenario.toml served by `exec`, as `dir/file`.
 fn example_scenario_with(dir: &Path, file: &str, exec: &[String]) -> PathBuf {
     let text =
