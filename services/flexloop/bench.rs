@@ -285,6 +285,7 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         over
     );
     println!("grid: {}", grid.verdict());
+    println!("{}", grid.late_components(c.stale_estimates));
     let swaps = if finished.switches.is_empty() {
         None
     } else {

@@ -12,6 +12,7 @@ use flexloop_runfiles::RunDir;
 use flexloop_runfiles::json::read_json;
 use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
 use flexloop_runtime::latency::QUANTILE_LABELS;
+use flexloop_scenario::ProgramRole;
 use flexloop_transport::{Domain, Inlet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -47,7 +48,7 @@ pub struct DownArgs {
 }
 
 /// `swap controller|observer SCENARIO [--prefix P]`, or
-/// `swap controller [--prefix P] --exec PROGRAM [ARGS]...`.
+/// `swap controller|observer [--prefix P] --exec PROGRAM [ARGS]...`.
 #[derive(Debug, clap::Args)]
 pub struct SwapArgs {
     /// The component to replace
@@ -58,9 +59,9 @@ pub struct SwapArgs {
     pub scenario: Option<PathBuf>,
     #[command(flatten)]
     pub which: PrefixArg,
-    /// The loop as it stands, served by this controller program (built on
-    /// flexloop-sdk or the Python package; docs/components.md); the rest of
-    /// the line is its arguments
+    /// The loop as it stands, with the component served by this program
+    /// (built on flexloop-sdk or the Python package; docs/components.md);
+    /// the rest of the line is its arguments
     #[arg(long, num_args = 1.., allow_hyphen_values = true, value_name = "PROGRAM [ARGS]")]
     pub exec: Option<Vec<String>>,
 }
@@ -199,10 +200,18 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
         _ => bail!("several loops are running: name one with --prefix"),
     };
     let scenario = match (args.scenario, args.exec) {
-        (_, Some(exec)) if args.role == SwapRole::Controller => {
-            with_program(args.which.prefix.as_deref(), &entry.run_dir, &exec)?
+        (_, Some(exec)) => {
+            let program_role = match args.role {
+                SwapRole::Controller => ProgramRole::Controller,
+                SwapRole::Observer => ProgramRole::Observer,
+            };
+            with_program(
+                args.which.prefix.as_deref(),
+                &entry.run_dir,
+                program_role,
+                &exec,
+            )?
         }
-        (_, Some(_)) => bail!("--exec: only a controller runs as a program of its own"),
         (scenario, None) => resolve_scenario(scenario)?,
     };
     let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)?;
@@ -220,12 +229,13 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
     Ok(0)
 }
 
-/// The loop's scenario as it stands, with its controller served by the
-/// program `exec` (a path with a `/` is relative to the working directory,
-/// which the program runs in), written beside the run's other scenarios.
+/// The loop's scenario as it stands, with `role` served by the program
+/// `exec` (a path with a `/` is relative to the working directory, which
+/// the program runs in), written beside the run's other scenarios.
 fn with_program(
     prefix: Option<&str>,
     run_dir: &std::path::Path,
+    role: ProgramRole,
     exec: &[String],
 ) -> anyhow::Result<PathBuf> {
     let (path, text) = crate::tune::current(prefix)?;
@@ -237,23 +247,23 @@ fn with_program(
         exec[0] = std::path::absolute(&exec[0])?.display().to_string();
     }
     // The built-in law's fields do not apply to a program (and are refused).
-    if let Some(toml::Value::Table(supervision)) = table.get_mut("supervision") {
-        supervision.remove("estimate_watchdog_ticks");
+    for field in role.built_in_only() {
+        let (section, key) = field.split_once('.').expect("a dotted field");
+        if let Some(toml::Value::Table(section)) = table.get_mut(section) {
+            section.remove(key);
+        }
     }
-    let controller = table
-        .entry("controller")
+    let section = table
+        .entry(role.section())
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    let toml::Value::Table(controller) = controller else {
-        bail!("{}: [controller] is not a table", path.display());
+    let toml::Value::Table(section) = section else {
+        bail!("{}: [{}] is not a table", path.display(), role.section());
     };
-    for field in flexloop_scenario::program::BUILT_IN_ONLY {
-        controller.remove(field.trim_start_matches("controller."));
-    }
-    controller.insert(
+    section.insert(
         "exec".into(),
         toml::Value::Array(exec.into_iter().map(toml::Value::String).collect()),
     );
-    controller.insert(
+    section.insert(
         "workdir".into(),
         toml::Value::String(here.display().to_string()),
     );
@@ -333,6 +343,7 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         misses: t.misses,
         stall_misses: t.stall_misses,
     };
+    println!("  {}", grid.late_components(t.stale_estimates));
     println!("  verdict: {}", grid.verdict());
     Ok(grid.stalls_dominate())
 }

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_runtime::shutdown;
-use flexloop_scenario::{ComponentProgram, Scenario};
+use flexloop_scenario::{ComponentProgram, ProgramRole, Scenario};
 use flexloop_transport::{Domain, cleanup_dead_nodes};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::os::unix::process::CommandExt;
@@ -84,15 +84,18 @@ fn binary(role: Role) -> std::io::Result<PathBuf> {
     Ok(dir.join(format!("flexloop-{}", role.name())))
 }
 
-/// The scenario's own program for `role`, if it names one (a controller's
-/// `controller.exec`, docs/components.md); else the built-in process serves.
+/// The scenario's own program for `role`, if it names one (`exec` in the
+/// controller's or observer's section, docs/components.md); else the
+/// built-in process serves.
 pub fn own_program(role: Role, scenario: &Path) -> Result<Option<ComponentProgram>> {
-    if role != Role::Controller {
-        return Ok(None);
-    }
+    let program_role = match role {
+        Role::Controller => ProgramRole::Controller,
+        Role::Observer => ProgramRole::Observer,
+        Role::Plant | Role::Logger => return Ok(None),
+    };
     let text = std::fs::read_to_string(scenario)
         .with_context(|| format!("cannot read {}", scenario.display()))?;
-    Ok(Scenario::parse(scenario, &text)?.controller_program()?)
+    Ok(Scenario::parse(scenario, &text)?.program(program_role)?)
 }
 
 /// What to start for `role` joining as `joining` with `scenario`: its own

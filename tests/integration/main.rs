@@ -10,7 +10,7 @@ mod chaos;
 mod design;
 mod loop_processes;
 mod mimo;
-mod own_controller;
+mod own_components;
 mod own_plant;
 mod positions;
 mod python_component;

@@ -473,7 +473,7 @@ fn the_python_pid_commands_a_lockstep_run_as_the_rust_example_does() {
     let rust_file = example_scenario_with(
         &dir,
         "rust.toml",
-        &[crate::own_controller::example_program()
+        &[crate::own_components::example_program()
             .display()
             .to_string()],
     );

@@ -379,8 +379,8 @@ impl Core {
 
     /// How `role` comes back after its crash (the role's serving instance is
     /// dead). A controller with a standby that follows the loop promotes it.
-    /// A controller program of one's own (`is_program` says which scenario
-    /// names one) that dies is rolled back to the newest built-in design
+    /// A program of one's own (`is_program` says which scenario names one
+    /// for the role) that dies is rolled back to the newest built-in design
     /// that served before it, if one did: a law that crashed once is likely
     /// to crash again, and the built-in one is known to hold the loop.
     pub fn plan_restart(
@@ -417,7 +417,7 @@ impl Core {
                 generation,
             });
         }
-        let rollback = (role == Role::Controller && is_program(&scenario))
+        let rollback = is_program(&scenario)
             .then(|| {
                 self.roster
                     .iter()

@@ -43,6 +43,31 @@ impl GridCounts {
         self.stall_share() > STALL_SHARE_LIMIT
     }
 
+    /// Which component was late, in words: the controller, whose commands
+    /// came after their tick or not at all outside stalls (the plant held
+    /// its input), and the observer, whose estimates came after the
+    /// controller's half-period wait (it used one a tick old). A component
+    /// slower than the period, a user's program included, shows here.
+    pub fn late_components(&self, stale_estimates: u64) -> String {
+        let mut late = Vec::new();
+        if self.late_commands + self.misses > 0 {
+            late.push(format!(
+                "controller ({} commands after their tick, {} ticks without one outside stalls: the plant held its input)",
+                self.late_commands, self.misses
+            ));
+        }
+        if stale_estimates > 0 {
+            late.push(format!(
+                "observer ({stale_estimates} estimates after the controller's half-period wait: it used the one a tick old)"
+            ));
+        }
+        if late.is_empty() {
+            "no component was late".into()
+        } else {
+            format!("late: {}", late.join("; "))
+        }
+    }
+
     /// One line: the verdict and the counts behind it.
     pub fn verdict(&self) -> String {
         let counts = format!(
@@ -159,6 +184,28 @@ pub fn judged_spans(windows: &[(f64, f64)], lead_s: f64) -> Vec<(f64, f64)> {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn the_late_component_is_named_by_what_it_was_late_with() {
+        let on_time = GridCounts {
+            ticks: 1_000,
+            ..GridCounts::default()
+        };
+        assert_eq!(on_time.late_components(0), "no component was late");
+        let slow_controller = GridCounts {
+            late_commands: 3,
+            misses: 5,
+            ..on_time
+        };
+        let said = slow_controller.late_components(0);
+        assert!(
+            said.starts_with("late: controller (3 commands") && !said.contains("observer"),
+            "{said}"
+        );
+        let said = on_time.late_components(7);
+        assert!(said.starts_with("late: observer (7 estimates"), "{said}");
+    }
+
     use super::*;
     use crate::trace::TickTiming;
 

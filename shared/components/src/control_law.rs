@@ -5,11 +5,8 @@
 //! every law, so a law is only the per-sample computation and, optionally,
 //! what it hands to a successor.
 
-use flexloop_design::LoopDesign;
-use flexloop_protocol::{Command, Estimate, Handover, MAX_HANDOVER_STATES, Measurement, flags};
-use flexloop_scenario::Scenario;
-use std::fmt;
-use std::path::PathBuf;
+pub use crate::law_setup::{LawSetup as ControllerSetup, SetupError};
+use flexloop_protocol::{Command, Estimate, Handover, Measurement, flags};
 
 /// A controller's law: u(k) from y(k) and the observer's estimate for tick k.
 ///
@@ -29,7 +26,7 @@ pub trait ControlLaw: Sized {
     fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command);
 
     /// Writes the state a successor of the same design continues from
-    /// ([`save_state`] for a small one); the default hands nothing over, and a
+    /// ([`save_state`](crate::law_setup::save_state) for a small one); the default hands nothing over, and a
     /// successor starts from its own state, shifted by [`Self::shift_output`].
     fn save(&self, _out: &mut Handover) {}
 
@@ -58,78 +55,6 @@ pub trait ControlLaw: Sized {
     }
 }
 
-/// What a law is built from: the scenario as the loop runs it, its design
-/// (the observer's block the estimate carries, the limits) and the law's own
-/// table `[controller.params]`.
-pub struct ControllerSetup<'a> {
-    pub scenario: &'a Scenario,
-    pub design: &'a LoopDesign,
-    /// The generation this instance serves as.
-    pub generation: u32,
-}
-
-impl ControllerSetup<'_> {
-    /// The sample period in seconds.
-    pub fn ts(&self) -> f64 {
-        self.design.ts
-    }
-
-    pub fn n_inputs(&self) -> usize {
-        self.design.n_inputs
-    }
-
-    pub fn n_outputs(&self) -> usize {
-        self.design.n_outputs
-    }
-
-    /// The set-point the scenario's `[reference]` gives (its value and four
-    /// derivatives at a time in seconds: `reference().sample(seq as f64 * ts)`).
-    pub fn reference(&self) -> flexloop_design::reference::Reference {
-        self.design.reference.clone()
-    }
-
-    /// The actuator's limit (the scenario's `plant.input_limit`).
-    pub fn input_limit(&self) -> f64 {
-        self.design.input_limit
-    }
-
-    /// The law's own tunables: `[controller.params]` read into `T` (serde);
-    /// an error names the scenario file and the field. Without the table,
-    /// `T` is read from an empty one (its defaults, or an error naming the
-    /// first field it needs).
-    pub fn params<T: serde::de::DeserializeOwned>(&self) -> Result<T, SetupError> {
-        let table = self.scenario.controller.params.clone().unwrap_or_default();
-        toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| SetupError::Params {
-                file: self.scenario.source.clone(),
-                reason: e.message().to_string(),
-            })
-    }
-}
-
-/// Why a law could not be built.
-#[derive(Debug)]
-pub enum SetupError {
-    /// `[controller.params]` does not read as the law's tunables.
-    Params { file: PathBuf, reason: String },
-    /// The law cannot serve this loop (another model, too many inputs, …).
-    Unsupported(String),
-}
-
-impl fmt::Display for SetupError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            SetupError::Params { file, reason } => {
-                write!(f, "{}: controller.params: {reason}", file.display())
-            }
-            SetupError::Unsupported(why) => f.write_str(why),
-        }
-    }
-}
-
-impl std::error::Error for SetupError {}
-
 /// The process's part of a command: which sample, which instance, how many
 /// values, and the times and conditions the law does not know. The same for
 /// every law, so that a user's law cannot get them wrong.
@@ -153,27 +78,4 @@ pub fn stamp_command(
     out.generation = generation;
     out.n_inputs = n_inputs as u32;
     out.n_outputs = n_outputs as u32;
-}
-
-/// A small law's state in a hand-over: `state` under its design's
-/// fingerprint. False if it does not fit (then nothing is handed over).
-pub fn save_state(out: &mut Handover, design_hash: u64, state: &[f64]) -> bool {
-    if state.len() > MAX_HANDOVER_STATES {
-        out.design_hash = 0;
-        out.n_states = 0;
-        return false;
-    }
-    out.design_hash = design_hash;
-    out.n_states = state.len() as u32;
-    out.state[..state.len()].copy_from_slice(state);
-    true
-}
-
-/// The state a predecessor of design `design_hash` handed over, if it is
-/// one and every value is finite.
-pub fn saved_state(from: &Handover, design_hash: u64) -> Option<&[f64]> {
-    let n = from.n_states as usize;
-    (from.design_hash == design_hash && n <= MAX_HANDOVER_STATES)
-        .then(|| &from.state[..n])
-        .filter(|s| s.iter().all(|v| v.is_finite()))
 }

@@ -8,8 +8,9 @@
 //!   commands, stalls).
 //! - [`observer`]: runs the observer block on y(k), u_a(k) and prepares the
 //!   estimate for tick k+1.
-//! - [`control_law`]: the trait every controller law implements, the
-//!   built-in one and a user's (docs/components.md).
+//! - [`control_law`], [`estimation_law`]: the traits every controller's and
+//!   observer's law implements, the built-in ones and a user's; [`law_setup`]:
+//!   what such a law is built from (docs/components.md).
 //! - [`controller`]: finishes the observer's direct term, runs feedback,
 //!   feedforward and limits: u(k).
 //! - [`handover`]: design fingerprints and bumpless state shifts for swaps.
@@ -26,8 +27,10 @@
 
 pub mod control_law;
 pub mod controller;
+pub mod estimation_law;
 pub mod handover;
 pub mod in_process;
+pub mod law_setup;
 pub mod loop_events;
 pub mod mcap_repair;
 pub mod noise;
@@ -37,9 +40,11 @@ pub mod recorder;
 pub mod sample_file;
 pub mod storage;
 
-pub use control_law::{ControlLaw, ControllerSetup, SetupError};
+pub use control_law::{ControlLaw, ControllerSetup};
 pub use controller::ControllerCore;
+pub use estimation_law::{EstimationLaw, ObserverSetup};
 pub use in_process::InProcessLoop;
+pub use law_setup::{LawRole, LawSetup, SetupError};
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
 pub use recorder::{RecordSink, Recorder};

@@ -5,6 +5,7 @@
 //! controller adds D·[y(k+1); u_a(k+1)] itself when y(k+1) arrives, so the
 //! observer is never on the critical path between y(k+1) and u(k+1).
 
+use crate::estimation_law::{EstimationLaw, ObserverSetup, SetupError};
 use crate::handover::Fingerprint;
 use flexloop_control::lti::LtiRunner;
 use flexloop_control::scheduled_observer::ScheduledObserver;
@@ -335,5 +336,29 @@ impl ObserverCore {
         self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
         out.x_hat[..self.x_hat.len()].copy_from_slice(self.x_hat.as_slice());
         self.next_seq = seq + 1;
+    }
+}
+
+/// The built-in observer, on the API a user's observer is written against.
+impl EstimationLaw for ObserverCore {
+    fn new(setup: &ObserverSetup<'_>) -> Result<Self, SetupError> {
+        ObserverCore::for_design(setup.design)
+            .map_err(|e| SetupError::Unsupported(format!("observer design: {e}")))
+    }
+
+    fn initial(&mut self, out: &mut Estimate) {
+        ObserverCore::initial(self, out);
+    }
+
+    fn step(&mut self, m: &Measurement, out: &mut Estimate) {
+        ObserverCore::step(self, m, out);
+    }
+
+    fn save(&self, out: &mut Handover) {
+        ObserverCore::save(self, out);
+    }
+
+    fn load(&mut self, from: &Handover) -> bool {
+        ObserverCore::load(self, from)
     }
 }

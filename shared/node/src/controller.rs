@@ -6,6 +6,7 @@ use crate::duty::Duty;
 use crate::handover::{ActivationView, HandoverRing};
 use crate::instance::{Component, Instance, Ports};
 use crate::{NodeError, await_peers};
+use flexloop_components::LawRole;
 use flexloop_components::control_law::{ControlLaw, ControllerSetup, stamp_command};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
@@ -115,6 +116,7 @@ impl<L: ControlLaw> Component for Controller<L> {
             scenario,
             design,
             generation,
+            role: LawRole::Controller,
         })
         .map_err(|e| NodeError::Law(e.to_string()))?;
         Ok(Self {

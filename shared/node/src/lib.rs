@@ -26,7 +26,7 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 pub use args::{Role, ServiceArgs};
-use flexloop_components::{ControlLaw, ControllerCore};
+use flexloop_components::{ControlLaw, ControllerCore, EstimationLaw, ObserverCore};
 
 /// Why a loop process stopped with an error.
 #[derive(Debug)]
@@ -114,7 +114,9 @@ pub(crate) fn await_peers(
 pub fn main_for(role: Role) -> i32 {
     serve_role(role, |args| match role {
         Role::Plant => plant::run(args),
-        Role::Observer => instance::run::<observer::Observer>(args, instance::Spares::Serves),
+        Role::Observer => {
+            instance::run::<observer::Observer<ObserverCore>>(args, instance::Spares::Serves)
+        }
         Role::Controller => {
             instance::run::<controller::Controller<ControllerCore>>(args, instance::Spares::Serves)
         }
@@ -128,6 +130,14 @@ pub fn main_for(role: Role) -> i32 {
 pub fn run_controller<L: ControlLaw>() -> i32 {
     serve_role(Role::Controller, |args| {
         instance::run::<controller::Controller<L>>(args, instance::Spares::Never)
+    })
+}
+
+/// Runs an observer process around the law `L` (a user's program, built
+/// on flexloop-sdk), as [`run_controller`] does a controller's.
+pub fn run_observer<L: EstimationLaw>() -> i32 {
+    serve_role(Role::Observer, |args| {
+        instance::run::<observer::Observer<L>>(args, instance::Spares::Never)
     })
 }
 

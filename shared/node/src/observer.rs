@@ -8,8 +8,8 @@ use crate::handover::ActivationView;
 use crate::instance::{Component, Instance, Ports};
 use crate::replay::{CatchUp, Replayed};
 use crate::{NodeError, await_peers};
-use flexloop_components::ObserverCore;
-use flexloop_components::observer::ObserverSizeError;
+use flexloop_components::LawRole;
+use flexloop_components::estimation_law::{EstimationLaw, ObserverSetup, stamp_estimate};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{
     ESTIMATE, MEASUREMENT, MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP,
@@ -21,9 +21,9 @@ use flexloop_scenario::Scenario;
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 use std::time::{Duration, Instant};
 
-/// An observer instance's own: its core and what it took over.
-pub(crate) struct Observer {
-    core: ObserverCore,
+/// An observer instance's own: its law and what it took over.
+pub(crate) struct Observer<L> {
+    core: Stamped<L>,
     shadow_estimate: Box<Estimate>,
     /// Whether the core holds a state handed over (not its initial one).
     copied: bool,
@@ -41,7 +41,7 @@ pub(crate) struct Own {
     estimates: Outlet<Estimate>,
 }
 
-impl Component for Observer {
+impl<L: EstimationLaw> Component for Observer<L> {
     const ROLE: Role = Role::Observer;
     const STATE: &'static Channel = &OBSERVER_STATE;
     type Own = Own;
@@ -98,12 +98,21 @@ impl Component for Observer {
     fn design(
         design: &LoopDesign,
         scenario: &Scenario,
-        _generation: u32,
+        generation: u32,
     ) -> Result<Self, NodeError> {
-        let core = ObserverCore::for_design(design)
-            .map_err(|e: ObserverSizeError| NodeError::Peer(format!("observer design: {e}")))?;
+        let law = L::new(&ObserverSetup {
+            scenario,
+            design,
+            generation,
+            role: LawRole::Observer,
+        })
+        .map_err(|e| NodeError::Law(format!("observer: {e}")))?;
         Ok(Self {
-            core,
+            core: Stamped {
+                law,
+                n_outputs: design.n_outputs,
+                n_inputs: design.n_inputs,
+            },
             shadow_estimate: Box::default(),
             copied: false,
             expected_readers: 1
@@ -299,7 +308,7 @@ impl Component for Observer {
     }
 }
 
-impl Observer {
+impl<L: EstimationLaw> Observer<L> {
     /// Shadow: follow the active instance's state through measurement `m`,
     /// publish nothing.
     fn follow(
@@ -418,7 +427,7 @@ impl std::fmt::Display for CaughtUp {
 /// work in shadow, off the loop's CPU; bounded by [`CATCH_UP_TIMEOUT`].
 #[allow(clippy::too_many_arguments)]
 fn catch_up(
-    core: &mut ObserverCore,
+    core: &mut Stamped<impl EstimationLaw>,
     state_seq: u64,
     first_live: Option<&Measurement>,
     replay: &Inlet<Measurement>,
@@ -499,4 +508,33 @@ fn catch_up(
         incomplete,
         end_of_run,
     })
+}
+
+/// A law and the counts its estimates are stamped with: every estimate
+/// this process publishes carries the tick it is for and the measurement it
+/// came from, whatever the law wrote.
+struct Stamped<L> {
+    law: L,
+    n_outputs: usize,
+    n_inputs: usize,
+}
+
+impl<L: EstimationLaw> Stamped<L> {
+    fn initial(&mut self, out: &mut Estimate) {
+        self.law.initial(out);
+        stamp_estimate(out, None, self.n_outputs, self.n_inputs);
+    }
+
+    fn step(&mut self, m: &Measurement, out: &mut Estimate) {
+        self.law.step(m, out);
+        stamp_estimate(out, Some(m), self.n_outputs, self.n_inputs);
+    }
+
+    fn save(&self, out: &mut Handover) {
+        self.law.save(out);
+    }
+
+    fn load(&mut self, from: &Handover) -> bool {
+        self.law.load(from)
+    }
 }

@@ -7,7 +7,8 @@
 //! - `validate`: ranges, consistency, and the machine's fitness for the profile.
 //! - [`plant_description`]: the plant a user brings (lumped networks, model
 //!   files, the chain's parameters, modal damping).
-//! - [`program`]: a user's program serving a role (`controller.exec`).
+//! - [`program`]: a user's program serving a role (`controller.exec`,
+//!   `observer.exec`).
 //! - [`limits`]: the bounds on every number.
 //! - [`swap`]: the fields a live swap may change and those it may not.
 //! - [`tick`]: `realtime.tick`, where it applies and where it falls back.
@@ -27,7 +28,7 @@ mod validate;
 mod validate_plant;
 
 pub use error::ScenarioError;
-pub use program::ComponentProgram;
+pub use program::{ComponentProgram, ProgramRole};
 pub use schema::{
     DEDICATED_CORES_MIN_CPUS, Mode, Overrides, PidBandwidth, Profile, Scenario, TickWait,
 };

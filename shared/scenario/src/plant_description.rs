@@ -149,10 +149,11 @@ impl<'de> Deserialize<'de> for Damper {
 
 /// The fields that name a file relative to the scenario's directory: the
 /// plant's model and the IO observer's correction filter.
-const FILE_FIELDS: [(&str, &str); 3] = [
+const FILE_FIELDS: [(&str, &str); 4] = [
     ("plant", "file"),
     ("observer", "correction_file"),
     ("controller", "workdir"),
+    ("observer", "workdir"),
 ];
 
 /// A copy of a scenario written elsewhere (a variant `bench` or `chaos`
@@ -180,9 +181,15 @@ pub fn anchor_files(table: &mut toml::Table, scenario: &std::path::Path) {
             );
         }
     }
-    // A controller program: its path (one with a `/`) and, absent, its
+    // A program of one's own: its path (one with a `/`) and, absent, its
     // working directory (the scenario's) are relative to the directory too.
-    let Some(controller) = table.get_mut("controller").and_then(|c| c.as_table_mut()) else {
+    for section in ["controller", "observer"] {
+        anchor_program(table, section, &dir);
+    }
+}
+
+fn anchor_program(table: &mut toml::Table, section: &str, dir: &std::path::Path) {
+    let Some(controller) = table.get_mut(section).and_then(|c| c.as_table_mut()) else {
         return;
     };
     let Some(toml::Value::Array(exec)) = controller.get_mut("exec") else {

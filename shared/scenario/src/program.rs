@@ -1,5 +1,6 @@
-//! `controller.exec`: the program that serves the controller role in place
-//! of the built-in `flexloop-controller` (docs/components.md).
+//! `controller.exec` and `observer.exec`: the program that serves a role in
+//! place of the built-in `flexloop-controller` or `flexloop-observer`
+//! (docs/components.md).
 //!
 //! The supervisor starts it exactly as it starts the built-in process (the
 //! same flags after the scenario's own arguments), so a program written on
@@ -25,17 +26,55 @@ pub struct ComponentProgram {
     pub workdir: PathBuf,
 }
 
+/// A role a program of one's own may serve, and its section's fields.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProgramRole {
+    Controller,
+    Observer,
+}
+
+impl ProgramRole {
+    pub const ALL: [ProgramRole; 2] = [ProgramRole::Controller, ProgramRole::Observer];
+
+    pub fn section(self) -> &'static str {
+        match self {
+            ProgramRole::Controller => "controller",
+            ProgramRole::Observer => "observer",
+        }
+    }
+
+    /// The built-in law's tuning: fields a program does not read.
+    pub fn built_in_only(self) -> &'static [&'static str] {
+        match self {
+            ProgramRole::Controller => &CONTROLLER_BUILT_IN_ONLY,
+            ProgramRole::Observer => &OBSERVER_BUILT_IN_ONLY,
+        }
+    }
+}
+
 impl Scenario {
     /// The controller's program, if the scenario names one
     /// (`controller.exec`), resolved and checked.
     pub fn controller_program(&self) -> Result<Option<ComponentProgram>, ScenarioError> {
-        let Some(exec) = &self.controller.exec else {
+        self.program(ProgramRole::Controller)
+    }
+
+    /// The program serving `role`, if the scenario names one (`exec` in
+    /// its section), resolved and checked.
+    pub fn program(&self, role: ProgramRole) -> Result<Option<ComponentProgram>, ScenarioError> {
+        let (exec, workdir) = match role {
+            ProgramRole::Controller => (&self.controller.exec, &self.controller.workdir),
+            ProgramRole::Observer => (&self.observer.exec, &self.observer.workdir),
+        };
+        let section = role.section();
+        let exec_field = format!("{section}.exec");
+        let Some(exec) = exec else {
             return Ok(None);
         };
         let Some((program, args)) = exec.split_first() else {
             return Err(self.err(
-                "controller.exec",
-                "is empty: give the program, then its arguments (`exec = [\"./my-controller\"]`)",
+                &exec_field,
+                "is empty: give the program, then its arguments (`exec = [\"./my-law\"]`)",
             ));
         };
         let dir = self.directory();
@@ -47,16 +86,13 @@ impl Scenario {
                 path.to_path_buf()
             };
             check_executable(&path).map_err(|why| {
-                self.err(
-                    "controller.exec",
-                    format!("program {}: {why}", path.display()),
-                )
+                self.err(&exec_field, format!("program {}: {why}", path.display()))
             })?;
             path
         } else {
             find_on_path(program).ok_or_else(|| {
                 self.err(
-                    "controller.exec",
+                    &exec_field,
                     format!(
                         "no executable `{program}` on PATH (a program in the scenario's \
                          directory is written `./{program}`)"
@@ -64,14 +100,14 @@ impl Scenario {
                 )
             })?
         };
-        let workdir = match &self.controller.workdir {
+        let workdir = match workdir {
             Some(w) if w.is_relative() => dir.join(w),
             Some(w) => w.clone(),
             None => dir,
         };
         if !workdir.is_dir() {
             return Err(self.err(
-                "controller.workdir",
+                &format!("{section}.workdir"),
                 format!("{} is not a directory", workdir.display()),
             ));
         }
@@ -92,58 +128,81 @@ impl Scenario {
         std::fs::canonicalize(&dir).unwrap_or(dir)
     }
 
-    /// `controller.workdir` and `controller.params` act only on a program,
-    /// the built-in controller's tuning only on the built-in controller.
+    fn gives(&self, field: &str) -> bool {
+        self.given
+            .iter()
+            .any(|g| g == field || g.starts_with(&format!("{field}.")))
+    }
+
+    /// `workdir` and `params` act only on a program, the built-in law's
+    /// tuning only on the built-in law.
     pub(crate) fn validate_program(&self) -> Result<(), ScenarioError> {
-        if self.controller.exec.is_some() {
-            // The built-in law's watchdog: a program sees each estimate's
-            // sequence number and decides itself what a stale one means.
-            if self.given.contains("supervision.estimate_watchdog_ticks") {
-                return Err(self.err(
-                    "supervision.estimate_watchdog_ticks",
-                    "acts on the built-in controller's law, not on a program of one's own \
-                     (`controller.exec`), which sees each estimate's `seq` and decides itself",
-                ));
-            }
-            for field in BUILT_IN_ONLY {
-                if self
-                    .given
-                    .iter()
-                    .any(|g| g == field || g.starts_with(&format!("{field}.")))
-                {
+        for role in ProgramRole::ALL {
+            let section = role.section();
+            if self.program(role)?.is_some() {
+                if let Some(field) = role.built_in_only().iter().find(|f| self.gives(f)) {
                     return Err(self.err(
                         field,
-                        "tunes the built-in controller, not a program of one's own \
-                         (`controller.exec`); its tunables are `[controller.params]`",
+                        format!(
+                            "tunes the built-in {section}, not a program of one's own \
+                             (`{section}.exec`): its tunables are `[{section}.params]`"
+                        ),
                     ));
                 }
+                continue;
             }
-        } else {
-            for field in ["controller.workdir", "controller.params"] {
-                if self
-                    .given
-                    .iter()
-                    .any(|g| g == field || g.starts_with(&format!("{field}.")))
-                {
+            for field in [format!("{section}.workdir"), format!("{section}.params")] {
+                if self.gives(&field) {
                     return Err(self.err(
-                        field,
-                        "applies only to a controller program (`controller.exec`); the \
-                         built-in controller is tuned by the other controller fields",
+                        &field,
+                        format!(
+                            "applies only to a {section} program (`{section}.exec`); the \
+                             built-in {section} is tuned by the other {section} fields"
+                        ),
                     ));
                 }
             }
         }
-        self.controller_program().map(|_| ())
+        Ok(())
     }
 }
 
-/// The built-in controller's own tuning: fields a program does not read.
-pub const BUILT_IN_ONLY: [&str; 5] = [
+/// The built-in controller's own tuning (and its law's watchdog: a program
+/// sees each estimate's sequence number and decides itself what a stale
+/// one means).
+const CONTROLLER_BUILT_IN_ONLY: [&str; 6] = [
     "controller.feedback",
     "controller.bandwidth_hz",
     "controller.notches_hz",
     "controller.feedforward",
     "controller.feedforward_form",
+    "supervision.estimate_watchdog_ticks",
+];
+
+/// The built-in observer's tuning; `observer.design` stays, since it gives
+/// the estimate's layout the built-in controller reads.
+const OBSERVER_BUILT_IN_ONLY: [&str; 21] = [
+    "observer.observer_bandwidth_hz",
+    "observer.observer_damping",
+    "observer.feedback_bandwidth_hz",
+    "observer.feedback_damping",
+    "observer.mc",
+    "observer.ad",
+    "observer.q_nu",
+    "observer.damping_increase",
+    "observer.damping_target",
+    "observer.process_noise",
+    "observer.measurement_noise",
+    "observer.kalman_q",
+    "observer.kalman_r",
+    "observer.max_mode_hz",
+    "observer.flexible_modes",
+    "observer.bandpass_q",
+    "observer.scheduling",
+    "observer.scheduling_step",
+    "observer.correction",
+    "observer.correction_file",
+    "observer.correction_arrays",
 ];
 
 fn check_executable(path: &Path) -> Result<(), String> {
@@ -215,6 +274,27 @@ mod tests {
         assert!(e.reason.contains("empty"), "{e}");
         let e = scenario_in(&dir, "exec = [\"no-such-program-flexloop\"]").unwrap_err();
         assert!(e.reason.contains("PATH"), "{e}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn an_observer_program_takes_its_own_params_not_the_built_in_tuning() {
+        let dir = temp_dir("observer");
+        let lecture = include_str!("../../../scenarios/lecture-double-integrator.toml");
+        let with_observer = |observer: &str| {
+            let text = lecture.replace(
+                "[observer]\ndesign = \"state-feedback\"\nobserver_bandwidth_hz = 200.0\nobserver_damping = 0.7\nfeedback_bandwidth_hz = 20.0\nfeedback_damping = 0.7\n",
+                &format!("[observer]\ndesign = \"state-feedback\"\n{observer}\n"),
+            );
+            assert_ne!(text, lecture, "the lecture scenario's [observer] changed");
+            Scenario::from_text(&dir.join("s.toml"), &text, &Overrides::default())
+        };
+        let s = with_observer("exec = [\"sh\"]\n[observer.params]\nbandwidth_hz = 200.0").unwrap();
+        assert!(s.program(ProgramRole::Observer).unwrap().is_some());
+        let e = with_observer("exec = [\"sh\"]\nq_nu = 3.0").unwrap_err();
+        assert_eq!(e.field.as_deref(), Some("observer.q_nu"));
+        let e = with_observer("[observer.params]\nbandwidth_hz = 200.0").unwrap_err();
+        assert_eq!(e.field.as_deref(), Some("observer.params"));
         std::fs::remove_dir_all(dir).unwrap();
     }
 

@@ -325,6 +325,13 @@ pub struct ObserverSection {
     pub correction_file: Option<PathBuf>,
     /// `io`: the same arrays inline, instead of a file (rows as arrays).
     pub correction_arrays: Option<toml::Table>,
+    /// A program that serves the observer role in place of the built-in
+    /// one, as `controller.exec` does for the controller (docs/components.md).
+    pub exec: Option<Vec<String>>,
+    /// The program's working directory; only with `exec`.
+    pub workdir: Option<PathBuf>,
+    /// The program's own tunables; only with `exec`.
+    pub params: Option<toml::Table>,
 }
 
 fn default_scheduling() -> String {

@@ -1,4 +1,4 @@
-//! flexloop-sdk: what a user's controller is written against
+//! flexloop-sdk: what a user's controller or observer is written against
 //! (docs/components.md).
 //!
 //! Implement [`ControlLaw`] for a type (its `new` from the scenario and its
@@ -28,6 +28,8 @@
 //! }
 //! ```
 //!
+//! An observer is the same with [`EstimationLaw`] and [`run_observer`].
+//!
 //! The program then is everything the built-in `flexloop-controller` is:
 //! the start-up handshake, shadowing as a replacement, the hand-over at a
 //! sample boundary (its own state from [`ControlLaw::save`], or a bumpless
@@ -35,12 +37,12 @@
 //! on SIGTERM. The built-in controller is this same trait's
 //! [`ControllerCore`](flexloop_components::ControllerCore).
 
-pub use flexloop_components::control_law::{
-    ControlLaw, ControllerSetup, SetupError, save_state, saved_state,
-};
+pub use flexloop_components::control_law::{ControlLaw, ControllerSetup};
+pub use flexloop_components::estimation_law::{EstimationLaw, ObserverSetup};
+pub use flexloop_components::law_setup::{LawRole, SetupError, save_state, saved_state};
 pub use flexloop_design::LoopDesign;
 pub use flexloop_design::reference::Reference;
-pub use flexloop_node::{own_args, run_controller};
+pub use flexloop_node::{own_args, run_controller, run_observer};
 pub use flexloop_protocol::{
     Command, Estimate, Handover, MAX_INPUTS, MAX_OUTPUTS, MAX_STATES, Measurement,
 };

@@ -1,8 +1,9 @@
-//! A controller of one's own (docs/components.md): the example on
-//! flexloop-sdk outside the workspace (examples/pid-controller), built as a
-//! user builds it, runs the loop from its start and swaps into a running
-//! loop and back; programs that cannot serve are refused before anything
-//! starts, or their swap is, and the loop runs on.
+//! A controller and an observer of one's own (docs/components.md): the
+//! examples on flexloop-sdk outside the workspace (examples/pid-controller,
+//! examples/luenberger-observer), built as a user builds them, run the loop
+//! from its start and swap into a running loop and back; programs that
+//! cannot serve are refused before anything starts, or their swap is, and
+//! the loop runs on.
 
 use crate::util::*;
 use flexloop_components::LogReader;
@@ -11,27 +12,36 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;
 
-/// The example's program, built once for every test here, into this
-/// build's target directory (its dependencies are the workspace's own).
-pub(crate) fn example_program() -> &'static Path {
+/// The examples' programs (pid-controller, luenberger-observer), built
+/// once for every test here, into this build's target directory (their
+/// dependencies are the workspace's own).
+fn built(example: &str) -> PathBuf {
     static BUILT: OnceLock<PathBuf> = OnceLock::new();
-    BUILT.get_or_init(|| {
+    let debug = BUILT.get_or_init(|| {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let target = Path::new(env!("CARGO_TARGET_TMPDIR"))
             .parent()
             .expect("target/tmp is in the target directory")
             .to_path_buf();
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut build = std::process::Command::new(cargo);
-        build
-            .args(["build", "--offline", "--manifest-path"])
-            .arg(root.join("examples/pid-controller/Cargo.toml"))
-            .arg("--target-dir")
-            .arg(&target);
-        let out = run_bounded(build, Duration::from_secs(1_800));
-        assert!(out.status.success(), "{}", describe(&out));
-        target.join("debug/pid-controller")
-    })
+        for name in ["pid-controller", "luenberger-observer"] {
+            let mut build = std::process::Command::new(&cargo);
+            build
+                .args(["build", "--offline", "--manifest-path"])
+                .arg(root.join("examples").join(name).join("Cargo.toml"))
+                .arg("--target-dir")
+                .arg(&target);
+            let out = run_bounded(build, Duration::from_secs(1_800));
+            assert!(out.status.success(), "{}", describe(&out));
+        }
+        target.join("debug")
+    });
+    debug.join(example)
+}
+
+/// The pid-controller example (python_component compares its Python twin).
+pub(crate) fn example_program() -> PathBuf {
+    built("pid-controller")
 }
 
 /// The example's scenario, served by the built program, as `dir/file`.
@@ -224,7 +234,7 @@ fn a_program_swapped_by_exec_to_itself_continues_its_own_state() {
     let table: toml::Table = toml::from_str(&std::fs::read_to_string(&written).unwrap()).unwrap();
     assert_eq!(
         table["controller"]["exec"][0].as_str(),
-        Some(example_program().to_str().unwrap())
+        example_program().to_str()
     );
     assert_eq!(table["controller"]["params"]["kp"].as_float(), Some(9000.0));
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
@@ -493,5 +503,100 @@ fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
     let generations: std::collections::BTreeSet<u32> =
         log.commands().map(|c| c.generation).collect();
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
+    assert_clean(&dir);
+}
+
+/// The observer example's scenario, with both programs as built here.
+fn observer_scenario(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/luenberger-observer/scenario.toml"),
+    )
+    .unwrap()
+    .replacen(
+        "exec = [\"./target/release/luenberger-observer\"]",
+        &format!(
+            "exec = [{:?}]",
+            built("luenberger-observer").display().to_string()
+        ),
+        1,
+    )
+    .replacen(
+        "exec = [\"../pid-controller/target/release/pid-controller\"]",
+        &format!("exec = [{:?}]", example_program().display().to_string()),
+        1,
+    );
+    let path = dir.join("observer.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Every estimate of the run equals the observer example's predictor
+/// stepped from x̂ = 0 on the recorded measurements; returns how many.
+fn assert_estimates_follow_the_predictor(log: &LogReader) -> usize {
+    let (ts, mass, w, zeta) = (1e-4, 1.0, 2.0 * std::f64::consts::PI * 200.0, 0.7_f64);
+    let decay = (-zeta * w * ts).exp();
+    let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
+    let l1 = a1 + 2.0;
+    let l2 = (decay * decay - 1.0 + l1) / ts;
+    let mut x = [0.0_f64; 2];
+    let measurements: std::collections::HashMap<u64, &Measurement> =
+        log.measurements().map(|m| (m.seq, m)).collect();
+    let mut checked = 0;
+    for e in log.estimates() {
+        if e.seq == 0 {
+            assert_eq!(&e.x_hat[..2], &[0.0, 0.0]);
+            continue;
+        }
+        let m = measurements[&(e.seq - 1)];
+        let innovation = m.y[0] - x[0];
+        let u = m.u_applied[0];
+        x = [
+            x[0] + ts * x[1] + ts * ts / (2.0 * mass) * u + l1 * innovation,
+            x[1] + ts / mass * u + l2 * innovation,
+        ];
+        for (i, (got, want)) in e.x_hat.iter().zip(x).enumerate() {
+            assert!(
+                (got - want).abs() <= 1e-12 * want.abs().max(1e-3),
+                "estimate for {} (generation {}): x̂[{i}] {got} against {want}",
+                e.seq,
+                e.generation,
+            );
+        }
+        assert_eq!(e.n_states, 2);
+        checked += 1;
+    }
+    checked
+}
+
+#[test]
+fn the_example_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() {
+    let dir = temp_dir("own-observer");
+    let scenario = observer_scenario(&dir);
+    let (child, prefix) = start_file(&dir, &scenario, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_500);
+    let out = swap_to(
+        &prefix,
+        &[
+            "observer",
+            "--exec",
+            built("luenberger-observer").to_str().unwrap(),
+        ],
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 1_500);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.estimates().map(|e| e.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    // Across the swap: the successor took its predecessor's x̂ (`load`).
+    assert!(assert_estimates_follow_the_predictor(&log) > 3_000);
+    // And the position estimate follows the measured position.
+    let last = log.estimates().last().unwrap();
+    let y = log.measurements().last().unwrap().y[0];
+    assert!((last.x_hat[0] - y).abs() < 1e-5, "{} vs {y}", last.x_hat[0]);
     assert_clean(&dir);
 }
