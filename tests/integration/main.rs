@@ -13,6 +13,7 @@ mod mimo;
 mod own_components;
 mod own_plant;
 mod positions;
+mod python_component;
 mod recording;
 mod report;
 mod sensor_scan;

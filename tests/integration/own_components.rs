@@ -39,7 +39,8 @@ fn built(example: &str) -> PathBuf {
     debug.join(example)
 }
 
-fn example_program() -> PathBuf {
+/// The pid-controller example (python_component compares its Python twin).
+pub(crate) fn example_program() -> PathBuf {
     built("pid-controller")
 }
 

@@ -14,6 +14,7 @@
 #[cfg(target_endian = "big")]
 compile_error!("the sample file's ROS1 encoding needs a little-endian target");
 
+use crate::handover::{Activation, Handover, MAX_HANDOVER_STATES};
 use crate::messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement,
@@ -218,6 +219,44 @@ pub const COMMAND: MessageLayout = MessageLayout {
 /// The recorded messages.
 pub const ALL: [MessageLayout; 3] = [MEASUREMENT, ESTIMATE, COMMAND];
 
+// The hand-over messages are not recorded; their tables are here so that a
+// component in another language can check its layout of them too (see
+// [`crate::wire`]).
+
+pub const HANDOVER: MessageLayout = MessageLayout {
+    type_name: "flexloop/Handover",
+    doc: "a component's state after it processed measurement seq",
+    size: core::mem::size_of::<Handover>(),
+    fields: &[
+        field!(Handover, seq: U64; One, "", "measurement last processed"),
+        field!(Handover, design_hash: U64; One, "", "fingerprint of the design that produced state"),
+        field!(Handover, generation: U32; One, "", "generation of the instance"),
+        field!(Handover, shadow: U32; One, "", "0 active, 1 following, 2 catching up"),
+        field!(Handover, n_states: U32; One, "", "entries of state in use"),
+        field!(Handover, n_inputs: U32; One, "", "inputs in use"),
+        field!(Handover, feedforward_hash: U64; One, "", "fingerprint of the feedforward alone"),
+        field!(Handover, feedforward_at: U32; One, "", "where the feedforward state lies in state"),
+        field!(Handover, feedforward_len: U32; One, "", "length of the feedforward state"),
+        field!(Handover, state: F64[MAX_HANDOVER_STATES]; States, "", "the component's state"),
+        field!(Handover, u: F64[MAX_INPUTS]; Inputs, "N", "the command for seq (sent or, in shadow, computed)"),
+    ],
+};
+
+pub const ACTIVATION: MessageLayout = MessageLayout {
+    type_name: "flexloop/Activation",
+    doc: "which generation owns which sequence numbers",
+    size: core::mem::size_of::<Activation>(),
+    fields: &[
+        field!(Activation, published_ns: U64; One, "ns", "when the supervisor published it"),
+        field!(Activation, controller_from_seq: U64; One, "", "first command of controller_generation"),
+        field!(Activation, observer_from_seq: U64; One, "", "first estimate of observer_generation"),
+        field!(Activation, controller_generation: U32; One, "", "controller generation from the boundary on"),
+        field!(Activation, previous_controller_generation: U32; One, "", "controller generation before it"),
+        field!(Activation, observer_generation: U32; One, "", "observer generation from the boundary on"),
+        field!(Activation, previous_observer_generation: U32; One, "", "observer generation before it"),
+    ],
+};
+
 /// How many entries of `field` a message with these counts uses (the whole
 /// array for `One`).
 pub fn used_len(field: &Field, n_outputs: usize, n_inputs: usize, n_states: usize) -> usize {
@@ -271,7 +310,7 @@ mod tests {
 
     #[test]
     fn tables_cover_every_byte_in_order() {
-        for layout in ALL {
+        for layout in ALL.into_iter().chain([HANDOVER, ACTIVATION]) {
             let mut next = 0;
             for f in layout.fields {
                 assert_eq!(

@@ -12,6 +12,8 @@
 //! - [`layout`]: every recorded message's fields as data (ROS1 definitions,
 //!   export columns).
 //! - [`time`]: the monotonic nanosecond clock all timestamps use.
+//! - [`wire`]: all of the above as one JSON document, for components in
+//!   another language (the Python package checks itself against it).
 
 pub mod channels;
 pub mod handover;
@@ -20,6 +22,7 @@ pub mod layout;
 pub mod messages;
 pub mod spare;
 pub mod time;
+pub mod wire;
 
 pub use channels::{Channel, ChannelQos};
 pub use handover::{Activation, Handover, MAX_HANDOVER_STATES};
