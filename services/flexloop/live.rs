@@ -358,10 +358,41 @@ fn print_processes(run_dir: &RunDir) {
         .iter()
         .map(|p| {
             let generation = p.generation.map(|g| format!(" g{g}")).unwrap_or_default();
-            format!("{} {}{} (pid {})", p.role, p.duty, generation, p.pid)
+            let program = program_name(&p.role, &p.duty, &p.scenario)
+                .map(|name| format!(", program {name}"))
+                .unwrap_or_default();
+            format!(
+                "{} {}{} (pid {}{program})",
+                p.role, p.duty, generation, p.pid
+            )
         })
         .collect();
     println!("  processes: {}", shown.join(", "));
+}
+
+/// The program of one's own a process of `role` on `duty` runs, by its
+/// file name, if its scenario names one (a spare is always built-in).
+fn program_name(role: &str, duty: &str, scenario: &str) -> Option<String> {
+    let role = match role {
+        "controller" => ProgramRole::Controller,
+        "observer" => ProgramRole::Observer,
+        _ => return None,
+    };
+    if duty == "spare" {
+        return None;
+    }
+    let path = std::path::Path::new(scenario);
+    let text = std::fs::read_to_string(path).ok()?;
+    let program = flexloop_scenario::Scenario::parse(path, &text)
+        .ok()?
+        .program(role)
+        .ok()??;
+    let name = program.program.file_name()?.to_string_lossy().into_owned();
+    Some(match program.args.first() {
+        // An interpreter: the script names it better.
+        Some(script) if !script.starts_with('-') => format!("{name} {script}"),
+        _ => name,
+    })
 }
 
 /// Swaps, crashes and restarts so far, from the supervisor's events file.

@@ -267,6 +267,17 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     let said = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(said.contains("controller generation 1"), "{said}");
     let program_pid = pid_on_duty(&dir, "controller", "active");
+    // `status` names the program that serves.
+    let mut status = flexloop();
+    status.args(["status", "--prefix", &prefix]);
+    let shown = run_bounded(status, Duration::from_secs(30));
+    let shown = String::from_utf8_lossy(&shown.stdout).into_owned();
+    assert!(
+        shown.contains(&format!(
+            "controller active g1 (pid {program_pid}, program pid-controller)"
+        )),
+        "{shown}"
+    );
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 2_000);
     // Back to the built-in controller; the program, replaced, exits (it is
