@@ -411,15 +411,7 @@ fn a_python_law_with_parameters_it_cannot_use_is_refused_and_the_loop_runs_on() 
             dir.display()
         );
     }
-    // The built-in controller kept the loop.
-    let served = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, served + 300);
-    stop(&prefix, child);
-    let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
-    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
-    assert!(log.commands().all(|c| c.generation == 0));
-    assert_clean(&dir);
+    assert_first_controller_kept_the_loop(&dir, &prefix, child, 300);
 }
 
 /// examples/pid-controller/scenario.toml served by `exec`, as `dir/file`.

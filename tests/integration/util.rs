@@ -379,3 +379,17 @@ pub fn python_with(modules: &[&str]) -> String {
         ),
     }
 }
+
+/// After refused swaps: the loop runs `ticks` more samples and stops, and
+/// the first controller kept it: every command from generation 0, no miss,
+/// nothing left behind.
+pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, ticks: usize) {
+    let after = recorded_ticks_in(dir, "samples.mcap");
+    wait_for_ticks(dir, after + ticks);
+    stop(prefix, up);
+    let summary = summary(dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let log = flexloop_components::LogReader::open(&dir.join("samples.mcap")).unwrap();
+    assert!(log.commands().all(|c| c.generation == 0));
+    assert_clean(dir);
+}
