@@ -108,15 +108,30 @@ pub fn current(prefix: Option<&str>) -> Result<(PathBuf, String), Refused> {
 pub fn get(args: GetArgs) -> anyhow::Result<i32> {
     let (path, text) = current(args.which.prefix.as_deref())?;
     let scenario = Scenario::parse(&path, &text)?;
+    let table: toml::Table = toml::from_str(&text)?;
+    let program_params = || -> Vec<(String, toml::Value)> {
+        let mut out = Vec::new();
+        if let Some(toml::Value::Table(params)) = tune::value_at(&table, "controller.params") {
+            flatten("controller.params", &params, &mut out);
+        }
+        out
+    };
     match args.field {
+        Some(field) if tune::program_param(&field) => {
+            println!("{}", tune::shown(tune::value_at(&table, &field).as_ref()));
+        }
         Some(field) => {
             let Some(t) = tune::tunable(&field) else {
-                let table: toml::Table = toml::from_str(&text)?;
                 bail!(tune::refusal(&field, tune::known_field(&table, &field)));
             };
             println!("{}", tune::shown((t.value)(&scenario).as_ref()));
         }
         None => {
+            // A program's own tunables first (the built-in controller's
+            // fields do not act on it).
+            for (field, value) in program_params() {
+                println!("{field} = {value}");
+            }
             for t in TUNABLES {
                 match (t.value)(&scenario) {
                     Some(v) => println!("{} = {v}", t.field),
@@ -160,4 +175,15 @@ pub fn set_command(args: SetArgs) -> anyhow::Result<i32> {
         );
     }
     Ok(0)
+}
+
+/// Every leaf of `table` under the dotted `prefix`, in order.
+fn flatten(prefix: &str, table: &toml::Table, out: &mut Vec<(String, toml::Value)>) {
+    for (key, value) in table {
+        let field = format!("{prefix}.{key}");
+        match value {
+            toml::Value::Table(inner) => flatten(&field, inner, out),
+            _ => out.push((field, value.clone())),
+        }
+    }
 }

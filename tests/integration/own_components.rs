@@ -672,3 +672,72 @@ fn a_port_of_the_wrong_type_is_refused_and_a_flood_is_counted_not_applied() {
     );
     assert_clean(&dir);
 }
+
+#[test]
+fn a_programs_params_are_set_live_and_handed_over_bumplessly() {
+    let dir = temp_dir("own-controller-set");
+    let scenario = example_scenario(&dir, "pid.toml", "");
+    let (child, prefix) = start_file(&dir, &scenario, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_500);
+    let on_loop = |args: &[&str]| {
+        let mut c = flexloop();
+        c.args(args).args(["--prefix", &prefix]);
+        run_bounded(c, Duration::from_secs(150))
+    };
+    let stdout = |out: &std::process::Output| String::from_utf8_lossy(&out.stdout).into_owned();
+    let get = on_loop(&["get", "controller.params.kp"]);
+    assert_eq!(stdout(&get).trim(), "9000.0", "{}", describe(&get));
+    // The program's own tunable: a new process of it with the changed
+    // parameters takes the loop over at a boundary.
+    let set = on_loop(&["set", "controller.params.kp=8000"]);
+    assert!(set.status.success(), "{}", describe(&set));
+    let said = stdout(&set);
+    assert!(
+        said.contains("controller.params.kp 9000.0 -> 8000")
+            && said.contains("controller generation 1"),
+        "{said}"
+    );
+    assert_eq!(
+        stdout(&on_loop(&["get", "controller.params.kp"])).trim(),
+        "8000"
+    );
+    let all = stdout(&on_loop(&["get"]));
+    assert!(all.contains("controller.params.ki = 90000.0"), "{all}");
+    // The built-in controller's fields do not act on a program.
+    let refused = on_loop(&["set", "controller.bandwidth_hz=40"]);
+    assert_eq!(refused.status.code(), Some(2), "{}", describe(&refused));
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("program of one's own"),
+        "{}",
+        describe(&refused)
+    );
+    // A parameter the law does not take: its new process exits naming it,
+    // the set fails, and the running program keeps the loop.
+    let serving = pid_on_duty(&dir, "controller", "active");
+    let bad = on_loop(&["set", "controller.params.kq=1"]);
+    assert!(!bad.status.success(), "{}", describe(&bad));
+    let stderr = std::fs::read_to_string(dir.join("controller.g2.stderr")).unwrap_or_default();
+    assert!(stderr.contains("kq"), "{stderr}\n{}", describe(&bad));
+    assert_eq!(pid_on_duty(&dir, "controller", "active"), serving);
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    stop(&prefix, child);
+    let summary = summary(&dir);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let sets: Vec<_> = events(&dir)
+        .into_iter()
+        .filter(|e| e["kind"] == "set")
+        .collect();
+    assert_eq!(sets.len(), 1, "{sets:?}");
+    let switch = &sets[0]["detail"]["switches"][0];
+    let du = |k: &str| switch[k].as_f64().unwrap();
+    assert!(
+        du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
+        "{switch}"
+    );
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.commands().map(|c| c.generation).collect();
+    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert_clean(&dir);
+}

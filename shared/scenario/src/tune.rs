@@ -10,6 +10,10 @@
 //! the plant's (read once at its start; the plant is never swapped), and
 //! `safe_action = "standby"` also sets what the supervisor keeps running.
 //!
+//! A controller program of one's own (`controller.exec`) is tuned by its
+//! own `controller.params.*` ([`program_param`]), which its law reads; the
+//! built-in controller's fields do not act on it and are refused.
+//!
 //! The observer's fields are shown but not set: a swap to another observer
 //! design is not bumpless today. The new observer cannot take over the
 //! running one's state (it takes a state only from an identical design,
@@ -210,6 +214,8 @@ pub enum TuneError {
     ObserverHandOver(String),
     /// The same field twice in one change.
     Repeated(String),
+    /// A built-in controller's field while a program of one's own serves.
+    BuiltInOnProgram(String),
 }
 
 impl fmt::Display for TuneError {
@@ -258,6 +264,12 @@ impl fmt::Display for TuneError {
                  (docs/architecture.md#live-tuning)"
             ),
             TuneError::Repeated(field) => write!(f, "{field}: given twice"),
+            TuneError::BuiltInOnProgram(field) => write!(
+                f,
+                "{field}: the controller is a program of one's own (controller.exec), which the \
+                 built-in controller's fields do not tune; its tunables are controller.params.* \
+                 (docs/components.md)"
+            ),
         }
     }
 }
@@ -312,6 +324,16 @@ pub fn with_changes(table: &toml::Table, changes: &[Change]) -> Result<toml::Tab
     Ok(out)
 }
 
+/// The value at the dotted `field` of `table` (a scenario's), if set.
+pub fn value_at(table: &toml::Table, field: &str) -> Option<toml::Value> {
+    let mut keys = field.split('.');
+    let mut value = table.get(keys.next()?)?;
+    for key in keys {
+        value = value.as_table()?.get(key)?;
+    }
+    Some(value.clone())
+}
+
 /// Whether the scenario format has `field`: `table` (a scenario's) with it
 /// written in parses, or fails for its value's sake rather than as an
 /// unknown field.
@@ -333,12 +355,36 @@ pub fn known_field(table: &toml::Table, field: &str) -> bool {
     }
 }
 
+/// Whether `field` is one of a controller program's own tunables
+/// (`controller.params.KEY`, docs/components.md): its law reads them, and a
+/// swap to the changed file hands the loop over to a new process of it.
+pub fn program_param(field: &str) -> bool {
+    field
+        .strip_prefix("controller.params.")
+        .is_some_and(|key| !key.is_empty() && key.split('.').all(|k| !k.is_empty()))
+}
+
 /// Refuses a change of anything but tunables, and a field given twice.
-/// `known(field)` says whether the scenario format has the field.
-pub fn check_changes(changes: &[Change], known: impl Fn(&str) -> bool) -> Result<(), TuneError> {
+/// `known(field)` says whether the scenario format has the field. With a
+/// controller `program` of one's own, its `controller.params.*` are its
+/// tunables and the built-in controller's are refused.
+pub fn check_changes(
+    changes: &[Change],
+    known: impl Fn(&str) -> bool,
+    program: bool,
+) -> Result<(), TuneError> {
     for (i, change) in changes.iter().enumerate() {
         if changes[..i].iter().any(|c| c.field == change.field) {
             return Err(TuneError::Repeated(change.field.clone()));
+        }
+        if program_param(&change.field) {
+            if !program {
+                return Err(TuneError::NotTunable(change.field.clone()));
+            }
+            continue;
+        }
+        if program && change.field.starts_with("controller.") {
+            return Err(TuneError::BuiltInOnProgram(change.field.clone()));
         }
         match tunable(&change.field) {
             None => return Err(refusal(&change.field, known(&change.field))),
@@ -382,6 +428,27 @@ mod tests {
     }
 
     #[test]
+    fn a_programs_params_are_its_tunables_and_the_built_in_fields_are_not() {
+        let change = |field: &str| Change {
+            field: field.into(),
+            value: toml::Value::Float(1.0),
+        };
+        let known = |_: &str| true;
+        assert!(check_changes(&[change("controller.params.kp")], known, true).is_ok());
+        assert!(check_changes(&[change("controller.params.gains.kd")], known, true).is_ok());
+        assert!(matches!(
+            check_changes(&[change("controller.bandwidth_hz")], known, true),
+            Err(TuneError::BuiltInOnProgram(_))
+        ));
+        assert!(matches!(
+            check_changes(&[change("controller.params.kp")], known, false),
+            Err(TuneError::NotTunable(_))
+        ));
+        assert!(!program_param("controller.params."));
+        assert!(!program_param("controller.params..kp"));
+    }
+
+    #[test]
     fn only_tunables_may_change_and_each_refusal_says_why() {
         let known = |f: &str| !f.contains("bogus");
         let one = |field: &str| {
@@ -391,6 +458,7 @@ mod tests {
                     value: toml::Value::Integer(1),
                 }],
                 known,
+                false,
             )
         };
         assert!(one("controller.bandwidth_hz").is_ok());
@@ -423,7 +491,7 @@ mod tests {
         assert!(e.to_string().contains("controller.bogus"), "{e}");
         let twice = Change::parse("controller.notches_hz=[]").unwrap();
         assert!(matches!(
-            check_changes(&[twice.clone(), twice], known),
+            check_changes(&[twice.clone(), twice], known, false),
             Err(TuneError::Repeated(_))
         ));
     }
