@@ -373,20 +373,13 @@ fn print_processes(run_dir: &RunDir) {
 /// The program of one's own a process of `role` on `duty` runs, by its
 /// file name, if its scenario names one (a spare is always built-in).
 fn program_name(role: &str, duty: &str, scenario: &str) -> Option<String> {
-    let role = match role {
-        "controller" => ProgramRole::Controller,
-        "observer" => ProgramRole::Observer,
-        _ => return None,
-    };
+    let role = flexloop_node::Role::ALL
+        .into_iter()
+        .find(|r| r.name() == role)?;
     if duty == "spare" {
         return None;
     }
-    let path = std::path::Path::new(scenario);
-    let text = std::fs::read_to_string(path).ok()?;
-    let program = flexloop_scenario::Scenario::parse(path, &text)
-        .ok()?
-        .program(role)
-        .ok()??;
+    let program = crate::supervisor::own_program(role, std::path::Path::new(scenario)).ok()??;
     let name = program.program.file_name()?.to_string_lossy().into_owned();
     Some(match program.args.first() {
         // An interpreter: the script names it better.

@@ -352,21 +352,25 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
     let dir = temp_dir("own-controller-bad");
     // Before anything starts: a program that does not exist, one that is
     // not executable, parameters the law does not take.
-    let missing = scenario_variant(
-        &dir,
-        "lecture-double-integrator",
-        "missing.toml",
-        &[],
-        "[controller]\nexec = [\"./no-such-controller\"]",
-    );
-    let mut up = flexloop();
-    up.arg("up")
-        .arg(&missing)
-        .args(["--no-realtime", "--duration", "0.1", "--run-dir"])
-        .arg(dir.join("missing-run"));
-    let out = run_bounded(up, Duration::from_secs(60));
-    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
-    let err = String::from_utf8_lossy(&out.stderr);
+    // `up` of the lecture loop with `[controller] exec = [program]`: refused (exit 2), its stderr.
+    let refused_up = |name: &str, program: &str| {
+        let scenario = scenario_variant(
+            &dir,
+            "lecture-double-integrator",
+            &format!("{name}.toml"),
+            &[],
+            &format!("[controller]\nexec = [\"{program}\"]"),
+        );
+        let mut up = flexloop();
+        up.arg("up")
+            .arg(&scenario)
+            .args(["--no-realtime", "--duration", "0.1", "--run-dir"])
+            .arg(dir.join(format!("{name}-run")));
+        let out = run_bounded(up, Duration::from_secs(60));
+        assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = refused_up("missing", "./no-such-controller");
     assert!(
         err.contains("missing.toml")
             && err.contains("controller.exec")
@@ -374,25 +378,8 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
         "{err}"
     );
     std::fs::write(dir.join("plain"), "not a program").unwrap();
-    let plain = scenario_variant(
-        &dir,
-        "lecture-double-integrator",
-        "plain.toml",
-        &[],
-        "[controller]\nexec = [\"./plain\"]",
-    );
-    let mut up = flexloop();
-    up.arg("up")
-        .arg(&plain)
-        .args(["--no-realtime", "--duration", "0.1", "--run-dir"])
-        .arg(dir.join("plain-run"));
-    let out = run_bounded(up, Duration::from_secs(60));
-    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("not executable"),
-        "{}",
-        describe(&out)
-    );
+    let err = refused_up("plain", "./plain");
+    assert!(err.contains("not executable"), "{err}");
 
     // On a running loop: a law whose parameters do not read (it exits at
     // its start, naming the field), a program that crashes at start, and

@@ -302,6 +302,20 @@ impl ControllerCore {
 
     /// Computes u(k) into `out` (all but the receive/publish stamps).
     pub fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
+        self.compute(m, estimate, out);
+        stamp_command(
+            out,
+            m,
+            estimate,
+            self.generation,
+            self.n_inputs,
+            self.n_outputs,
+        );
+    }
+
+    /// u(k) and its parts, without the stamps (the controller process
+    /// stamps every law's command itself: [`ControlLaw::step`]).
+    fn compute(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
         let n_in = self.n_block_inputs;
         let mut command_flags = 0;
@@ -396,7 +410,6 @@ impl ControllerCore {
             self.shift_output(&untracked[..nu]);
         }
         out.flags = command_flags;
-        stamp_command(out, m, estimate, self.generation, nu, ny);
     }
 }
 
@@ -409,7 +422,7 @@ impl ControlLaw for ControllerCore {
     }
 
     fn step(&mut self, m: &Measurement, estimate: &Estimate, out: &mut Command) {
-        ControllerCore::step(self, m, estimate, out);
+        self.compute(m, estimate, out);
     }
 
     fn save(&self, out: &mut Handover) {

@@ -4,7 +4,7 @@
 
 use flexloop_design::LoopDesign;
 use flexloop_protocol::{Handover, MAX_HANDOVER_STATES};
-use flexloop_scenario::Scenario;
+use flexloop_scenario::{ProgramRole, Scenario};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -17,23 +17,7 @@ pub struct LawSetup<'a> {
     /// The generation this instance serves as.
     pub generation: u32,
     /// Whose law it is: which `params` table it reads.
-    pub role: LawRole,
-}
-
-/// The roles a law of one's own may serve.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LawRole {
-    Controller,
-    Observer,
-}
-
-impl LawRole {
-    pub fn section(self) -> &'static str {
-        match self {
-            LawRole::Controller => "controller",
-            LawRole::Observer => "observer",
-        }
-    }
+    pub role: ProgramRole,
 }
 
 impl LawSetup<'_> {
@@ -67,8 +51,8 @@ impl LawSetup<'_> {
     /// defaults, or an error naming the first field it needs).
     pub fn params<T: serde::de::DeserializeOwned>(&self) -> Result<T, SetupError> {
         let table = match self.role {
-            LawRole::Controller => &self.scenario.controller.params,
-            LawRole::Observer => &self.scenario.observer.params,
+            ProgramRole::Controller => &self.scenario.controller.params,
+            ProgramRole::Observer => &self.scenario.observer.params,
         };
         toml::Value::Table(table.clone().unwrap_or_default())
             .try_into()

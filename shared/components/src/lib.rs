@@ -44,7 +44,7 @@ pub use control_law::{ControlLaw, ControllerSetup};
 pub use controller::ControllerCore;
 pub use estimation_law::{EstimationLaw, ObserverSetup};
 pub use in_process::InProcessLoop;
-pub use law_setup::{LawRole, LawSetup, SetupError};
+pub use law_setup::{LawSetup, SetupError};
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
 pub use recorder::{RecordSink, Recorder};

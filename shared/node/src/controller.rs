@@ -6,7 +6,6 @@ use crate::duty::Duty;
 use crate::handover::{ActivationView, HandoverRing};
 use crate::instance::{Component, Instance, Ports};
 use crate::{NodeError, await_peers};
-use flexloop_components::LawRole;
 use flexloop_components::control_law::{ControlLaw, ControllerSetup, stamp_command};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, CONTROLLER_STATE, ESTIMATE, MEASUREMENT};
@@ -15,7 +14,7 @@ use flexloop_protocol::{
 };
 use flexloop_runtime::wait::{wait_for_input, wait_readable};
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::Scenario;
+use flexloop_scenario::{ProgramRole, Scenario};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 
 /// In lockstep, how long a new instance waits for its predecessor's last
@@ -116,7 +115,7 @@ impl<L: ControlLaw> Component for Controller<L> {
             scenario,
             design,
             generation,
-            role: LawRole::Controller,
+            role: ProgramRole::Controller,
         })
         .map_err(|e| NodeError::Law(e.to_string()))?;
         Ok(Self {

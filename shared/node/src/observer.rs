@@ -8,7 +8,6 @@ use crate::handover::ActivationView;
 use crate::instance::{Component, Instance, Ports};
 use crate::replay::{CatchUp, Replayed};
 use crate::{NodeError, await_peers};
-use flexloop_components::LawRole;
 use flexloop_components::estimation_law::{EstimationLaw, ObserverSetup, stamp_estimate};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{
@@ -17,7 +16,7 @@ use flexloop_protocol::channels::{
 use flexloop_protocol::{Activation, Channel, Estimate, Handover, Joining, Measurement, flags};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_scenario::Scenario;
+use flexloop_scenario::{ProgramRole, Scenario};
 use flexloop_transport::{Inlet, LoopNode, Outlet};
 use std::time::{Duration, Instant};
 
@@ -104,7 +103,7 @@ impl<L: EstimationLaw> Component for Observer<L> {
             scenario,
             design,
             generation,
-            role: LawRole::Observer,
+            role: ProgramRole::Observer,
         })
         .map_err(|e| NodeError::Law(format!("observer: {e}")))?;
         Ok(Self {
