@@ -1,10 +1,11 @@
 //! `flexloop bench`: the loop's latency table, its verdict, and the
 //! machine's own floors measured in the same run; `--sweep` and
-//! `--logging-cost` hand over to [`crate::sweep`] and [`crate::logging_cost`].
+//! `--logging-cost` and `--live-cost` hand over to [`crate::sweep`],
+//! [`crate::logging_cost`] and [`crate::live_cost`].
 
 use crate::conductor::Switch;
 use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
-use crate::{logging_cost, probes, sweep};
+use crate::{live_cost, logging_cost, probes, sweep};
 use anyhow::Context;
 use flexloop_analysis::verdict::GridCounts;
 use flexloop_components::LogReader;
@@ -28,11 +29,15 @@ pub struct BenchArgs {
     #[arg(conflicts_with = "sweep")]
     pub scenario: Option<PathBuf>,
     /// One run per point: rates, observer sizes and axes (see --series)
-    #[arg(long, conflicts_with_all = ["logging_cost", "rate_hz", "mode", "swap_every"])]
+    #[arg(long, conflicts_with_all = ["logging_cost", "live_cost", "rate_hz", "mode", "swap_every"])]
     pub sweep: bool,
     /// The loop twice, with the logger and without: what recording costs
     #[arg(long, conflicts_with_all = ["mode", "no_probes", "swap_every"])]
     pub logging_cost: bool,
+    /// The loop twice, served live with a client subscribed to everything and
+    /// without a live server: what the live view costs
+    #[arg(long, conflicts_with_all = ["logging_cost", "mode", "no_probes", "swap_every"])]
+    pub live_cost: bool,
     /// --duration [default: 10 s; 4 s per point with --sweep], --rate [default: 10000 Hz;
     /// the scenario's with --logging-cost], --mode [default: realtime], --no-realtime
     #[command(flatten)]
@@ -63,6 +68,8 @@ pub fn dispatch(args: BenchArgs) -> anyhow::Result<i32> {
         sweep::sweep(sweep::Options::from_args(&args)?)
     } else if args.logging_cost {
         logging_cost::logging_cost(logging_cost::Options::from_args(&args)?)
+    } else if args.live_cost {
+        live_cost::live_cost(live_cost::Options::from_args(&args)?)
     } else {
         bench(args)
     }

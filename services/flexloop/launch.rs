@@ -97,6 +97,9 @@ pub struct Prepared {
     pub design: flexloop_design::LoopDesign,
     pub overrides: Overrides,
     pub plan: LaunchPlan,
+    /// Serve the loop live (`up --live`): started once the loop runs,
+    /// stopped before its processes are.
+    pub live: Option<flexloop_live::LiveOptions>,
 }
 
 impl Prepared {
@@ -156,6 +159,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
         scenario,
         design,
         overrides: args.overrides.clone(),
+        live: None,
     })
 }
 
@@ -310,18 +314,40 @@ fn run_to_the_end(
     {
         let _ = flexloop_runtime::realtime::avoid_cpu(cpu);
     }
+    let mut live_pending = prepared.live.clone();
+    let mut live_server: Option<crate::live_view::LiveServer> = None;
     let mut running = supervisor::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
     let outcome = running.watch(limit, |running| {
         progress.show(rate_hz);
-        conductor
+        let outcome = conductor
             .tick(running)
-            .or_else(|| hook(running, &mut conductor))
+            .or_else(|| hook(running, &mut conductor));
+        // The live server starts once the loop ticks: its reader then joins
+        // services the loop's processes made and connected, never their
+        // start-up handshake (which counts readers). The loop runs on
+        // without it rather than stop for it (`up` checked the address
+        // before anything started).
+        if running.ticking_since.is_some()
+            && let Some(options) = live_pending.take()
+        {
+            live_server =
+                crate::live_view::LiveServer::spawn(&options, &prefix, run_dir.path(), rate_hz)
+                    .inspect_err(|e| eprintln!("flexloop: the live view is off: {e:#}"))
+                    .ok();
+        }
+        if let Some(server) = live_server.as_mut() {
+            server.poll();
+        }
+        outcome
     });
     let switches = std::mem::take(&mut conductor.switches);
     // Our own nodes go first: cleanup removes every file of the prefix.
     drop(progress);
     drop(conductor);
+    if let Some(server) = live_server.as_mut() {
+        server.stop();
+    }
     running.stop();
     running.cleanup();
     // It lists live processes: there are none now.

@@ -2,7 +2,7 @@
 //! foreground; `down`, `status` and `swap` find a running one through the
 //! registry and stop, show or change it.
 
-use crate::launch::{LoopArgs, VERDICT_FAILED, prepare, resolve_scenario, supervise};
+use crate::launch::{VERDICT_FAILED, prepare, resolve_scenario, supervise};
 use crate::registry;
 use anyhow::bail;
 use flexloop_analysis::verdict::GridCounts;
@@ -81,8 +81,19 @@ impl SwapRole {
     }
 }
 
-pub fn up(args: LoopArgs) -> anyhow::Result<i32> {
-    let prepared = prepare(&args)?;
+/// `up [SCENARIO] [loop flags] [--live [ADDR:PORT] ...]`.
+#[derive(Debug, clap::Args)]
+pub struct UpArgs {
+    #[command(flatten)]
+    pub flags: crate::launch::LoopFlags,
+    #[command(flatten)]
+    pub live: crate::live_view::LiveFlags,
+}
+
+pub fn up(args: UpArgs) -> anyhow::Result<i32> {
+    let live = args.live.options()?;
+    let mut prepared = prepare(&args.flags.into_loop_args()?)?;
+    prepared.live = live;
     crate::launch::warn_about_design(&prepared);
     eprintln!(
         "flexloop: {} at {} Hz ({}{}), run directory {}; Ctrl-C or `flexloop down` stops it",
@@ -312,6 +323,18 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         println!("  design: {design}");
     }
     print_processes(&run_dir);
+    if let Ok(live) = flexloop_live::endpoint(&entry.run_dir) {
+        println!(
+            "  live view: ws://{}{}{}",
+            live.address,
+            if live.read_only { ", read-only" } else { "" },
+            if live.token_required {
+                ", changes need live.token"
+            } else {
+                ""
+            }
+        );
+    }
     let Some(t) = last else {
         println!("  no telemetry yet (the logger publishes once a second)");
         return Ok(false);

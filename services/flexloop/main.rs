@@ -3,9 +3,10 @@
 //!
 //! - [`launch`]: a loop's start, supervision and end, for every command that runs one.
 //! - [`live`]: `up`, and `down`, `status` and `swap` on a running loop.
+//! - [`live_view`]: `up --live`, the loop served to Foxglove while it runs.
 //! - [`tune`]: `get` and `set`, live tuning of a running loop.
-//! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`],
-//!   [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
+//! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`], [`live_cost`],
+//!   [`probes`], [`live_cost`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
 //!   [`positions`], [`export`].
 
 mod bench;
@@ -17,6 +18,8 @@ mod export;
 mod finish;
 mod launch;
 mod live;
+mod live_cost;
+mod live_view;
 mod logging_cost;
 mod positions;
 mod probes;
@@ -44,7 +47,7 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Start the loop's processes until the scenario's duration ends, Ctrl-C or `flexloop down`.
-    Up(launch::LoopFlags),
+    Up(live::UpArgs),
     /// Run the scenario's trajectory, then print its control metrics beside the timing summary; writes metrics.json.
     Run(run::RunFlags),
     /// A finished run as report.md (with SVG figures) and a self-contained report.html.
@@ -72,6 +75,9 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Kill the loop's processes at random moments and report what each kill cost (chaos.json).
     Chaos(chaos::ChaosArgs),
+    /// The live server of `up --live` (started by the supervisor).
+    #[command(hide = true)]
+    LiveServer(live_view::LiveServerArgs),
 }
 
 impl Command {
@@ -112,7 +118,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     }
     match command {
-        Command::Up(flags) => live::up(flags.into_loop_args()?),
+        Command::Up(args) => live::up(args),
         Command::Run(flags) => run::run(flags),
         Command::Report(args) => report::report(args),
         Command::TuneFf(args) => run::tune_ff(args),
@@ -126,6 +132,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Set(args) => tune::set_command(args),
         Command::Bench(args) => bench::dispatch(args),
         Command::Chaos(args) => chaos::chaos(args),
+        Command::LiveServer(args) => live_view::serve(args),
     }
 }
 

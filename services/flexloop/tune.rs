@@ -105,42 +105,76 @@ pub fn current(prefix: Option<&str>) -> Result<(PathBuf, String), Refused> {
     Ok((path, text))
 }
 
+/// Every tunable of the loop `prefix` names and its value (`None`: unset):
+/// a program's own `controller.params.*` first (the built-in controller's
+/// fields do not act on it), then the built-in ones.
+pub fn values(prefix: Option<&str>) -> Result<Vec<(String, Option<toml::Value>)>, Refused> {
+    let (path, text) = current(prefix)?;
+    let scenario = Scenario::parse(&path, &text).map_err(refused)?;
+    let table: toml::Table = toml::from_str(&text).map_err(refused)?;
+    let mut out = Vec::new();
+    if let Some(toml::Value::Table(params)) = tune::value_at(&table, "controller.params") {
+        flatten("controller.params", &params, &mut out);
+    }
+    let mut values: Vec<(String, Option<toml::Value>)> =
+        out.into_iter().map(|(f, v)| (f, Some(v))).collect();
+    values.extend(
+        TUNABLES
+            .iter()
+            .map(|t| (t.field.to_string(), (t.value)(&scenario))),
+    );
+    Ok(values)
+}
+
 pub fn get(args: GetArgs) -> anyhow::Result<i32> {
-    let (path, text) = current(args.which.prefix.as_deref())?;
-    let scenario = Scenario::parse(&path, &text)?;
-    let table: toml::Table = toml::from_str(&text)?;
-    let program_params = || -> Vec<(String, toml::Value)> {
-        let mut out = Vec::new();
-        if let Some(toml::Value::Table(params)) = tune::value_at(&table, "controller.params") {
-            flatten("controller.params", &params, &mut out);
+    let prefix = args.which.prefix.as_deref();
+    let Some(field) = args.field else {
+        for (field, value) in values(prefix)? {
+            match value {
+                Some(v) => println!("{field} = {v}"),
+                None => println!("# {field} unset"),
+            }
         }
-        out
+        return Ok(0);
     };
-    match args.field {
-        Some(field) if tune::program_param(&field) => {
-            println!("{}", tune::shown(tune::value_at(&table, &field).as_ref()));
-        }
-        Some(field) => {
-            let Some(t) = tune::tunable(&field) else {
-                bail!(tune::refusal(&field, tune::known_field(&table, &field)));
-            };
-            println!("{}", tune::shown((t.value)(&scenario).as_ref()));
-        }
-        None => {
-            // A program's own tunables first (the built-in controller's
-            // fields do not act on it).
-            for (field, value) in program_params() {
-                println!("{field} = {value}");
-            }
-            for t in TUNABLES {
-                match (t.value)(&scenario) {
-                    Some(v) => println!("{} = {v}", t.field),
-                    None => println!("# {} unset", t.field),
-                }
-            }
-        }
+    let (path, text) = current(prefix)?;
+    let table: toml::Table = toml::from_str(&text)?;
+    if tune::program_param(&field) {
+        println!("{}", tune::shown(tune::value_at(&table, &field).as_ref()));
+    } else {
+        let Some(t) = tune::tunable(&field) else {
+            bail!(tune::refusal(&field, tune::known_field(&table, &field)));
+        };
+        let scenario = Scenario::parse(&path, &text)?;
+        println!("{}", tune::shown((t.value)(&scenario).as_ref()));
     }
     Ok(0)
+}
+
+/// What a set did, a line each: the fields' old and new values, each
+/// hand-over's switch, the file the loop runs now.
+pub fn outcome_lines(outcome: &SetOutcome) -> Vec<String> {
+    if outcome.fields.is_empty() {
+        return vec!["nothing changed: every value is the running one".into()];
+    }
+    let mut lines: Vec<String> = outcome
+        .fields
+        .iter()
+        .map(|f| format!("{} {} -> {}", f.field, f.old, f.new))
+        .collect();
+    for s in &outcome.switches {
+        lines.push(format!(
+            "{} generation {} active from sample {}; |Δu| at the switch {:.3e}, largest ordinary |Δu| over 100 samples before {:.3e} and after {:.3e}",
+            s.role, s.generation, s.from_seq, s.du_switch, s.du_before, s.du_after
+        ));
+    }
+    if let Some(file) = &outcome.file {
+        lines.push(format!(
+            "the loop runs {file} (checked in {:.2} s, handed over in {:.2} s)",
+            outcome.check_s, outcome.handover_s
+        ));
+    }
+    lines
 }
 
 pub fn set_command(args: SetArgs) -> anyhow::Result<i32> {
@@ -155,24 +189,8 @@ pub fn set_command(args: SetArgs) -> anyhow::Result<i32> {
     }
     let outcome = set(args.which.prefix.as_deref(), &changes)
         .map_err(|e| anyhow::anyhow!("set refused: {e}"))?;
-    if outcome.fields.is_empty() {
-        println!("flexloop: nothing changed: every value is the running one");
-        return Ok(0);
-    }
-    for f in &outcome.fields {
-        println!("flexloop: {} {} -> {}", f.field, f.old, f.new);
-    }
-    for s in &outcome.switches {
-        println!(
-            "flexloop: {} generation {} active from sample {}; |Δu| at the switch {:.3e}, largest ordinary |Δu| over 100 samples before {:.3e} and after {:.3e}",
-            s.role, s.generation, s.from_seq, s.du_switch, s.du_before, s.du_after
-        );
-    }
-    if let Some(file) = &outcome.file {
-        println!(
-            "flexloop: the loop runs {file} (checked in {:.2} s, handed over in {:.2} s)",
-            outcome.check_s, outcome.handover_s
-        );
+    for line in outcome_lines(&outcome) {
+        println!("flexloop: {line}");
     }
     Ok(0)
 }

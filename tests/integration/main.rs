@@ -8,6 +8,7 @@ mod bad_input;
 mod bench;
 mod chaos;
 mod design;
+mod live_view;
 mod loop_processes;
 mod mimo;
 mod own_components;

@@ -90,22 +90,59 @@ pub fn run_bounded(mut cmd: Command, limit: Duration) -> Output {
 }
 
 pub fn wait_bounded(mut child: Child, limit: Duration) -> Output {
+    // Drained while it runs: a child that writes more than a pipe holds
+    // (64 KiB) would otherwise block on its write and never end.
+    // Read for at most 10 s after it ended: a grandchild that kept the
+    // pipe open leaves what came so far.
+    fn drain(mut pipe: Option<impl std::io::Read + Send + 'static>) -> impl FnOnce() -> Vec<u8> {
+        let (sender, receiver) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut chunk = [0u8; 65536];
+            while let Some(Ok(n @ 1..)) = pipe.as_mut().map(|p| p.read(&mut chunk)) {
+                if sender.send(chunk[..n].to_vec()).is_err() {
+                    break;
+                }
+            }
+        });
+        move || {
+            let deadline = Instant::now() + Duration::from_secs(10);
+            let mut bytes = Vec::new();
+            while let Ok(chunk) =
+                receiver.recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            {
+                bytes.extend(chunk);
+            }
+            bytes
+        }
+    }
+    let stdout = drain(child.stdout.take());
+    let stderr = drain(child.stderr.take());
     let since = Instant::now();
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            return child.wait_with_output().unwrap();
+    let mut timed_out = false;
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
         }
         if since.elapsed() > limit {
             let _ = child.kill();
-            let out = child.wait_with_output().unwrap();
-            panic!(
-                "timed out after {limit:?}\nstdout:\n{}\nstderr:\n{}",
-                String::from_utf8_lossy(&out.stdout),
-                String::from_utf8_lossy(&out.stderr)
-            );
+            timed_out = true;
+            break child.wait().unwrap();
         }
         std::thread::sleep(Duration::from_millis(20));
+    };
+    let out = Output {
+        status,
+        stdout: stdout(),
+        stderr: stderr(),
+    };
+    if timed_out {
+        panic!(
+            "timed out after {limit:?}\nstdout:\n{}\nstderr:\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
+    out
 }
 
 pub fn describe(out: &Output) -> String {
@@ -195,6 +232,14 @@ impl Up {
     /// The supervisor's pid.
     pub fn id(&self) -> u32 {
         self.child.as_ref().map_or(0, Child::id)
+    }
+
+    /// The supervisor's output if it has ended (a test waiting for one of
+    /// its files fails at once, with the reason, rather than at its limit).
+    pub fn ended(&mut self) -> Option<Output> {
+        let child = self.child.as_mut()?;
+        child.try_wait().ok().flatten()?;
+        self.child.take()?.wait_with_output().ok()
     }
 
     /// Waits (bounded) for the supervisor to end by itself; its output.

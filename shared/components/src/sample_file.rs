@@ -25,7 +25,7 @@
 use crate::mcap_repair::{self, Closed};
 use crate::storage::Storage;
 use flexloop_protocol::layout::{self, MessageLayout};
-use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_protocol::{Command, Estimate, Measurement, WireBytes};
 use mcap::records::MessageHeader;
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use mcap::write::NoSeek;
@@ -184,15 +184,15 @@ impl<S: Storage> SampleWriter<S> {
     }
 
     pub fn measurement(&mut self, m: &Measurement) {
-        self.write(self.ids.measurement, m.seq, m.published_ns, as_bytes(m));
+        self.write(self.ids.measurement, m.seq, m.published_ns, m.wire_bytes());
     }
 
     pub fn estimate(&mut self, e: &Estimate) {
-        self.write(self.ids.estimate, e.seq, e.published_ns, as_bytes(e));
+        self.write(self.ids.estimate, e.seq, e.published_ns, e.wire_bytes());
     }
 
     pub fn command(&mut self, c: &Command) {
-        self.write(self.ids.command, c.seq, c.published_ns, as_bytes(c));
+        self.write(self.ids.command, c.seq, c.published_ns, c.wire_bytes());
     }
 
     /// One JSON event at `at_ns` (CLOCK_MONOTONIC).
@@ -346,14 +346,6 @@ fn to_io(e: mcap::McapError) -> io::Error {
         mcap::McapError::Io(e) => e,
         other => io::Error::other(other),
     }
-}
-
-/// The bytes of a plain-data message.
-fn as_bytes<T: Copy>(value: &T) -> &[u8] {
-    // SAFETY: the messages are #[repr(C)] plain data without padding (the
-    // layout tables and the protocol's size tests check it), so all their
-    // bytes are initialised.
-    unsafe { std::slice::from_raw_parts((value as *const T).cast::<u8>(), size_of::<T>()) }
 }
 
 /// One recorded message of the loop.

@@ -7,6 +7,7 @@ pub mod args;
 pub mod controller;
 pub mod duty;
 pub mod handover;
+pub mod in_order;
 pub mod instance;
 pub mod logger;
 pub mod observer;

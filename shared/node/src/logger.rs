@@ -11,6 +11,7 @@
 
 use crate::args::{Role, ServiceArgs, realtime_settings};
 use crate::handover::ActivationView;
+use crate::in_order::{InOrder, STAGED};
 use crate::recording::{self, Files, Item, Queue};
 use crate::run_metadata::run_metadata;
 use crate::summary::run_summary;
@@ -195,53 +196,6 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     drained.map(|_| ())
 }
 
-/// Samples one poll may stage per channel: two publishers' queues.
-const STAGED: usize = 2 * ESTIMATE.qos.logger_buffer_size;
-
-/// One poll's samples of a channel, put in sequence order before they are
-/// counted and recorded. iceoryx2 hands a subscriber one publisher's queue
-/// after the other, so during a hand-over (the old and the new instance
-/// both publish) a lockstep loop, which runs flat out, put hundreds of the
-/// new instance's samples ahead of the old one's last: farther than the
-/// gap count's reorder window, so they counted as gaps though all arrived.
-/// Preallocated: sorting in place allocates nothing.
-struct InOrder<T> {
-    items: Box<[T]>,
-}
-
-impl<T: Copy + Default + std::fmt::Debug + flexloop_transport::ZeroCopySend> InOrder<T> {
-    fn new(capacity: usize) -> Self {
-        Self {
-            items: vec![T::default(); capacity].into_boxed_slice(),
-        }
-    }
-
-    /// Takes everything `inlet` holds, in batches of the capacity, each
-    /// handed to `each` sorted by `seq`.
-    fn drain(
-        &mut self,
-        inlet: &Inlet<T>,
-        seq: impl Fn(&T) -> u64,
-        mut each: impl FnMut(&T),
-    ) -> Result<(), NodeError> {
-        loop {
-            let mut len = 0;
-            while len < self.items.len()
-                && let Some(sample) = inlet.receive()?
-            {
-                self.items[len] = *sample;
-                len += 1;
-            }
-            let batch = &mut self.items[..len];
-            batch.sort_unstable_by_key(&seq);
-            batch.iter().for_each(&mut each);
-            if len < self.items.len() {
-                return Ok(());
-            }
-        }
-    }
-}
-
 /// The ports the draining reads from and publishes to.
 struct Inlets<'a> {
     measurements: &'a Inlet<Measurement>,
@@ -283,8 +237,7 @@ fn drain(
             ports.commands,
             |c| c.seq,
             |c| {
-                if c.generation == activation.controller_for(c.seq) || c.flags & flags::STANDBY != 0
-                {
+                if activation.counts_command(c) {
                     recorder.command(c);
                 } else {
                     recorder.foreign_command();

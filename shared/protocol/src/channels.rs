@@ -28,12 +28,12 @@ pub struct ChannelQos {
 }
 
 // Readers of a measurement: the observer and the controller, a warm spare of
-// each, the standby controller, the logger and the supervisor, and a dead
-// one not yet cleaned. Writers of a command: the controller, its spare, the
+// each, the standby controller, the logger, the supervisor and the live
+// server (`flexloop up --live`), and a dead one not yet cleaned. Writers of a command: the controller, its spare, the
 // standby, a dead or rogue one.
 const LOOP_QOS: ChannelQos = ChannelQos {
     max_publishers: 5,
-    max_subscribers: 8,
+    max_subscribers: 9,
     max_nodes: 16,
     history_size: 1,
     // Every publisher preallocates max_subscribers x this many samples, and

@@ -8,7 +8,7 @@
 //!   sequence numbers, published by the supervisor and kept as history, so
 //!   that the plant, the controllers and the observers agree on the boundary.
 
-use crate::messages::MAX_INPUTS;
+use crate::messages::{Command, MAX_INPUTS, flags};
 use iceoryx2::prelude::*;
 
 /// States a component can hand over (filter, feedforward and observer states).
@@ -80,6 +80,13 @@ impl Activation {
         observer_generation: 0,
         previous_observer_generation: 0,
     };
+
+    /// Whether `c` is the loop's command for its sample: from the controller
+    /// generation that owns it, or the standby's (which only the standby
+    /// sends). Anything else (a shadow's, a replaced one's) is foreign.
+    pub fn counts_command(&self, c: &Command) -> bool {
+        c.generation == self.controller_for(c.seq) || c.flags & flags::STANDBY != 0
+    }
 
     /// The controller generation whose command for `seq` counts.
     pub fn controller_for(&self, seq: u64) -> u32 {

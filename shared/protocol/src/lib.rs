@@ -29,6 +29,6 @@ pub use handover::{Activation, Handover, MAX_HANDOVER_STATES};
 pub use joining::{Joining, UnknownJoining};
 pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
-    MAX_STATES, Measurement, NO_SEQ, Telemetry, flags,
+    MAX_STATES, Measurement, NO_SEQ, Telemetry, WireBytes, flags,
 };
 pub use spare::{SpareOrder, SpareStatus};

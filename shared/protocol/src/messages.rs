@@ -205,6 +205,32 @@ macro_rules! zeroed_default {
 }
 zeroed_default!(Measurement, Estimate, Command, Telemetry);
 
+/// A loop message's bytes as they travel and as the sample file and the
+/// live view carry them (the ROS1 serialisation of its layout,
+/// [`crate::layout`]).
+pub trait WireBytes {
+    fn wire_bytes(&self) -> &[u8];
+}
+
+macro_rules! wire_bytes {
+    ($($t:ty),*) => {$(
+        impl WireBytes for $t {
+            fn wire_bytes(&self) -> &[u8] {
+                // SAFETY: #[repr(C)] plain data without padding (the layout
+                // tables and the size tests below check it), so every byte
+                // is initialised.
+                unsafe {
+                    core::slice::from_raw_parts(
+                        (self as *const Self).cast::<u8>(),
+                        core::mem::size_of::<Self>(),
+                    )
+                }
+            }
+        }
+    )*};
+}
+wire_bytes!(Measurement, Estimate, Command);
+
 impl Estimate {
     pub fn direct_at(&self, output: usize, input: usize) -> f64 {
         self.direct[output * MAX_OBSERVER_INPUTS + input]

@@ -172,3 +172,20 @@ impl PerRole {
         self.plant + self.observer + self.controller
     }
 }
+
+/// `live_cost.json`: the plant's own figures with a live client subscribed
+/// to everything (`bench --live-cost`) and without a live server.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LiveCost {
+    pub scenario: String,
+    pub duration_s: f64,
+    pub with_client: PlantLatency,
+    pub without_server: PlantLatency,
+    /// What the server did in the run with the client.
+    pub server: crate::live::LiveSummary,
+    /// What the client received.
+    pub client_messages: u64,
+    pub client_bytes: u64,
+    pub round_trip_p50_cost_us: f64,
+    pub round_trip_p9999_cost_us: f64,
+}

@@ -11,11 +11,14 @@
 //! - [`metrics`]: `metrics.json` (`flexloop run`).
 //! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
 //! - [`chaos`]: `chaos.json`, what `flexloop chaos` did and what it cost.
+//! - [`live`]: `live.json` and `live_summary.json`, where a loop's live server
+//!   listens and what it did.
 
 pub mod bench;
 pub mod chaos;
 pub mod json;
 pub mod latency;
+pub mod live;
 pub mod metrics;
 pub mod run_dir;
 pub mod summary;

@@ -31,6 +31,10 @@ impl RunDir {
     /// The scenario as it stands after swaps and sets (absent until the
     /// first); `flexloop status --scenario` prints it.
     pub const SCENARIO_NOW: &str = "scenario-now.toml";
+    /// Where the live server (`flexloop up --live`) listens, once it does.
+    pub const LIVE: &str = "live.json";
+    /// What the live server did, written when it stops.
+    pub const LIVE_SUMMARY: &str = "live_summary.json";
     /// `flexloop run`'s control metrics.
     pub const METRICS: &str = "metrics.json";
     /// `flexloop bench`'s results.
@@ -90,6 +94,14 @@ impl RunDir {
 
     pub fn tuned(&self) -> PathBuf {
         self.join(Self::TUNED)
+    }
+
+    pub fn live(&self) -> PathBuf {
+        self.join(Self::LIVE)
+    }
+
+    pub fn live_summary(&self) -> PathBuf {
+        self.join(Self::LIVE_SUMMARY)
     }
 
     pub fn scenario_now(&self) -> PathBuf {
@@ -242,6 +254,8 @@ pub fn is_run_file(name: &str) -> bool {
         RunDir::SCENARIO_NOW,
         RunDir::METRICS,
         RunDir::BENCH,
+        RunDir::LIVE,
+        RunDir::LIVE_SUMMARY,
     ]
     .contains(&name)
         || is_sample_file(name)

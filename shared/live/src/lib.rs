@@ -1,0 +1,25 @@
+//! flexloop-live: the live view of a running loop (`flexloop up --live`).
+//!
+//! A Foxglove WebSocket server (the official `foxglove` crate) that reads
+//! the loop's channels as one more polling subscriber and serves them with
+//! the sample file's schemas, so a layout made on a recording works live:
+//! `/measurement`, `/estimate`, `/command` (ros1msg), `/events`, a
+//! once-a-second `/latency` and `/scenario`. The loop's tunables are its
+//! parameters; setting one goes through the same check and hand-over as
+//! `flexloop set` (docs/live.md).
+//!
+//! - [`options`]: what is exposed and to whom (loopback, token, read-only).
+//! - [`clients`]: each client's rate, subscriptions and token.
+//! - [`parameters`]: tunables as Foxglove parameters and back.
+//! - [`tuning`]: what the server asks of the loop ([`Tuner`]).
+//! - [`server`]: the server and the reader that feeds it.
+
+pub mod clients;
+pub mod options;
+pub mod parameters;
+pub mod server;
+pub mod tuning;
+
+pub use options::{DEFAULT_ADDRESS, LiveOptions, OptionsError};
+pub use server::{LiveError, LoopSide, endpoint, serve};
+pub use tuning::{SetOutcome, Tuner};

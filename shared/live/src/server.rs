@@ -1,0 +1,739 @@
+//! The server: Foxglove's WebSocket server (the `foxglove` crate) with the
+//! loop's channels, its tunables as parameters, and the reader that feeds
+//! it from the loop's channels.
+//!
+//! The reader is one more polling subscriber of the loop (as the logger
+//! is: no notification, so no publisher of the loop ever waits on it). It
+//! runs in the process that calls [`serve`], which the supervisor starts
+//! off the loop's CPU and priority. What a client cannot take in time is
+//! dropped from its own queue (the crate keeps the newest
+//! `BACKLOG` messages per client); the loop, the logger and the other
+//! clients never wait for it.
+
+use crate::clients::{ClientTable, RATE_PARAMETER, Route, TOKEN_PARAMETER, targets};
+use crate::options::LiveOptions;
+use crate::parameters;
+use crate::tuning::{SetOutcome, Tuner};
+use flexloop_components::sample_file::{
+    COMMAND_TOPIC, ESTIMATE_TOPIC, EVENT_SCHEMA, EVENT_SCHEMA_NAME, EVENTS_TOPIC, MEASUREMENT_TOPIC,
+};
+use flexloop_node::NodeError;
+use flexloop_node::handover::ActivationView;
+use flexloop_node::in_order::{InOrder, STAGED};
+use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT, TELEMETRY};
+use flexloop_protocol::layout::{self, MessageLayout};
+use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, WireBytes};
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::json::write_json_atomically;
+use flexloop_runfiles::live::{LiveEndpoint, LiveSummary};
+use flexloop_runtime::latency::QUANTILE_LABELS;
+use flexloop_runtime::{monotonic_ns, shutdown};
+use flexloop_transport::{Domain, Inlet, LoopNode};
+use foxglove::websocket::{
+    AnyClient, Capability, ChannelView, Client, ClientId, GetParametersResponder, Parameter,
+    ParameterHandler, ParameterValue, ServerListener, SetParametersResponder,
+};
+use foxglove::{
+    ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, SinkId, WebSocketServer,
+    WebSocketServerHandle,
+};
+use std::fmt;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, SystemTime};
+
+pub const LATENCY_TOPIC: &str = "/latency";
+pub const SCENARIO_TOPIC: &str = "/scenario";
+
+/// Messages queued per client before the oldest are dropped: 0.4 s of
+/// every channel at 10 kHz.
+const BACKLOG: usize = 8192;
+/// The reader's poll: as the logger's, well inside the queues' 51 ms.
+const POLL: Duration = Duration::from_millis(2);
+const EVENTS_EVERY: Duration = Duration::from_millis(100);
+
+const LATENCY_SCHEMA: &str = r#"{
+  "title": "flexloop/Latency",
+  "description": "Once a second: the logger's counters and latency percentiles (what `flexloop status` prints) and the live server's own counts",
+  "type": "object",
+  "properties": {
+    "seq": {"type": "integer", "description": "the loop's newest tick"},
+    "rate_hz": {"type": "number", "description": "samples per second since the last message"},
+    "samples": {"type": "integer"},
+    "misses": {"type": "integer"},
+    "late_commands": {"type": "integer"},
+    "stalled_ticks": {"type": "integer"},
+    "stall_misses": {"type": "integer"},
+    "stale_estimates": {"type": "integer"},
+    "log_gaps": {"type": "integer"},
+    "round_trip_us": {"type": "object", "description": "p50, p90, p99, p99.9, p99.99, max"},
+    "tick_lateness_us": {"type": "object"},
+    "live": {"type": "object", "description": "clients subscribed, messages sent, samples the live reader lost per channel"}
+  }
+}"#;
+
+const SCENARIO_SCHEMA: &str = r#"{
+  "title": "flexloop/Scenario",
+  "description": "The loop's scenario as it stands (after swaps and sets): on subscribing, and again whenever it changes",
+  "type": "object",
+  "properties": {
+    "file": {"type": "string"},
+    "toml": {"type": "string"}
+  }
+}"#;
+
+/// The running loop the server serves.
+#[derive(Debug, Clone)]
+pub struct LoopSide {
+    pub prefix: String,
+    pub run_dir: PathBuf,
+    pub rate_hz: f64,
+}
+
+/// Why the server stopped or could not start.
+#[derive(Debug)]
+pub enum LiveError {
+    /// The WebSocket server could not start (the address is taken, ...).
+    Start { address: String, reason: String },
+    /// A channel of the Foxglove context could not be made.
+    Channel { topic: &'static str, reason: String },
+    /// Reading the loop's channels failed.
+    Loop(NodeError),
+    /// `live.json` could not be written.
+    RunFile(flexloop_runfiles::FileError),
+}
+
+impl fmt::Display for LiveError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LiveError::Start { address, reason } => {
+                write!(f, "the live server cannot listen on {address}: {reason}")
+            }
+            LiveError::Channel { topic, reason } => write!(f, "live channel {topic}: {reason}"),
+            LiveError::Loop(e) => write!(f, "reading the loop: {e}"),
+            LiveError::RunFile(e) => e.fmt(f),
+        }
+    }
+}
+
+impl std::error::Error for LiveError {}
+
+impl From<NodeError> for LiveError {
+    fn from(e: NodeError) -> Self {
+        LiveError::Loop(e)
+    }
+}
+
+impl From<flexloop_transport::TransportError> for LiveError {
+    fn from(e: flexloop_transport::TransportError) -> Self {
+        LiveError::Loop(NodeError::Transport(e))
+    }
+}
+
+/// What the server's callbacks share with the reader.
+struct Shared {
+    table: Mutex<ClientTable<ClientId, SinkId>>,
+    /// Clients that subscribed to `/scenario` and wait for it.
+    scenario_wanted: Mutex<Vec<SinkId>>,
+    scenario_topic_id: Mutex<Option<u64>>,
+    options: LiveOptions,
+    tuner: Arc<dyn Tuner>,
+    server: Mutex<Option<WebSocketServerHandle>>,
+    /// One change of the loop at a time: another is refused meanwhile.
+    setting: AtomicBool,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // The state stays consistent across a panicking callback (each update
+    // is one call), so a poisoned lock is still usable.
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+struct Listener(Arc<Shared>);
+
+impl ServerListener for Listener {
+    fn on_subscribe(&self, client: Client, channel: ChannelView) {
+        let Some(sink) = client.sink_id() else {
+            return;
+        };
+        let id = u64::from(channel.id());
+        lock(&self.0.table).subscribed(client.id(), sink, id);
+        if *lock(&self.0.scenario_topic_id) == Some(id) {
+            lock(&self.0.scenario_wanted).push(sink);
+        }
+    }
+
+    fn on_unsubscribe(&self, client: Client, channel: ChannelView) {
+        lock(&self.0.table).unsubscribed(client.id(), u64::from(channel.id()));
+    }
+}
+
+struct Parameters(Arc<Shared>);
+
+impl Shared {
+    /// Every parameter this client sees: the loop's tunables and its own rate.
+    fn parameters(&self, client: ClientId) -> (Vec<Parameter>, Option<String>) {
+        let (mut out, error) = match self.tuner.values() {
+            Ok(values) => (
+                values
+                    .iter()
+                    .map(|(field, value)| parameters::parameter(field, value.as_ref()))
+                    .collect(),
+                None,
+            ),
+            Err(reason) => (Vec::new(), Some(reason)),
+        };
+        out.push(Parameter {
+            name: RATE_PARAMETER.to_string(),
+            r#type: None,
+            value: Some(ParameterValue::Float64(lock(&self.table).rate_hz(client))),
+        });
+        (out, error)
+    }
+
+    /// Handles one set request of `client` (on a thread of its own: a
+    /// change of the loop takes as long as its hand-over).
+    fn set(&self, client: &AnyClient, requested: Vec<Parameter>) -> Vec<Parameter> {
+        let id = client.id();
+        let mut changes = Vec::new();
+        for p in &requested {
+            match p.name.as_str() {
+                TOKEN_PARAMETER => match (&self.options.token, &p.value) {
+                    (Some(token), Some(ParameterValue::String(given))) if given == token => {
+                        lock(&self.table).give_token(id);
+                    }
+                    (None, _) => client
+                        .send_warning(format!("{TOKEN_PARAMETER}: this server takes no token")),
+                    _ => client.send_error(format!("{TOKEN_PARAMETER}: not the server's token")),
+                },
+                RATE_PARAMETER => {
+                    let named = parameters::number(&p.name, p.value.as_ref())
+                        .and_then(|rate| lock(&self.table).set_rate(id, rate));
+                    if let Err(reason) = named {
+                        client.send_error(reason);
+                    }
+                }
+                field => match parameters::toml_text(field, p.value.as_ref()) {
+                    Ok(text) => changes.push((field.to_string(), text)),
+                    Err(reason) => client.send_error(format!("set refused: {reason}")),
+                },
+            }
+        }
+        if !changes.is_empty() {
+            match self.change_loop(id, &changes) {
+                Ok(outcome) => {
+                    client.send_info(outcome.summary.clone());
+                    if let Some(server) = lock(&self.server).as_ref() {
+                        let (all, _) = self.parameters(id);
+                        let changed = all
+                            .into_iter()
+                            .filter(|p| outcome.fields.contains(&p.name))
+                            .collect::<Vec<_>>();
+                        if !changed.is_empty() {
+                            server.publish_parameter_values(changed);
+                        }
+                    }
+                }
+                Err(reason) => client.send_error(format!("set refused: {reason}")),
+            }
+        }
+        let names: Vec<&str> = requested.iter().map(|p| p.name.as_str()).collect();
+        let (all, _) = self.parameters(id);
+        all.into_iter()
+            .filter(|p| names.contains(&p.name.as_str()))
+            .collect()
+    }
+
+    fn change_loop(
+        &self,
+        client: ClientId,
+        changes: &[(String, String)],
+    ) -> Result<SetOutcome, String> {
+        if self.options.read_only {
+            return Err("this live server is read-only (--live-read-only)".into());
+        }
+        if self.options.token.is_some() && !lock(&self.table).token_given(client) {
+            return Err(format!(
+                "set {TOKEN_PARAMETER} to the token the server was started with first"
+            ));
+        }
+        if self.setting.swap(true, Ordering::AcqRel) {
+            return Err("another change is being handed over; set again when it is done".into());
+        }
+        let outcome = self.tuner.set(changes);
+        self.setting.store(false, Ordering::Release);
+        outcome
+    }
+}
+
+impl ParameterHandler for Parameters {
+    fn get(
+        &self,
+        client: AnyClient,
+        names: Vec<String>,
+        _request_id: Option<String>,
+        responder: GetParametersResponder,
+    ) {
+        let (all, error) = self.0.parameters(client.id());
+        if let Some(reason) = error {
+            client.send_error(reason);
+        }
+        responder.respond(
+            all.into_iter()
+                .filter(|p| names.is_empty() || names.contains(&p.name))
+                .collect(),
+        );
+    }
+
+    fn set(
+        &self,
+        client: AnyClient,
+        parameters: Vec<Parameter>,
+        _request_id: Option<String>,
+        responder: SetParametersResponder,
+    ) {
+        let shared = Arc::clone(&self.0);
+        let spawned = std::thread::Builder::new()
+            .name("live-set".into())
+            .spawn(move || {
+                let values = shared.set(&client, parameters);
+                responder.respond(values);
+            });
+        if let Err(e) = spawned {
+            // The responder went with the closure: the crate answers the
+            // client with an internal error.
+            eprintln!("flexloop-live: cannot handle a set: {e}");
+        }
+    }
+}
+
+/// The Foxglove channels of the loop's messages.
+struct Channels {
+    samples: [Arc<RawChannel>; 3],
+    events: Arc<RawChannel>,
+    latency: Arc<RawChannel>,
+    scenario: Arc<RawChannel>,
+}
+
+impl Channels {
+    fn new(ctx: &Arc<Context>) -> Result<Self, LiveError> {
+        let ros1 = |topic: &'static str, layout: &MessageLayout| {
+            ChannelBuilder::new(topic)
+                .context(ctx)
+                .message_encoding("ros1")
+                .schema(Schema::new(
+                    layout.type_name,
+                    "ros1msg",
+                    layout.ros1_definition().into_bytes(),
+                ))
+                .build_raw()
+                .map_err(|e| LiveError::Channel {
+                    topic,
+                    reason: e.to_string(),
+                })
+        };
+        let json = |topic: &'static str, name: &str, schema: &'static str| {
+            ChannelBuilder::new(topic)
+                .context(ctx)
+                .message_encoding("json")
+                .schema(Schema::new(name, "jsonschema", schema.as_bytes()))
+                .build_raw()
+                .map_err(|e| LiveError::Channel {
+                    topic,
+                    reason: e.to_string(),
+                })
+        };
+        Ok(Self {
+            samples: [
+                ros1(MEASUREMENT_TOPIC, &layout::MEASUREMENT)?,
+                ros1(ESTIMATE_TOPIC, &layout::ESTIMATE)?,
+                ros1(COMMAND_TOPIC, &layout::COMMAND)?,
+            ],
+            events: json(EVENTS_TOPIC, EVENT_SCHEMA_NAME, EVENT_SCHEMA)?,
+            latency: json(LATENCY_TOPIC, "flexloop/Latency", LATENCY_SCHEMA)?,
+            scenario: json(SCENARIO_TOPIC, "flexloop/Scenario", SCENARIO_SCHEMA)?,
+        })
+    }
+}
+
+/// Serves the loop until a stop is requested (SIGTERM or SIGINT; the
+/// supervisor sends it at the end of the run). Writes `live.json` in the
+/// run directory once it listens.
+pub fn serve(
+    options: LiveOptions,
+    side: &LoopSide,
+    tuner: Arc<dyn Tuner>,
+) -> Result<(), LiveError> {
+    let ctx = Context::new();
+    let channels = Channels::new(&ctx)?;
+    let shared = Arc::new(Shared {
+        table: Mutex::new(ClientTable::new(side.rate_hz)),
+        scenario_wanted: Mutex::new(Vec::new()),
+        scenario_topic_id: Mutex::new(Some(u64::from(channels.scenario.id()))),
+        options: options.clone(),
+        tuner,
+        server: Mutex::new(None),
+        setting: AtomicBool::new(false),
+    });
+    let address = options.address;
+    let handle = WebSocketServer::new()
+        .context(&ctx)
+        .name(format!("flexloop {}", side.prefix))
+        .bind(address.ip().to_string(), address.port())
+        .capabilities([Capability::Parameters])
+        .message_backlog_size(BACKLOG)
+        .listener(Arc::new(Listener(Arc::clone(&shared))))
+        .parameter_handler(Arc::new(Parameters(Arc::clone(&shared))))
+        .start_blocking()
+        .map_err(|e| LiveError::Start {
+            address: address.to_string(),
+            reason: e.to_string(),
+        })?;
+    let bound = std::net::SocketAddr::new(address.ip(), handle.port());
+    *lock(&shared.server) = Some(handle);
+    let run_dir = RunDir::new(&side.run_dir);
+    write_json_atomically(
+        &run_dir.live(),
+        &LiveEndpoint {
+            address: bound.to_string(),
+            pid: std::process::id(),
+            read_only: options.read_only,
+            token_required: options.token.is_some(),
+        },
+    )
+    .map_err(LiveError::RunFile)?;
+    let started = std::time::Instant::now();
+    let mut counts = Counts::default();
+    let result = feed(side, &channels, &shared, &mut counts);
+    if let Some(handle) = lock(&shared.server).take() {
+        // Dropping the shutdown handle closes every connection now: a
+        // client that never reads must not hold up the end of the run.
+        drop(handle.stop());
+    }
+    write_json_atomically(
+        &run_dir.live_summary(),
+        &LiveSummary {
+            cpu_s: flexloop_runtime::usage::process_cpu_ns() as f64 / 1e9,
+            wall_s: started.elapsed().as_secs_f64(),
+            messages_sent: counts.sent,
+            lost_by_reader: counts.lost,
+            most_clients: counts.most_clients,
+        },
+    )
+    .map_err(LiveError::RunFile)?;
+    result
+}
+
+/// Reads the loop's channels and hands every message to the clients that
+/// want it, until a stop is requested.
+fn feed(
+    side: &LoopSide,
+    channels: &Channels,
+    shared: &Shared,
+    counts: &mut Counts,
+) -> Result<(), LiveError> {
+    let domain = Domain::new(&side.prefix)?;
+    let node = domain.node("live")?;
+    let mut reader = LoopReader::open(&node)?;
+    let mut events = EventsTail::new(RunDir::new(&side.run_dir).events());
+    let mut scenario = ScenarioWatch::default();
+    let mut latency = LatencyFeed::open(&node)?;
+    let offset_ns = wall_clock_ns().saturating_sub(monotonic_ns());
+    let ids = channels.samples.each_ref().map(|c| u64::from(c.id()));
+    let mut routes: Vec<Route<SinkId>> = Vec::new();
+    let mut routes_version = u64::MAX;
+    let mut out = Vec::new();
+    let mut next_events = std::time::Instant::now();
+    while !shutdown::requested() {
+        {
+            let table = lock(&shared.table);
+            if table.version() != routes_version {
+                table.routes(&mut routes);
+                routes_version = table.version();
+                counts.most_clients = counts.most_clients.max(table.subscribed_clients());
+            }
+        }
+        reader.drain(&mut |k, seq, published_ns, bytes| {
+            counts.read(k, seq);
+            targets(&routes, ids[k], seq, &mut out);
+            for sink in &out {
+                channels.samples[k].log_with_meta_to_sink(
+                    bytes,
+                    PartialMetadata {
+                        log_time: Some(published_ns.wrapping_add(offset_ns)),
+                    },
+                    Some(*sink),
+                );
+                counts.sent += 1;
+            }
+        })?;
+        if let Some(json) = latency.poll(counts, routes.len())? {
+            channels.latency.log(json.as_bytes());
+        }
+        if std::time::Instant::now() >= next_events {
+            next_events += EVENTS_EVERY;
+            for line in events.new_lines() {
+                channels.events.log(line.as_bytes());
+            }
+            let wanted: Vec<SinkId> = std::mem::take(&mut *lock(&shared.scenario_wanted));
+            if let Some(json) = scenario.changed(&shared.tuner) {
+                channels.scenario.log(json.as_bytes());
+            } else if !wanted.is_empty()
+                && let Some(json) = scenario.current(&shared.tuner)
+            {
+                for sink in wanted {
+                    channels.scenario.log_to_sink(json.as_bytes(), Some(sink));
+                }
+            }
+        }
+        std::thread::sleep(POLL);
+    }
+    Ok(())
+}
+
+/// The loop's messages as the logger records them: measurements as they
+/// come, estimates and commands in sequence order, commands only from the
+/// generation that owns their sample (`Activation::counts_command`).
+struct LoopReader {
+    measurements: Inlet<Measurement>,
+    estimates: Inlet<Estimate>,
+    commands: Inlet<Command>,
+    activation: ActivationView,
+    estimate_order: InOrder<Estimate>,
+    command_order: InOrder<Command>,
+}
+
+impl LoopReader {
+    fn open(node: &LoopNode) -> Result<Self, LiveError> {
+        Ok(Self {
+            measurements: Inlet::open_polling(
+                node,
+                &MEASUREMENT,
+                MEASUREMENT.qos.logger_buffer_size,
+            )?,
+            estimates: Inlet::open_polling(node, &ESTIMATE, ESTIMATE.qos.logger_buffer_size)?,
+            commands: Inlet::open_polling(node, &COMMAND, COMMAND.qos.logger_buffer_size)?,
+            activation: ActivationView::open(node)?,
+            estimate_order: InOrder::new(STAGED),
+            command_order: InOrder::new(STAGED),
+        })
+    }
+
+    /// Everything the channels hold now, to `each(channel, seq,
+    /// published_ns, bytes)` (channel 0 measurement, 1 estimate, 2 command).
+    fn drain(&mut self, each: &mut impl FnMut(usize, u64, u64, &[u8])) -> Result<(), LiveError> {
+        while let Some(m) = self.measurements.receive()? {
+            each(0, m.seq, m.published_ns, m.wire_bytes());
+        }
+        self.estimate_order.drain(
+            &self.estimates,
+            |e| e.seq,
+            |e| each(1, e.seq, e.published_ns, e.wire_bytes()),
+        )?;
+        let activation = *self.activation.refresh()?;
+        self.command_order.drain(
+            &self.commands,
+            |c| c.seq,
+            |c| {
+                if activation.counts_command(c) {
+                    each(2, c.seq, c.published_ns, c.wire_bytes());
+                }
+            },
+        )?;
+        Ok(())
+    }
+}
+
+/// The server's own counts: messages sent, and samples its reader never
+/// got (its queue overflowed: it was not scheduled for 51 ms).
+#[derive(Debug, Default)]
+struct Counts {
+    sent: u64,
+    last_seq: [Option<u64>; 3],
+    lost: [u64; 3],
+    most_clients: usize,
+}
+
+impl Counts {
+    fn read(&mut self, channel: usize, seq: u64) {
+        if let Some(last) = self.last_seq[channel]
+            && seq > last + 1
+        {
+            self.lost[channel] += seq - last - 1;
+        }
+        if self.last_seq[channel].is_none_or(|last| seq > last) {
+            self.last_seq[channel] = Some(seq);
+        }
+    }
+}
+
+/// `/latency`: each of the logger's telemetry messages (once a second), with
+/// the server's counts.
+struct LatencyFeed {
+    inlet: Inlet<Telemetry>,
+    previous: Option<Telemetry>,
+}
+
+impl LatencyFeed {
+    fn open(node: &LoopNode) -> Result<Self, LiveError> {
+        Ok(Self {
+            inlet: Inlet::open_polling(node, &TELEMETRY, TELEMETRY.qos.loop_buffer_size)?,
+            previous: None,
+        })
+    }
+
+    fn poll(&mut self, counts: &Counts, clients: usize) -> Result<Option<String>, LiveError> {
+        let mut newest = None;
+        while let Some(t) = self.inlet.receive()? {
+            newest = Some(*t);
+        }
+        let Some(t) = newest else {
+            return Ok(None);
+        };
+        let rate_hz = self
+            .previous
+            .filter(|p| t.published_ns > p.published_ns && t.samples >= p.samples)
+            .map(|p| {
+                (t.samples - p.samples) as f64 / ((t.published_ns - p.published_ns) as f64 / 1e9)
+            });
+        self.previous = Some(t);
+        let percentiles = |v: [u64; 6]| {
+            QUANTILE_LABELS
+                .iter()
+                .zip(v)
+                .map(|(label, ns)| ((*label).to_string(), serde_json::json!(ns as f64 / 1e3)))
+                .collect::<serde_json::Map<_, _>>()
+        };
+        Ok(Some(
+            serde_json::json!({
+                "seq": t.seq,
+                "rate_hz": rate_hz,
+                "samples": t.samples,
+                "misses": t.misses,
+                "late_commands": t.late_commands,
+                "stalled_ticks": t.stalled_ticks,
+                "stall_misses": t.stall_misses,
+                "stale_estimates": t.stale_estimates,
+                "log_gaps": t.gaps,
+                "round_trip_us": percentiles(t.round_trip),
+                "tick_lateness_us": percentiles(t.tick_lateness),
+                "live": {
+                    "clients": clients,
+                    "sent": counts.sent,
+                    "lost_by_reader": {
+                        "measurement": counts.lost[0],
+                        "estimate": counts.lost[1],
+                        "command": counts.lost[2],
+                    },
+                },
+            })
+            .to_string(),
+        ))
+    }
+}
+
+/// New complete lines of `events.jsonl` (the supervisor's events: swaps,
+/// sets, crashes, restarts) since the last call.
+struct EventsTail {
+    path: PathBuf,
+    offset: u64,
+    partial: String,
+}
+
+impl EventsTail {
+    fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            offset: 0,
+            partial: String::new(),
+        }
+    }
+
+    fn new_lines(&mut self) -> Vec<String> {
+        let Ok(mut file) = std::fs::File::open(&self.path) else {
+            return Vec::new();
+        };
+        if file.seek(SeekFrom::Start(self.offset)).is_err() {
+            return Vec::new();
+        }
+        let mut text = String::new();
+        let Ok(read) = file.read_to_string(&mut text) else {
+            return Vec::new();
+        };
+        self.offset += read as u64;
+        self.partial.push_str(&text);
+        let mut lines = Vec::new();
+        while let Some(end) = self.partial.find('\n') {
+            let line: String = self.partial.drain(..=end).collect();
+            let line = line.trim();
+            if !line.is_empty() {
+                lines.push(line.to_string());
+            }
+        }
+        lines
+    }
+}
+
+/// `/scenario`: the loop's scenario as it stands, sent again when it changes.
+#[derive(Default)]
+struct ScenarioWatch {
+    last: Option<String>,
+}
+
+impl ScenarioWatch {
+    fn current(&mut self, tuner: &Arc<dyn Tuner>) -> Option<String> {
+        let (file, text) = tuner.scenario().ok()?;
+        let json = serde_json::json!({"file": file, "toml": text}).to_string();
+        self.last = Some(json.clone());
+        Some(json)
+    }
+
+    /// The scenario, if it changed since the last call that saw it.
+    fn changed(&mut self, tuner: &Arc<dyn Tuner>) -> Option<String> {
+        let before = self.last.clone();
+        let now = self.current(tuner)?;
+        (before.is_some() && before.as_deref() != Some(now.as_str())).then_some(now)
+    }
+}
+
+fn wall_clock_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// Where `serve` says it listens.
+pub fn endpoint(run_dir: &Path) -> Result<LiveEndpoint, flexloop_runfiles::FileError> {
+    flexloop_runfiles::json::read_json(&RunDir::new(run_dir).live())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reader_counts_what_its_queue_lost_and_not_reordering() {
+        let mut counts = Counts::default();
+        for seq in [0, 1, 2, 5, 4, 6] {
+            counts.read(0, seq);
+        }
+        assert_eq!(counts.lost[0], 2);
+        assert_eq!(counts.last_seq[0], Some(6));
+    }
+
+    #[test]
+    fn events_are_read_line_by_line_across_partial_writes() {
+        let dir = std::env::temp_dir().join(format!("flexloop-live-events-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("events.jsonl");
+        let mut tail = EventsTail::new(path.clone());
+        assert!(tail.new_lines().is_empty());
+        std::fs::write(&path, "{\"a\":1}\n{\"b\":").unwrap();
+        assert_eq!(tail.new_lines(), ["{\"a\":1}"]);
+        std::fs::write(&path, "{\"a\":1}\n{\"b\":2}\n").unwrap();
+        assert_eq!(tail.new_lines(), ["{\"b\":2}"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
