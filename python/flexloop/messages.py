@@ -148,9 +148,9 @@ class Handover(_Message):
         ("shadow", u32),
         ("n_states", u32),
         ("n_inputs", u32),
-        ("feedforward_hash", u64),
-        ("feedforward_at", u32),
-        ("feedforward_len", u32),
+        ("carried_hash", u64),
+        ("carried_at", u32),
+        ("carried_len", u32),
         ("state", f64 * MAX_HANDOVER_STATES),
         ("u", f64 * MAX_INPUTS),
     ]

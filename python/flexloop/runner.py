@@ -601,9 +601,9 @@ class _Process:
         h.shadow = mark
         n = self.n_inputs
         h.n_inputs = n
-        h.feedforward_hash = 0
-        h.feedforward_at = 0
-        h.feedforward_len = 0
+        h.carried_hash = 0
+        h.carried_at = 0
+        h.carried_len = 0
         state = self.law.save_state()
         if state is None or len(state) + n > msg.MAX_HANDOVER_STATES:
             h.design_hash = 0

@@ -151,6 +151,59 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
 }
 
 #[test]
+fn an_observer_set_continues_the_estimate_and_hands_over_without_a_step() {
+    let dir = temp_dir("tune-observer");
+    // Mid-scan, as the bandwidth's set: a new observer started from its own
+    // initial state here stepped u_d by 3 100 N (docs/architecture.md).
+    let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 3_200);
+    let out = flexloop_on(&prefix, &["set", "observer.damping_increase=0.05"]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let said = stdout(&out);
+    // The modified feedforward holds the damped loop: the controller follows.
+    assert!(
+        said.contains("observer.damping_increase 0.035 -> 0.05")
+            && said.contains("observer generation 1")
+            && said.contains("controller generation 1"),
+        "{said}"
+    );
+    assert_eq!(get(&prefix, "observer.damping_increase"), "0.05");
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    stop(&prefix, child);
+
+    let summary = summary(&dir);
+    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    for channel in ["measurement", "estimate", "command"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+    }
+    let sets = of_kind(&dir, "set");
+    assert_eq!(sets.len(), 1, "{sets:?}");
+    let set = &sets[0]["detail"];
+    let switches = set["switches"].as_array().unwrap();
+    let roles: Vec<&str> = switches
+        .iter()
+        .map(|s| s["role"].as_str().unwrap())
+        .collect();
+    assert_eq!(roles, ["observer", "controller"]);
+    for switch in switches {
+        let du = |k: &str| switch[k].as_f64().unwrap();
+        assert!(
+            du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
+            "{switch}"
+        );
+    }
+    let now: toml::Table =
+        toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap();
+    assert_eq!(now["observer"]["damping_increase"].as_float(), Some(0.05));
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let generations: std::collections::BTreeSet<u32> =
+        log.estimates().map(|e| e.generation).collect();
+    assert_eq!(generations.len(), 2, "observers 0 and 1: {generations:?}");
+    assert_clean(&dir);
+}
+
+#[test]
 fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
     let dir = temp_dir("tune-refused");
     let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
@@ -197,12 +250,20 @@ fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
     );
     let err = refused_set(&prefix, "controller.notches_hz=[-900.0]");
     assert!(err.contains("controller.notches_hz"), "{err}");
-    // The observer's fields are shown, not set: its hand-over to another
-    // design is not bumpless.
-    let err = refused_set(&prefix, "observer.damping_increase=0.05");
+    // An observer's change is checked as the controller's: with Q_ν 10
+    // y5's sensitivity peaks at 6.1 dB at f_bw 43.5 Hz (`flexloop design`).
+    let err = refused_set(&prefix, "observer.q_nu=10");
+    assert!(err.contains("6 dB rule NOT met"), "{err}");
+    // One set hands over one role's fields.
+    let both = flexloop_on(
+        &prefix,
+        &["set", "controller.bandwidth_hz=40", "observer.bandpass_q=3"],
+    );
+    assert_eq!(both.status.code(), Some(2), "{}", describe(&both));
     assert!(
-        err.contains("observer.damping_increase") && err.contains("not set live"),
-        "{err}"
+        String::from_utf8_lossy(&both.stderr).contains("in two sets"),
+        "{}",
+        describe(&both)
     );
 
     // The running value again: nothing to hand over.

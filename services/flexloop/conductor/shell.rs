@@ -342,30 +342,38 @@ impl Conductor {
                 handover_s: 0.0,
             });
         };
-        // The controller's fields alone are set (the observer's hand-over
-        // is not bumpless across designs: `flexloop_scenario::tune`).
-        let switch = self
-            .swap(running, Role::Controller, &plan.file)
-            .map_err(|e| {
+        // An observer set hands the controller over second, when its
+        // feedforward follows the observer (`tuning::observer_roles`).
+        let mut switches = Vec::new();
+        let mut first = None;
+        for &role in &plan.roles {
+            let switch = self.swap(running, role, &plan.file).map_err(|e| {
+                let taken = switches
+                    .iter()
+                    .map(|s: &Switch| format!("the {} took it; ", s.role.name()))
+                    .collect::<String>();
                 e.context(format!(
-                    "the controller did not take {}",
+                    "{taken}the {} did not take {}",
+                    role.name(),
                     plan.file.display()
                 ))
             })?;
-        self.note_swapped(Role::Controller, &plan.file);
+            self.note_swapped(role, &plan.file);
+            first.get_or_insert((role, switch.generation));
+            switches.push(switch);
+        }
+        let (role, generation) = first.expect("a set plan names at least one role");
         let outcome = SetOutcome {
             fields: plan.fields,
             file: Some(plan.file.display().to_string()),
-            switches: vec![switch.record()],
+            switches: switches.iter().map(Switch::record).collect(),
             check_s,
             handover_s: since.elapsed().as_secs_f64() - check_s,
         };
-        self.record_action(self.core.note(
-            "set",
-            Role::Controller,
-            Some(switch.generation),
-            json!(outcome),
-        ));
+        self.record_action(
+            self.core
+                .note("set", role, Some(generation), json!(outcome)),
+        );
         self.publish_files();
         Ok(outcome)
     }

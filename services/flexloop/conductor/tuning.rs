@@ -4,20 +4,23 @@
 //! tuning"). The hand-over itself is the swap's (`shell.rs`).
 
 use anyhow::{Context, Result, bail};
+use flexloop_components::{ControllerCore, ObserverCore};
+use flexloop_design::LoopDesign;
 use flexloop_design::acceptance::{Accepted, accept_text};
 use flexloop_node::Role;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::supervision::{FieldChange, SetRequest};
-use flexloop_scenario::tune::{self, Change};
+use flexloop_scenario::tune::{self, Change, TunedRole};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 
 const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
 
-/// What a set will do once checked: the file to hand the controller over
-/// to and the fields it changes.
+/// What a set will do once checked: the roles to hand over, in order, the
+/// file to hand them over to and the fields it changes.
 #[derive(Debug)]
 pub struct SetPlan {
+    pub roles: Vec<Role>,
     pub file: PathBuf,
     pub fields: Vec<FieldChange>,
 }
@@ -90,7 +93,11 @@ impl Tuning {
         let now = self.now(run_dir, running)?.clone();
         let now_path = run_dir.scenario_now();
         let program = now.get("controller").and_then(|c| c.get("exec")).is_some();
-        tune::check_changes(&changes, |field| tune::known_field(&now, field), program)?;
+        let role =
+            match tune::check_changes(&changes, |field| tune::known_field(&now, field), program)? {
+                TunedRole::Controller => Role::Controller,
+                TunedRole::Observer => Role::Observer,
+            };
         let table = tune::with_changes(&now, &changes)?;
         let old = Scenario::from_text(&now_path, &toml::to_string(&now)?, overrides)
             .context("the running loop's scenario")?;
@@ -135,6 +142,10 @@ impl Tuning {
         // A program's law is its own: it checks its parameters when it
         // starts (a law that refuses them fails the swap, the loop
         // untouched), and the built-in design's rule does not judge it.
+        let roles = match role {
+            Role::Observer => observer_roles(&old, &design)?,
+            _ => vec![role],
+        };
         let report = flexloop_analysis::loop_report::loop_check(&new, &design)
             .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
         if !program && !report.meets_6db_rule {
@@ -149,7 +160,11 @@ impl Tuning {
             .with_context(|| format!("{}", run_dir.tuned().display()))?;
         std::fs::write(&file, text).with_context(|| format!("{}", file.display()))?;
         self.written = index;
-        Ok(Some(SetPlan { file, fields }))
+        Ok(Some(SetPlan {
+            roles,
+            file,
+            fields,
+        }))
     }
 
     /// `role` now runs `file` (a swap or a set's hand-over): its part of
@@ -206,32 +221,73 @@ fn take(table: &mut toml::Table, from: &toml::Table, name: &str) {
     };
 }
 
+/// The roles an observer set hands over: the observer, on the running
+/// observer's model (so that it continues its estimate:
+/// `ObserverCore::load`); then the controller, when the changed scenario
+/// designs it otherwise (the modified feedforward of thesis App. A holds
+/// the actively damped loop, so it follows the damping), but never its
+/// feedback: the loop between the two hand-overs would be one the 6 dB
+/// check did not judge (`bandwidth_hz = "auto"` designs the PID from the
+/// observer).
+fn observer_roles(running: &Scenario, new: &LoopDesign) -> Result<Vec<Role>> {
+    let old = LoopDesign::from_scenario(running)
+        .map_err(|e| anyhow::anyhow!("the running loop's design: {e}"))?;
+    let (old_observer, new_observer) = (
+        ObserverCore::for_design(&old).map_err(|e| anyhow::anyhow!("{e}"))?,
+        ObserverCore::for_design(new).map_err(|e| anyhow::anyhow!("{e}"))?,
+    );
+    if new_observer.model_hash() == 0 || new_observer.model_hash() != old_observer.model_hash() {
+        bail!(
+            "the changed observer has another model than the running one (its modes, MC or \
+             noise model, or a scheduled gain): its estimate could not continue the running \
+             observer's, and the command would step at the switch; change it in the scenario \
+             and start the loop again"
+        );
+    }
+    if new.feedback != old.feedback {
+        bail!(
+            "the changed observer changes the controller's feedback too (controller.bandwidth_hz \
+             = \"auto\" follows the observer): set controller.bandwidth_hz to a number first"
+        );
+    }
+    if ControllerCore::new(new, 0).design_hash() == ControllerCore::new(&old, 0).design_hash() {
+        Ok(vec![Role::Observer])
+    } else {
+        Ok(vec![Role::Observer, Role::Controller])
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use flexloop_runfiles::supervision::FieldValue;
 
     fn default_scenario() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/default.toml")
+        shipped("default")
+    }
+
+    fn shipped(name: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenarios/{name}.toml"))
     }
 
     /// A run directory holding the default scenario's copy, and the
     /// scenario as the supervisor runs it.
     fn run_dir(test: &str) -> (RunDir, Scenario) {
+        let overrides = Overrides {
+            rate_hz: Some(5_000.0),
+            ..Overrides::default()
+        };
+        run_dir_of(test, &default_scenario(), &overrides)
+    }
+
+    fn run_dir_of(test: &str, scenario: &Path, overrides: &Overrides) -> (RunDir, Scenario) {
         let dir =
             std::env::temp_dir().join(format!("flexloop-tuning-{test}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let run_dir = RunDir::new(&dir);
-        std::fs::copy(default_scenario(), run_dir.scenario_copy()).unwrap();
-        let overrides = Overrides {
-            rate_hz: Some(5_000.0),
-            ..Overrides::default()
-        };
-        (
-            run_dir,
-            Scenario::load(&default_scenario(), &overrides).unwrap(),
-        )
+        std::fs::copy(scenario, run_dir.scenario_copy()).unwrap();
+        (run_dir, Scenario::load(scenario, overrides).unwrap())
     }
 
     fn now(run_dir: &RunDir) -> toml::Table {
@@ -280,7 +336,7 @@ mod tests {
         let mut tuning = Tuning::default();
         for (field, value, says) in [
             ("plant.output", "3", "a swap may not change it"),
-            ("observer.q_nu", "500.0", "not set live"),
+            ("supervision.safe_action", "\"hold\"", "reads it once"),
             ("controller.bandwith_hz", "40", "no such field"),
         ] {
             let e = tuning
@@ -300,5 +356,56 @@ mod tests {
         let written = run_dir.tuned().exists() || run_dir.scenario_now().exists();
         let _ = std::fs::remove_dir_all(run_dir.path());
         assert!(!written);
+    }
+
+    #[test]
+    fn an_observer_set_hands_over_the_observer_on_the_same_model_only() {
+        let request = |field: &str, value: &str| SetRequest {
+            changes: vec![FieldValue {
+                field: field.into(),
+                value: value.into(),
+            }],
+        };
+        let plain = Overrides::default();
+        let (run_dir, running) = run_dir_of("observer", &default_scenario(), &plain);
+        let plan = Tuning::default()
+            .plan(
+                &run_dir,
+                &running,
+                &plain,
+                &request("observer.damping_increase", "0.05"),
+            )
+            .unwrap()
+            .unwrap();
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        // Its modified feedforward follows the damping: the controller too.
+        assert_eq!(plan.roles, [Role::Observer, Role::Controller]);
+
+        for (scenario, field, value, says) in [
+            // A scheduled gain follows the sensor: no estimate to continue.
+            (
+                "thesis-sensor-scan-ad",
+                "observer.bandpass_q",
+                "3.0",
+                "another model",
+            ),
+            // "auto" designs the PID from the observer.
+            (
+                "drive-train",
+                "observer.damping_increase",
+                "0.15",
+                "the controller's feedback",
+            ),
+        ] {
+            let (run_dir, running) = run_dir_of(scenario, &shipped(scenario), &plain);
+            let e = Tuning::default()
+                .plan(&run_dir, &running, &plain, &request(field, value))
+                .unwrap_err();
+            let written = run_dir.scenario_now().exists();
+            let _ = std::fs::remove_dir_all(run_dir.path());
+            let message = format!("{e:#}");
+            assert!(message.contains(says), "{scenario}: {message}");
+            assert!(!written, "{scenario}");
+        }
     }
 }

@@ -47,7 +47,7 @@ pub struct ControllerCore {
     estimate_watchdog: u32,
     /// The sample whose feedforward the modified block computes next.
     feedforward_next_seq: u64,
-    /// Fingerprint of the feedforward alone (see [`Handover::feedforward_hash`]).
+    /// Fingerprint of the feedforward alone (see [`Handover::carried_hash`]).
     feedforward_hash: u64,
     /// T_s / T_t of the anti-windup (0: none).
     anti_windup_gain: f64,
@@ -168,14 +168,14 @@ impl ControllerCore {
         if n > MAX_HANDOVER_STATES {
             out.n_states = 0;
             out.design_hash = 0;
-            out.feedforward_hash = 0;
+            out.carried_hash = 0;
             return;
         }
         out.n_states = n as u32;
         out.n_inputs = self.n_inputs as u32;
-        out.feedforward_hash = self.feedforward_hash;
-        out.feedforward_at = self.feedback.as_ref().map_or(0, |f| f.state().len()) as u32;
-        out.feedforward_len = self
+        out.carried_hash = self.feedforward_hash;
+        out.carried_at = self.feedback.as_ref().map_or(0, |f| f.state().len()) as u32;
+        out.carried_len = self
             .modified_feedforward
             .as_ref()
             .map_or(0, |f| f.state().len()) as u32;
@@ -223,8 +223,8 @@ impl ControllerCore {
         let Some(block) = &mut self.modified_feedforward else {
             return false;
         };
-        let (at, len) = (from.feedforward_at as usize, from.feedforward_len as usize);
-        if from.feedforward_hash != self.feedforward_hash
+        let (at, len) = (from.carried_at as usize, from.carried_len as usize);
+        if from.carried_hash != self.feedforward_hash
             || len != block.state().len()
             || at + len > MAX_HANDOVER_STATES
             || from.state[at..at + len].iter().any(|v| !v.is_finite())

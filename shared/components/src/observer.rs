@@ -50,6 +50,11 @@ pub struct ObserverCore {
     direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
     next_seq: u64,
     design_hash: u64,
+    /// Fingerprint of the model x̂ is the state of (and of the output
+    /// prediction): another design with the same one continues this
+    /// observer's estimate at a swap. 0: its estimate cannot be continued
+    /// (a scheduled observer, or a block without a leading x̂).
+    model_hash: u64,
 }
 
 /// Why an observer block does not fit the protocol.
@@ -98,6 +103,8 @@ impl ObserverCore {
                     o.gains == flexloop_control::scheduled_observer::GainScheduling::TimeVarying,
                 )))
                 .value();
+            // Its gain follows the sensor: its estimate is its own.
+            core.model_hash = 0;
             core.scheduled = Some(Scheduled {
                 state: vec![0.0; observer.state_len()],
                 observer,
@@ -173,9 +180,28 @@ impl ObserverCore {
             .matrix(&prediction.c)
             .matrix(&prediction.d)
             .value();
+        // x̂ must be the block's leading states (s = [x̂; w], the layout of
+        // flexloop_control::observer_block) for another design to take it.
+        let leading = n_est <= sys.states()
+            && block.estimate_map.ncols() == sys.states()
+            && (0..n_est).all(|i| {
+                (0..sys.states())
+                    .all(|j| block.estimate_map[(i, j)] == if i == j { 1.0 } else { 0.0 })
+            });
+        let model_hash = match &block.model {
+            Some(model) if leading && n_est > 0 && model.states() == n_est => {
+                Fingerprint::default()
+                    .system(model)
+                    .matrix(&prediction.c)
+                    .matrix(&prediction.d)
+                    .value()
+            }
+            _ => 0,
+        };
         Ok(Self {
             scheduled: None,
             design_hash,
+            model_hash,
             x_hat: DVector::zeros(n_est),
             prediction: prediction.clone(),
             innovation: DVector::zeros(n_outputs),
@@ -246,6 +272,12 @@ impl ObserverCore {
         self.design_hash
     }
 
+    /// Fingerprint of the model its estimate x̂ is the state of; 0 when
+    /// another design cannot continue its estimate.
+    pub fn model_hash(&self) -> u64 {
+        self.model_hash
+    }
+
     /// Writes the block state into `out` (none if it is too large to hand over).
     pub fn save(&self, out: &mut Handover) {
         let x = match &self.scheduled {
@@ -253,6 +285,9 @@ impl ObserverCore {
             None => self.block.state(),
         };
         out.design_hash = self.design_hash;
+        out.carried_hash = 0;
+        out.carried_at = 0;
+        out.carried_len = 0;
         if x.len() > MAX_HANDOVER_STATES {
             out.n_states = 0;
             out.design_hash = 0;
@@ -261,6 +296,11 @@ impl ObserverCore {
         out.n_states = x.len() as u32;
         out.n_inputs = self.n_inputs as u32;
         out.state[..x.len()].copy_from_slice(x);
+        if self.model_hash != 0 {
+            // x̂ leads the block state (checked in `new`).
+            out.carried_hash = self.model_hash;
+            out.carried_len = self.x_hat.len() as u32;
+        }
     }
 
     /// Takes over the block state of an identical design, whose next estimate
@@ -289,8 +329,10 @@ impl ObserverCore {
             return true;
         }
         let n = self.block.state().len();
-        if from.design_hash != self.design_hash
-            || from.n_states as usize != n
+        if from.design_hash != self.design_hash {
+            return self.continue_estimate(from);
+        }
+        if from.n_states as usize != n
             || n > MAX_HANDOVER_STATES
             || from.state[..n].iter().any(|v| !v.is_finite())
         {
@@ -299,6 +341,32 @@ impl ObserverCore {
         self.block.set_state(&from.state[..n]);
         // x̂ feeds the next innovation: recompute it from the new state.
         let s = DVectorView::from_slice(self.block.state(), n);
+        self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
+        self.next_seq = from.seq + 1;
+        true
+    }
+
+    /// Another design on the same model (another Kalman gain, damping or
+    /// band-pass): its x̂ continues the running observer's estimate, and
+    /// the rest of its block (the active damping's K(z)) keeps its own
+    /// state, which has followed that estimate in shadow. So at the
+    /// boundary the command changes by what the designs differ in, not by
+    /// an estimate started from zero mid-scan. False (nothing changed) for
+    /// another model.
+    fn continue_estimate(&mut self, from: &Handover) -> bool {
+        let n_est = self.x_hat.len();
+        let (at, len) = (from.carried_at as usize, from.carried_len as usize);
+        let handed = (from.n_states as usize).min(MAX_HANDOVER_STATES);
+        if self.model_hash == 0
+            || from.carried_hash != self.model_hash
+            || len != n_est
+            || at.checked_add(len).is_none_or(|end| end > handed)
+            || from.state[at..at + len].iter().any(|v| !v.is_finite())
+        {
+            return false;
+        }
+        self.block.set_leading_state(&from.state[at..at + len]);
+        let s = DVectorView::from_slice(self.block.state(), self.block.state().len());
         self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
         self.next_seq = from.seq + 1;
         true

@@ -18,7 +18,7 @@ fn default_scenario() -> Scenario {
 fn feedforward_state(core: &ControllerCore) -> Vec<f64> {
     let mut h = Handover::default();
     core.save(&mut h);
-    let (at, len) = (h.feedforward_at as usize, h.feedforward_len as usize);
+    let (at, len) = (h.carried_at as usize, h.carried_len as usize);
     h.state[at..at + len].to_vec()
 }
 
@@ -41,7 +41,7 @@ fn active_at_join() -> (Scenario, LoopDesign, ControllerCore, Handover) {
 fn a_joining_controller_takes_the_feedforward_over_and_matches_a_full_replay() {
     let (_, design, mut active, state) = active_at_join();
     assert!(
-        state.feedforward_len > 0,
+        state.carried_len > 0,
         "the thesis design has a modified feedforward"
     );
 
@@ -83,7 +83,7 @@ fn another_feedforward_is_not_taken_over() {
     }
 
     let mut corrupt = state;
-    corrupt.state[corrupt.feedforward_at as usize] = f64::NAN;
+    corrupt.state[corrupt.carried_at as usize] = f64::NAN;
     let mut same = ControllerCore::new(&design, 1);
     assert!(!same.load_feedforward(&corrupt), "non-finite state refused");
 }

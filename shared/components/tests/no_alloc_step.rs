@@ -181,8 +181,9 @@ fn the_guard_aborts_on_an_allocation() {
 }
 
 /// The hand-over path runs every sample too: each active instance saves its
-/// state, a shadow loads it, the plant reads the activation, and a retuned
-/// replacement shifts its integrator once.
+/// state, a shadow loads it (a retuned observer the estimate alone), the
+/// plant reads the activation, and a retuned replacement shifts its
+/// integrator once.
 #[test]
 fn hand_over_path_does_not_allocate() {
     use flexloop_components::{ControllerCore, ObserverCore};
@@ -197,6 +198,13 @@ fn hand_over_path_does_not_allocate() {
         design.n_inputs,
     )
     .unwrap();
+    // A retuned observer (same model) continues the estimate instead.
+    let mut retuned = default_scenario();
+    retuned.observer.damping_increase = 0.05;
+    let mut retuned_observer =
+        ObserverCore::for_design(&LoopDesign::from_scenario(&retuned).unwrap()).unwrap();
+    let mut retuned_estimate = Box::<Estimate>::default();
+    let mut continued = 0;
     let mut controller_state = Box::<Handover>::default();
     let mut observer_state = Box::<Handover>::default();
     let mut shadow_command = Box::<Command>::default();
@@ -215,6 +223,10 @@ fn hand_over_path_does_not_allocate() {
                 loaded += 1;
             }
             shadow_observer.load(&observer_state);
+            if retuned_observer.load(&observer_state) {
+                continued += 1;
+            }
+            retuned_observer.step(&m, &mut retuned_estimate);
             shadow_controller.step(&m, &l.estimate, &mut shadow_command);
             shadow_observer.step(&m, &mut shadow_estimate);
             l.tick();
@@ -227,6 +239,10 @@ fn hand_over_path_does_not_allocate() {
         shadow_controller.fast_forward(2 * TICKS as u64);
     });
     assert!(loaded > TICKS / 2, "the shadow took over the state");
+    assert!(
+        continued > TICKS / 2,
+        "the retuned observer continued the estimate"
+    );
 }
 
 #[test]

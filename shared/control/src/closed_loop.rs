@@ -265,6 +265,7 @@ pub fn assemble_continuous_loop(
             Some(ObserverBlock {
                 system: unit(o)?,
                 estimate_map: DMatrix::zeros(0, o.states()),
+                model: None,
                 n_y: ny,
                 n_u: nu,
                 extra_delay_samples: 0,

@@ -135,6 +135,15 @@ impl LtiRunner {
         self.x.as_mut_slice().copy_from_slice(x);
     }
 
+    /// Overwrites the leading `x.len()` states and keeps the rest (a
+    /// block whose first states another design shares).
+    ///
+    /// # Panics
+    /// If `x` is longer than the state (a design-time error).
+    pub fn set_leading_state(&mut self, x: &[f64]) {
+        self.x.as_mut_slice()[..x.len()].copy_from_slice(x);
+    }
+
     pub fn reset(&mut self) {
         self.x.fill(0.0);
     }

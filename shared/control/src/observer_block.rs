@@ -71,6 +71,10 @@ pub struct ObserverBlock {
     pub system: DiscreteStateSpace,
     /// x̂(k|k−1) = estimate_map · s(k).
     pub estimate_map: DMatrix<f64>,
+    /// The model x̂ is the state of (A_o, B_o, C_o, D_o); None where the
+    /// block carries no estimate. Another design on the same model (other
+    /// gain, damping or band-pass) may continue this block's x̂.
+    pub model: Option<DiscreteStateSpace>,
     pub n_y: usize,
     pub n_u: usize,
     pub extra_delay_samples: usize,
@@ -150,6 +154,7 @@ pub fn compile_observer_block(
     Ok(ObserverBlock {
         system: DiscreteStateSpace::new(a, b, c, d, m.ts)?,
         estimate_map,
+        model: Some(m.clone()),
         n_y: ny,
         n_u: nu,
         extra_delay_samples,

@@ -266,6 +266,7 @@ pub fn empty_observer(
             ts,
         )?,
         estimate_map: DMatrix::zeros(0, 0),
+        model: None,
         n_y,
         n_u,
         extra_delay_samples: extra_delay,

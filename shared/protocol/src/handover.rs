@@ -38,13 +38,16 @@ pub struct Handover {
     pub shadow: u32,
     pub n_states: u32,
     pub n_inputs: u32,
-    /// Fingerprint of the feedforward alone (block, gains, reference): a
-    /// joining controller with the same feedforward but another feedback
-    /// takes the block's state from here instead of replaying the run.
-    pub feedforward_hash: u64,
-    /// Where the feedforward block's state lies in `state`.
-    pub feedforward_at: u32,
-    pub feedforward_len: u32,
+    /// Fingerprint of the part of `state` that another design may continue
+    /// from: the controller's feedforward block (its gains and reference),
+    /// so that a retuned feedback takes its state instead of replaying the
+    /// run; the observer's model estimate x̂ (its model and output
+    /// prediction), so that another gain or active damping on the same
+    /// model continues the running estimate. 0: none.
+    pub carried_hash: u64,
+    /// Where that part lies in `state`.
+    pub carried_at: u32,
+    pub carried_len: u32,
     pub state: [f64; MAX_HANDOVER_STATES],
     /// The controller's command for `seq` (total u, after limits); for a
     /// shadow instance the command it would have sent.

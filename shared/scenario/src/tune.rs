@@ -14,15 +14,13 @@
 //! own `controller.params.*` ([`program_param`]), which its law reads; the
 //! built-in controller's fields do not act on it and are refused.
 //!
-//! The observer's fields are shown but not set: a swap to another observer
-//! design is not bumpless today. The new observer cannot take over the
-//! running one's state (it takes a state only from an identical design,
-//! `ObserverCore::load`), so it starts from its own initial state in shadow
-//! and is still far from the loop's at the boundary: on `default`,
-//! `observer.damping_increase` 0.035 → 0.05 put u_d at 3 100 N at the
-//! switch and u on its ±2 000 N limit for the next samples (measured with
-//! `flexloop set` before this refusal). Setting them waits for a hand-over
-//! that carries the estimate across observer designs of the same model.
+//! The observer's fields (Q_ν, damping increase or target, band-pass Q)
+//! are handed over by a swap of the observer alone: a new design on the
+//! running observer's model continues its estimate in shadow
+//! (`ObserverCore::load`), so at the boundary the command changes by what
+//! the designs differ in. A change that gives the observer another model is
+//! refused by the supervisor, which designs both (a set names the
+//! controller's or the observer's fields, not both: each is one hand-over).
 
 use crate::schema::{PidBandwidth, Scenario};
 use std::fmt;
@@ -66,8 +64,7 @@ fn feedforward_gain(
         .and_then(|f| float(gain(f)))
 }
 
-/// Every tunable, in the order `flexloop get` lists them (the observer's
-/// shown, not set: see the module's doc).
+/// Every tunable, in the order `flexloop get` lists them.
 pub const TUNABLES: &[Tunable] = &[
     Tunable {
         field: "controller.bandwidth_hz",
@@ -210,8 +207,11 @@ pub enum TuneError {
     ReadAtStart(String),
     /// Another field a swap may differ in but that is no tunable.
     NotTunable(String),
-    /// An observer field: shown, not set (see the module's doc).
-    ObserverHandOver(String),
+    /// The controller's and the observer's fields in one set.
+    BothRoles {
+        controller: String,
+        observer: String,
+    },
     /// The same field twice in one change.
     Repeated(String),
     /// A built-in controller's field while a program of one's own serves.
@@ -223,7 +223,6 @@ impl fmt::Display for TuneError {
         let tunables = || {
             TUNABLES
                 .iter()
-                .filter(|t| t.role == TunedRole::Controller)
                 .map(|t| t.field)
                 .collect::<Vec<_>>()
                 .join(", ")
@@ -256,12 +255,13 @@ impl fmt::Display for TuneError {
             TuneError::NotTunable(field) => {
                 write!(f, "{field}: not a tunable (tunables: {})", tunables())
             }
-            TuneError::ObserverHandOver(field) => write!(
+            TuneError::BothRoles {
+                controller,
+                observer,
+            } => write!(
                 f,
-                "{field}: not set live: a new observer design takes over from its own initial \
-                 state, not the running observer's, and steps the command at the switch (u_d \
-                 3 100 N on `default`); change it in the scenario and start the loop again \
-                 (docs/architecture.md#live-tuning)"
+                "{controller} and {observer}: the controller's and the observer's fields are \
+                 handed over apart; set them in two sets"
             ),
             TuneError::Repeated(field) => write!(f, "{field}: given twice"),
             TuneError::BuiltInOnProgram(field) => write!(
@@ -364,7 +364,8 @@ pub fn program_param(field: &str) -> bool {
         .is_some_and(|key| !key.is_empty() && key.split('.').all(|k| !k.is_empty()))
 }
 
-/// Refuses a change of anything but tunables, and a field given twice.
+/// Refuses a change of anything but tunables, a field given twice and
+/// the two roles' fields together; the role the change hands over.
 /// `known(field)` says whether the scenario format has the field. With a
 /// controller `program` of one's own, its `controller.params.*` are its
 /// tunables and the built-in controller's are refused.
@@ -372,7 +373,9 @@ pub fn check_changes(
     changes: &[Change],
     known: impl Fn(&str) -> bool,
     program: bool,
-) -> Result<(), TuneError> {
+) -> Result<TunedRole, TuneError> {
+    let mut controller_field: Option<&str> = None;
+    let mut observer_field: Option<&str> = None;
     for (i, change) in changes.iter().enumerate() {
         if changes[..i].iter().any(|c| c.field == change.field) {
             return Err(TuneError::Repeated(change.field.clone()));
@@ -381,6 +384,7 @@ pub fn check_changes(
             if !program {
                 return Err(TuneError::NotTunable(change.field.clone()));
             }
+            controller_field.get_or_insert(&change.field);
             continue;
         }
         if program && change.field.starts_with("controller.") {
@@ -389,12 +393,21 @@ pub fn check_changes(
         match tunable(&change.field) {
             None => return Err(refusal(&change.field, known(&change.field))),
             Some(t) if t.role == TunedRole::Observer => {
-                return Err(TuneError::ObserverHandOver(change.field.clone()));
+                observer_field.get_or_insert(&change.field);
             }
-            Some(_) => {}
+            Some(_) => {
+                controller_field.get_or_insert(&change.field);
+            }
         }
     }
-    Ok(())
+    match (controller_field, observer_field) {
+        (Some(c), Some(o)) => Err(TuneError::BothRoles {
+            controller: c.to_string(),
+            observer: o.to_string(),
+        }),
+        (None, Some(_)) => Ok(TunedRole::Observer),
+        _ => Ok(TunedRole::Controller),
+    }
 }
 
 /// A tunable's value as the events and `flexloop get` show it ("unset"
@@ -451,6 +464,10 @@ mod tests {
     #[test]
     fn only_tunables_may_change_and_each_refusal_says_why() {
         let known = |f: &str| !f.contains("bogus");
+        let change_of = |field: &str| Change {
+            field: field.into(),
+            value: toml::Value::Integer(1),
+        };
         let one = |field: &str| {
             check_changes(
                 &[Change {
@@ -462,10 +479,17 @@ mod tests {
             )
         };
         assert!(one("controller.bandwidth_hz").is_ok());
-        assert!(matches!(
-            one("observer.q_nu"),
-            Err(TuneError::ObserverHandOver(_))
-        ));
+        assert_eq!(one("observer.q_nu"), Ok(TunedRole::Observer));
+        assert_eq!(one("controller.notches_hz"), Ok(TunedRole::Controller));
+        let both = check_changes(
+            &[
+                change_of("controller.bandwidth_hz"),
+                change_of("observer.bandpass_q"),
+            ],
+            known,
+            false,
+        );
+        assert!(matches!(both, Err(TuneError::BothRoles { .. })), "{both:?}");
         assert!(matches!(
             one("plant.output"),
             Err(TuneError::NotSwappable(_))

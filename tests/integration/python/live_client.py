@@ -273,8 +273,8 @@ async def tune(url, seconds, token):
     out["breaks_rule"] = await c.set_parameters(
         "breaks-rule", [{"name": "controller.bandwidth_hz", "value": 83.0}]
     )
-    out["observer"] = await c.set_parameters(
-        "observer", [{"name": "observer.q_nu", "value": 1.0}]
+    out["plant_field"] = await c.set_parameters(
+        "plant-field", [{"name": "supervision.command_watchdog_ticks", "value": 3}]
     )
     out["odd_rate"] = await c.set_parameters("odd-rate", [{"name": "live.rate_hz", "value": 333.0}])
     out["after"] = await c.get_parameters("after", ["controller.bandwidth_hz", "live.rate_hz"])
