@@ -185,6 +185,25 @@ fn live_clients_get_the_recorded_messages_at_their_rate_and_bad_clients_disturb_
         "{last}"
     );
     assert!(last["live"]["clients"].as_u64().unwrap() >= 2, "{last}");
+    // Each client is told how many messages the server handed to it: what
+    // it received less that is what its own queue dropped, and accounts for
+    // every sample missing from its full-rate streams.
+    for client in [full, decimated] {
+        for message in client["/latency"]["json"].as_array().unwrap() {
+            let handed = message["live"]["you"]["handed"].as_u64().unwrap();
+            let received = message["received_before"].as_u64().unwrap();
+            let missing = message["missing_by_seq"].as_u64().unwrap();
+            // (A sample the server's own reader lost was never handed.)
+            let lost: u64 = ["measurement", "estimate", "command"]
+                .iter()
+                .map(|c| message["live"]["lost_by_reader"][c].as_u64().unwrap())
+                .sum();
+            assert!(
+                handed >= received && handed - received + lost >= missing,
+                "handed {handed}, received {received}, missing {missing}, lost by the reader {lost}"
+            );
+        }
+    }
     // The scenario as it stands on subscribing.
     let scenario = &decimated["/scenario"]["json"][0];
     let file = scenario["file"].as_str().unwrap();

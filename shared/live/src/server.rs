@@ -37,6 +37,7 @@ use foxglove::{
     ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, SinkId, WebSocketServer,
     WebSocketServerHandle,
 };
+use std::collections::HashMap;
 use std::fmt;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -70,7 +71,7 @@ const LATENCY_SCHEMA: &str = r#"{
     "log_gaps": {"type": "integer"},
     "round_trip_us": {"type": "object", "description": "p50, p90, p99, p99.9, p99.99, max"},
     "tick_lateness_us": {"type": "object"},
-    "live": {"type": "object", "description": "clients subscribed, messages sent, samples the live reader lost per channel"}
+    "live": {"type": "object", "description": "clients subscribed, messages sent, samples the live reader lost per channel; you.handed: the messages the server handed to this client before this one (less those it received: what its queue dropped)"}
   }
 }"#;
 
@@ -466,25 +467,36 @@ fn feed(
                     },
                     Some(*sink),
                 );
-                counts.sent += 1;
+                counts.handed(*sink);
             }
         })?;
-        if let Some(json) = latency.poll(counts, routes.len())? {
-            channels.latency.log(json.as_bytes());
+        if let Some(mut json) = latency.poll(counts, routes.len())? {
+            // Each client's own copy says how many messages the server
+            // handed to it before this one: what it received less that is
+            // what its queue dropped.
+            let latency_id = u64::from(channels.latency.id());
+            for route in routes.iter().filter(|r| r.channels.contains(&latency_id)) {
+                json["live"]["you"] = serde_json::json!({"handed": counts.handed_to(route.sink)});
+                channels
+                    .latency
+                    .log_to_sink(json.to_string().as_bytes(), Some(route.sink));
+                counts.handed(route.sink);
+            }
         }
         if std::time::Instant::now() >= next_events {
             next_events += EVENTS_EVERY;
             for line in events.new_lines() {
-                channels.events.log(line.as_bytes());
+                counts.log_to_subscribers(&channels.events, &routes, line.as_bytes());
             }
             let wanted: Vec<SinkId> = std::mem::take(&mut *lock(&shared.scenario_wanted));
             if let Some(json) = scenario.changed(&shared.tuner) {
-                channels.scenario.log(json.as_bytes());
+                counts.log_to_subscribers(&channels.scenario, &routes, json.as_bytes());
             } else if !wanted.is_empty()
                 && let Some(json) = scenario.current(&shared.tuner)
             {
                 for sink in wanted {
                     channels.scenario.log_to_sink(json.as_bytes(), Some(sink));
+                    counts.handed(sink);
                 }
             }
         }
@@ -551,12 +563,33 @@ impl LoopReader {
 #[derive(Debug, Default)]
 struct Counts {
     sent: u64,
+    /// Messages handed to each client (kept for the server's life: one
+    /// number per connection).
+    handed_to: HashMap<SinkId, u64>,
     last_seq: [Option<u64>; 3],
     lost: [u64; 3],
     most_clients: usize,
 }
 
 impl Counts {
+    fn handed(&mut self, sink: SinkId) {
+        self.sent += 1;
+        *self.handed_to.entry(sink).or_insert(0) += 1;
+    }
+
+    fn handed_to(&self, sink: SinkId) -> u64 {
+        self.handed_to.get(&sink).copied().unwrap_or(0)
+    }
+
+    /// To every client subscribed to `channel`, counted.
+    fn log_to_subscribers(&mut self, channel: &RawChannel, routes: &[Route<SinkId>], bytes: &[u8]) {
+        let id = u64::from(channel.id());
+        for route in routes.iter().filter(|r| r.channels.contains(&id)) {
+            channel.log_to_sink(bytes, Some(route.sink));
+            self.handed(route.sink);
+        }
+    }
+
     fn read(&mut self, channel: usize, seq: u64) {
         if let Some(last) = self.last_seq[channel]
             && seq > last + 1
@@ -584,7 +617,11 @@ impl LatencyFeed {
         })
     }
 
-    fn poll(&mut self, counts: &Counts, clients: usize) -> Result<Option<String>, LiveError> {
+    fn poll(
+        &mut self,
+        counts: &Counts,
+        clients: usize,
+    ) -> Result<Option<serde_json::Value>, LiveError> {
         let mut newest = None;
         while let Some(t) = self.inlet.receive()? {
             newest = Some(*t);
@@ -606,31 +643,28 @@ impl LatencyFeed {
                 .map(|(label, ns)| ((*label).to_string(), serde_json::json!(ns as f64 / 1e3)))
                 .collect::<serde_json::Map<_, _>>()
         };
-        Ok(Some(
-            serde_json::json!({
-                "seq": t.seq,
-                "rate_hz": rate_hz,
-                "samples": t.samples,
-                "misses": t.misses,
-                "late_commands": t.late_commands,
-                "stalled_ticks": t.stalled_ticks,
-                "stall_misses": t.stall_misses,
-                "stale_estimates": t.stale_estimates,
-                "log_gaps": t.gaps,
-                "round_trip_us": percentiles(t.round_trip),
-                "tick_lateness_us": percentiles(t.tick_lateness),
-                "live": {
-                    "clients": clients,
-                    "sent": counts.sent,
-                    "lost_by_reader": {
-                        "measurement": counts.lost[0],
-                        "estimate": counts.lost[1],
-                        "command": counts.lost[2],
-                    },
+        Ok(Some(serde_json::json!({
+            "seq": t.seq,
+            "rate_hz": rate_hz,
+            "samples": t.samples,
+            "misses": t.misses,
+            "late_commands": t.late_commands,
+            "stalled_ticks": t.stalled_ticks,
+            "stall_misses": t.stall_misses,
+            "stale_estimates": t.stale_estimates,
+            "log_gaps": t.gaps,
+            "round_trip_us": percentiles(t.round_trip),
+            "tick_lateness_us": percentiles(t.tick_lateness),
+            "live": {
+                "clients": clients,
+                "sent": counts.sent,
+                "lost_by_reader": {
+                    "measurement": counts.lost[0],
+                    "estimate": counts.lost[1],
+                    "command": counts.lost[2],
                 },
-            })
-            .to_string(),
-        ))
+            },
+        })))
     }
 }
 

@@ -42,6 +42,9 @@ class Client:
         self.decoders = {}
         self.ros1 = DecoderFactory()
         self.closed = None
+        # Every N-th sample (live.rate_hz); the samples' own gaps are
+        # counted at full rate only.
+        self.every = 1
 
     @classmethod
     async def open(cls, url, **kwargs):
@@ -70,10 +73,19 @@ class Client:
         if channel is None:
             return
         topic = channel["topic"]
+        received_before = self.total()
         r = self.received.setdefault(topic, {"count": 0, "seqs": [], "kept": [], "json": []})
         r["count"] += 1
         if channel["encoding"] == "json":
-            r["json"].append(json.loads(payload))
+            message = json.loads(payload)
+            if topic == "/latency":
+                # What this client can say of its own losses at this point:
+                # the messages it received before this one, and the sample
+                # sequence numbers missing so far from the streams it gets
+                # at full rate.
+                message["received_before"] = received_before
+                message["missing_by_seq"] = self.missing_by_seq()
+            r["json"].append(message)
             return
         decoder = self.decoders.get(sub_id)
         if decoder is None:
@@ -108,6 +120,14 @@ class Client:
                 self.handle_text(data)
             else:
                 self.handle_binary(data)
+
+    def missing_by_seq(self):
+        missing = 0
+        for topic in SAMPLE_TOPICS:
+            seqs = self.received.get(topic, {}).get("seqs", [])
+            if seqs and self.every == 1:
+                missing += seqs[-1] - seqs[0] + 1 - len(seqs)
+        return missing
 
     def total(self):
         return sum(r["count"] for r in self.received.values())
@@ -196,6 +216,7 @@ async def observe(url, seconds):
     named = await decimated.set_parameters(
         "named", [{"name": "live.rate_hz", "value": loop_rate / 10}]
     )
+    decimated.every = 10
     await full.subscribe(ALL_TOPICS)
     # The JSON channels on the decimated client: a full-rate client that
     # cannot keep up loses the oldest of its queue, these among them.
