@@ -5,7 +5,7 @@
 
 use crate::conductor::Switch;
 use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
-use crate::{live_cost, logging_cost, probes, sweep};
+use crate::{ab_table, live_cost, logging_cost, probes, sweep};
 use anyhow::Context;
 use flexloop_analysis::verdict::GridCounts;
 use flexloop_components::LogReader;
@@ -67,9 +67,9 @@ pub fn dispatch(args: BenchArgs) -> anyhow::Result<i32> {
     if args.sweep {
         sweep::sweep(sweep::Options::from_args(&args)?)
     } else if args.logging_cost {
-        logging_cost::logging_cost(logging_cost::Options::from_args(&args)?)
+        logging_cost::logging_cost(ab_table::Options::from_args(&args)?)
     } else if args.live_cost {
-        live_cost::live_cost(live_cost::Options::from_args(&args)?)
+        live_cost::live_cost(ab_table::Options::from_args(&args)?)
     } else {
         bench(args)
     }

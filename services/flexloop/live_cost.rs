@@ -4,19 +4,17 @@
 //! that the difference is what the live view costs the loop. The server's
 //! own CPU time is reported beside it (`live_summary.json`).
 
-use crate::bench::BenchArgs;
-use crate::launch::{LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise};
+use crate::ab_table::Options;
+use crate::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use anyhow::{Context, bail};
 use flexloop_live::LiveOptions;
 use flexloop_runfiles::bench::LiveCost;
 use flexloop_runfiles::json::{read_json, write_json_atomically};
 use flexloop_runfiles::live::LiveSummary;
 use flexloop_runfiles::{PlantLatency, RunDir};
-use flexloop_runtime::latency::Metric;
-use flexloop_scenario::{Mode, Overrides};
 use std::io::ErrorKind;
 use std::net::TcpStream;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
@@ -26,35 +24,6 @@ use tungstenite::http::HeaderValue;
 use tungstenite::{Message, WebSocket};
 
 const SUBPROTOCOL: &str = "foxglove.sdk.v1";
-
-pub struct Options {
-    scenario: Option<PathBuf>,
-    duration_s: f64,
-    rate_hz: Option<f64>,
-    no_realtime: bool,
-    tick: Option<flexloop_scenario::TickWait>,
-    out: Option<PathBuf>,
-}
-
-impl Options {
-    pub fn from_args(args: &BenchArgs) -> anyhow::Result<Self> {
-        let o = args.overrides;
-        if let Some(d) = o.duration_s.filter(|d| !(d.is_finite() && *d > 0.0)) {
-            bail!("--duration needs a positive number, got {d}");
-        }
-        if let Some(r) = o.rate_hz.filter(|r| !(r.is_finite() && *r > 0.0)) {
-            bail!("--rate needs a positive number, got {r}");
-        }
-        Ok(Options {
-            scenario: args.scenario.clone(),
-            duration_s: o.duration_s.unwrap_or(10.0),
-            rate_hz: o.rate_hz,
-            no_realtime: o.no_realtime,
-            tick: o.tick,
-            out: args.run_dir.clone(),
-        })
-    }
-}
 
 /// What the client received.
 #[derive(Debug, Default, Clone, Copy)]
@@ -70,17 +39,7 @@ fn run_once(
     run_dir: &Path,
     live: bool,
 ) -> anyhow::Result<(PlantLatency, Received)> {
-    let args = LoopArgs {
-        scenario: scenario.to_path_buf(),
-        overrides: Overrides {
-            rate_hz: o.rate_hz,
-            duration_s: Some(o.duration_s),
-            mode: Some(Mode::Realtime),
-            no_realtime: o.no_realtime,
-            tick: o.tick,
-        },
-        run_dir: Some(run_dir.to_path_buf()),
-    };
+    let args = o.loop_args(scenario, run_dir);
     let mut prepared = prepare(&args)?;
     if live {
         // Any free port; the bench changes nothing.
@@ -192,38 +151,8 @@ pub fn live_cost(o: Options) -> anyhow::Result<i32> {
     let (without, _) = run_once(&o, &scenario, &root.join("without-server"), false)?;
     let server: LiveSummary = read_json(&RunDir::new(&with_dir).live_summary())?;
 
-    println!(
-        "\n{:<32}{:>9}{:>8}{:>9}{:>9}{:>9}{:>9}{:>9}{:>9}   (µs, the plant's own histograms)",
-        "", "ticks", "misses", "p50", "p90", "p99", "p99.9", "p99.99", "max"
-    );
-    let row = |name: &str, run: &PlantLatency, metric: Metric| {
-        let [p50, p90, p99, p999, p9999, max] = run
-            .latency(metric.name())
-            .percentiles
-            .values()
-            .map(|ns| ns as f64 / 1e3);
-        println!(
-            "{:<32}{:>9}{:>8}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}",
-            name, run.ticks, run.counters.misses, p50, p90, p99, p999, p9999, max
-        );
-    };
-    row("round trip, live client", &with, Metric::RoundTrip);
-    row("round trip, no live server", &without, Metric::RoundTrip);
-    row("tick -> u(k), live client", &with, Metric::TickToCommand);
-    row(
-        "tick -> u(k), no live server",
-        &without,
-        Metric::TickToCommand,
-    );
-    row("tick lateness, live client", &with, Metric::TickLateness);
-    row(
-        "tick lateness, no live server",
-        &without,
-        Metric::TickLateness,
-    );
-    let round_trip = |run: &PlantLatency| run.latency(Metric::RoundTrip.name()).percentiles;
-    let p50_cost = (round_trip(&with).p50 as f64 - round_trip(&without).p50 as f64) / 1e3;
-    let p9999_cost = (round_trip(&with).p99_99 as f64 - round_trip(&without).p99_99 as f64) / 1e3;
+    let cost = crate::ab_table::print(("live client", &with), ("no live server", &without));
+    let (p50_cost, p9999_cost) = (cost.p50_us, cost.p9999_us);
     println!(
         "\nthe live view costs {p50_cost:+.1} µs at the round trip's p50 and {p9999_cost:+.1} µs at p99.99"
     );

@@ -13,7 +13,6 @@ use anyhow::Context;
 use flexloop_live::{DEFAULT_ADDRESS, LiveOptions, LoopSide, SetOutcome, Tuner};
 use flexloop_runfiles::RunDir;
 use std::net::{SocketAddr, TcpListener};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Arc;
@@ -168,19 +167,8 @@ impl LiveServer {
             Some(token) => cmd.env(TOKEN_ENV, token),
             None => cmd.env_remove(TOKEN_ENV),
         };
-        cmd.stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(stderr)
-            .process_group(0);
-        // SAFETY: prctl is async-signal-safe and touches no Rust state.
-        unsafe {
-            cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+        cmd.stdout(Stdio::null());
+        crate::supervisor::tied_to_supervisor(&mut cmd, stderr);
         let child = cmd.spawn().context("cannot start flexloop live-server")?;
         Ok(Self {
             pid: child.id() as i32,

@@ -3,48 +3,16 @@
 //! at all, both timed by the plant itself (its own histograms, from the
 //! commands' stamps), so that the difference is what recording costs.
 
-use crate::bench::BenchArgs;
-use crate::launch::{LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise};
+use crate::ab_table::Options;
+use crate::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use anyhow::{Context, bail};
 use flexloop_runfiles::bench::LoggingCost;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::{PlantLatency, RunDir};
-use flexloop_runtime::latency::Metric;
-use flexloop_scenario::{Mode, Overrides};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The goal for what logging may add at p99.99.
 const GOAL_US: f64 = 5.0;
-
-pub struct Options {
-    scenario: Option<PathBuf>,
-    duration_s: f64,
-    rate_hz: Option<f64>,
-    no_realtime: bool,
-    tick: Option<flexloop_scenario::TickWait>,
-    out: Option<PathBuf>,
-}
-
-impl Options {
-    /// `bench --logging-cost`'s options, checked.
-    pub fn from_args(args: &BenchArgs) -> anyhow::Result<Self> {
-        let o = args.overrides;
-        let positive = |flag: &str, v: Option<f64>| match v {
-            Some(x) if !(x.is_finite() && x > 0.0) => {
-                bail!("{flag} needs a positive number, got {x}")
-            }
-            _ => Ok(v),
-        };
-        Ok(Options {
-            scenario: args.scenario.clone(),
-            duration_s: positive("--duration", o.duration_s)?.unwrap_or(10.0),
-            rate_hz: positive("--rate", o.rate_hz)?,
-            no_realtime: o.no_realtime,
-            tick: o.tick,
-            out: args.run_dir.clone(),
-        })
-    }
-}
 
 /// The scenario with `[logger] enabled = false` and no other logger setting
 /// (none applies to a loop without one: the scenario check refuses them).
@@ -62,17 +30,7 @@ fn without_logger(text: &str, scenario: &Path) -> anyhow::Result<String> {
 
 /// One run; the plant's own figures.
 fn run_once(o: &Options, scenario: &Path, run_dir: &Path) -> anyhow::Result<PlantLatency> {
-    let args = LoopArgs {
-        scenario: scenario.to_path_buf(),
-        overrides: Overrides {
-            rate_hz: o.rate_hz,
-            duration_s: Some(o.duration_s),
-            mode: Some(Mode::Realtime),
-            no_realtime: o.no_realtime,
-            tick: o.tick,
-        },
-        run_dir: Some(run_dir.to_path_buf()),
-    };
+    let args = o.loop_args(scenario, run_dir);
     supervise(prepare(&args)?, |_, _| None)?;
     Ok(RunDir::new(run_dir).read_plant_latency()?)
 }
@@ -103,36 +61,16 @@ pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
     }
     let without = run_once(&o, &silent, &root.join("without-logger"))?;
 
-    println!(
-        "\n{:<30}{:>9}{:>8}{:>9}{:>9}{:>9}{:>9}{:>9}{:>9}   (µs, the plant's own histograms)",
-        "", "ticks", "misses", "p50", "p90", "p99", "p99.9", "p99.99", "max"
-    );
-    let row = |name: &str, run: &PlantLatency, metric: Metric| {
-        let [p50, p90, p99, p999, p9999, max] = run
-            .latency(metric.name())
-            .percentiles
-            .values()
-            .map(|ns| ns as f64 / 1e3);
-        println!(
-            "{:<30}{:>9}{:>8}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}",
-            name, run.ticks, run.counters.misses, p50, p90, p99, p999, p9999, max
-        );
-    };
-    row("round trip, logger on", &with, Metric::RoundTrip);
-    row("round trip, logger off", &without, Metric::RoundTrip);
-    row("tick -> u(k), logger on", &with, Metric::TickToCommand);
-    row("tick -> u(k), logger off", &without, Metric::TickToCommand);
-    row("tick lateness, logger on", &with, Metric::TickLateness);
-    row("tick lateness, logger off", &without, Metric::TickLateness);
-    let round_trip = |run: &PlantLatency| run.latency(Metric::RoundTrip.name()).percentiles;
-    let p9999 = |run: &PlantLatency| round_trip(run).p99_99 as f64 / 1e3;
-    let p50 = |run: &PlantLatency| round_trip(run).p50 as f64 / 1e3;
-    let cost = p9999(&with) - p9999(&without);
+    let cost = crate::ab_table::print(("logger on", &with), ("logger off", &without));
     println!(
         "\nlogging costs {:+.1} µs at the round trip's p99.99 ({:+.1} µs at p50); goal under {GOAL_US} µs: {}",
-        cost,
-        p50(&with) - p50(&without),
-        if cost < GOAL_US { "met" } else { "NOT met" }
+        cost.p9999_us,
+        cost.p50_us,
+        if cost.p9999_us < GOAL_US {
+            "met"
+        } else {
+            "NOT met"
+        }
     );
     println!(
         "(one run each, one after the other: on a shared machine a stall in either moves p99.99 by more than this)"
@@ -142,7 +80,7 @@ pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
         duration_s: o.duration_s,
         with_logger: with,
         without_logger: without,
-        round_trip_p9999_cost_us: cost,
+        round_trip_p9999_cost_us: cost.p9999_us,
         goal_us: GOAL_US,
     };
     let path = root.join("logging_cost.json");

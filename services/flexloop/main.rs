@@ -9,6 +9,7 @@
 //!   [`probes`], [`live_cost`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
 //!   [`positions`], [`export`].
 
+mod ab_table;
 mod bench;
 mod chaos;
 mod conductor;

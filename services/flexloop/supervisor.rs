@@ -143,6 +143,23 @@ pub fn start(plan: LaunchPlan) -> Result<RunningLoop> {
     Ok(running)
 }
 
+/// A process of the supervisor's: no stdin, `stderr` to its file, its own
+/// process group (a Ctrl-C at the terminal reaches the supervisor alone,
+/// which stops the others in order), and SIGTERM when the supervisor dies
+/// (PR_SET_PDEATHSIG), so that none is orphaned.
+pub fn tied_to_supervisor(cmd: &mut Command, stderr: std::fs::File) {
+    cmd.stdin(Stdio::null()).stderr(stderr).process_group(0);
+    // SAFETY: prctl is async-signal-safe and touches no Rust state.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+}
+
 /// The order the processes start in: the listeners first (the logger, then
 /// the observer, the controller and their spares), the plant last, since it
 /// waits for each of them before its first sample.
@@ -224,19 +241,8 @@ fn spawn(
         .arg("--run-dir")
         .arg(&run_dir)
         .args(plan.overrides.to_args())
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(stderr)
-        .process_group(0);
-    // SAFETY: prctl is async-signal-safe and touches no Rust state.
-    unsafe {
-        cmd.pre_exec(|| {
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
+        .stdout(Stdio::null());
+    tied_to_supervisor(&mut cmd, stderr);
     let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {}", program.program.display()))?;

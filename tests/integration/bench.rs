@@ -256,3 +256,51 @@ fn logging_cost_runs_the_loop_with_and_without_a_logger() {
     assert!(processes_mentioning(&out_dir.display().to_string()).is_empty());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn live_cost_runs_the_loop_served_to_a_client_and_without_a_server() {
+    let dir = temp_dir("bench-live-cost");
+    let out_dir = dir.join("cost");
+    let mut cmd = flexloop();
+    // Long enough for the server to listen and the client to subscribe
+    // after the first tick, however loaded the machine.
+    cmd.args([
+        "bench",
+        "--live-cost",
+        "thesis-mc",
+        "--duration",
+        "5",
+        "--rate",
+        "1000",
+    ])
+    .args(["--no-realtime", "--run-dir"])
+    .arg(&out_dir);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("round trip, no live server") && stdout.contains("the live view costs"),
+        "{stdout}"
+    );
+    let cost = json(&out_dir.join("live_cost.json"));
+    for run in ["with_client", "without_server"] {
+        assert_eq!(cost[run]["ticks"], 5000, "{run}");
+    }
+    // The client subscribed to everything and got what the server handed
+    // it (a client that reads as fast as it can, at 1 kHz).
+    let handed = cost["server"]["messages_sent"].as_u64().unwrap();
+    let received = cost["client_messages"].as_u64().unwrap();
+    assert!(received > 0 && received <= handed, "{cost}");
+    // The server ran in the first run only, and left no file behind.
+    let with = out_dir.join("with-client");
+    assert!(with.join("live_summary.json").is_file());
+    assert!(!with.join("live.json").exists());
+    assert!(
+        !out_dir
+            .join("without-server")
+            .join("live_summary.json")
+            .exists()
+    );
+    assert!(processes_mentioning(&out_dir.display().to_string()).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -186,10 +186,13 @@ fn an_observer_set_continues_the_estimate_and_hands_over_without_a_step() {
         .map(|s| s["role"].as_str().unwrap())
         .collect();
     assert_eq!(roles, ["observer", "controller"]);
+    // Bumpless: no larger than twice the ordinary steps around the switch,
+    // or, where the loop stands still and those are millinewtons, than 1 %
+    // of the 2 000 N input limit (the estimate started from zero: 3 100 N).
     for switch in switches {
         let du = |k: &str| switch[k].as_f64().unwrap();
         assert!(
-            du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
+            du("du_switch") <= (2.0 * du("du_before").max(du("du_after"))).max(20.0),
             "{switch}"
         );
     }
