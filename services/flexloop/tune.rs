@@ -168,6 +168,10 @@ pub fn outcome_lines(outcome: &SetOutcome) -> Vec<String> {
             s.role, s.generation, s.from_seq, s.du_switch, s.du_before, s.du_after
         ));
     }
+    if outcome.switches.is_empty() {
+        // A set of the plant's settings: published, nothing handed over.
+        lines.push("the plant takes them at its next tick".into());
+    }
     if let Some(file) = &outcome.file {
         lines.push(format!(
             "the loop runs {file} (checked in {:.2} s, handed over in {:.2} s)",

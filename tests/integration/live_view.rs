@@ -263,6 +263,7 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
         "{all}"
     );
 
+    assert_eq!(parameter(all, "supervision.safe_action"), "hold", "{all}");
     let without = &seen["without_token"];
     assert!(statuses(without).contains("live.token"), "{without}");
     assert_eq!(
@@ -286,11 +287,13 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
         parameter(&breaks["values"], "controller.bandwidth_hz"),
         35.5
     );
-    // The plant's fields are read once at its start (docs/architecture.md, "Live tuning").
-    let plant_field = statuses(&seen["plant_field"]);
+    // What a swap may not change is refused by name (docs/architecture.md).
+    let not_swappable = statuses(&seen["not_swappable"]);
     assert!(
-        plant_field.contains("set refused") && plant_field.contains("reads it once"),
-        "{plant_field}"
+        not_swappable.contains("set refused")
+            && not_swappable.contains("loop.rate_hz")
+            && not_swappable.contains("a swap may not change it"),
+        "{not_swappable}"
     );
     assert!(statuses(&seen["odd_rate"]).contains("does not divide"));
     assert_eq!(parameter(&seen["after"], "controller.bandwidth_hz"), 35.5);

@@ -207,6 +207,73 @@ fn an_observer_set_continues_the_estimate_and_hands_over_without_a_step() {
 }
 
 #[test]
+fn a_set_safe_action_is_what_the_plant_does_when_commands_stop() {
+    let dir = temp_dir("tune-plant");
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 300);
+    assert_eq!(get(&prefix, "supervision.safe_action"), "\"hold\"");
+    let out = flexloop_on(
+        &prefix,
+        &[
+            "set",
+            "supervision.safe_action=\"zero\"",
+            "supervision.command_watchdog_ticks=1",
+        ],
+    );
+    assert!(out.status.success(), "{}", describe(&out));
+    let said = stdout(&out);
+    assert!(
+        said.contains("supervision.safe_action \"hold\" -> \"zero\"")
+            && said.contains("the plant takes them at its next tick"),
+        "{said}"
+    );
+    // A standby controller is started with the loop, not by a set.
+    let err = refused_set(&prefix, "supervision.safe_action=\"standby\"");
+    assert!(err.contains("at the start only"), "{err}");
+    // One set, one role.
+    let both = flexloop_on(
+        &prefix,
+        &[
+            "set",
+            "supervision.command_watchdog_ticks=2",
+            "controller.feedforward.acc=1.0",
+        ],
+    );
+    assert_eq!(both.status.code(), Some(2), "{}", describe(&both));
+
+    // The controller dies: the plant, waiting in lockstep, applies zero
+    // from the first tick without a command, not the held input.
+    let controller = pid_on_duty(&dir, "controller", "active");
+    // SAFETY: a pid of a process this test started (through flexloop).
+    unsafe { libc::kill(controller, libc::SIGKILL) };
+    let killed_at = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, killed_at + 2_000);
+    stop(&prefix, child);
+
+    let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let fallback: Vec<_> = log
+        .measurements()
+        .filter(|m| m.flags & flexloop_protocol::flags::FALLBACK != 0)
+        .collect();
+    assert!(!fallback.is_empty(), "no tick under the safe action");
+    for m in &fallback {
+        assert_eq!(m.u_applied[0], 0.0, "tick {}: {:?}", m.seq, m.u_applied);
+    }
+    let sets = of_kind(&dir, "set");
+    assert_eq!(sets.len(), 1, "{sets:?}");
+    assert_eq!(sets[0]["role"], "plant");
+    assert!(sets[0]["detail"]["switches"].as_array().unwrap().is_empty());
+    let now: toml::Table =
+        toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap();
+    assert_eq!(now["supervision"]["safe_action"].as_str(), Some("zero"));
+    assert_eq!(
+        now["supervision"]["command_watchdog_ticks"].as_integer(),
+        Some(1)
+    );
+    assert_clean(&dir);
+}
+
+#[test]
 fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
     let dir = temp_dir("tune-refused");
     let (child, prefix) = start(&dir, "default", &["--mode", "lockstep"]);
@@ -229,12 +296,9 @@ fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
         err.contains("loop.rate_hz") && err.contains("a swap may not change it"),
         "{err}"
     );
-    // The plant's watchdog is read once at its start.
-    let err = refused_set(&prefix, "supervision.command_watchdog_ticks=3");
-    assert!(
-        err.contains("supervision.command_watchdog_ticks") && err.contains("not tunable"),
-        "{err}"
-    );
+    // The plant's watchdog must be a number of ticks the scenario accepts.
+    let err = refused_set(&prefix, "supervision.command_watchdog_ticks=0");
+    assert!(err.contains("command_watchdog_ticks"), "{err}");
     // Unknown fields and bad values, by name.
     let err = refused_set(&prefix, "controller.bandwith_hz=50");
     assert!(

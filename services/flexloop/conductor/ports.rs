@@ -1,6 +1,7 @@
 //! The conductor's channels: what it reads of the loop (commands, estimates,
 //! states, idle spares, measurements) and what it publishes (the activation,
-//! a dead instance's last state, orders to spares, replayed measurements).
+//! a dead instance's last state, orders to spares, replayed measurements, the
+//! plant's safety settings).
 
 use super::decide::{Core, Event};
 use super::replay::Replay;
@@ -8,11 +9,13 @@ use anyhow::Result;
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
     ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT,
-    MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, SPARE_ORDER, SPARE_STATUS, TELEMETRY,
+    MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, PLANT_SETTINGS, SPARE_ORDER, SPARE_STATUS,
+    TELEMETRY,
 };
 use flexloop_protocol::handover::CATCHING_UP;
 use flexloop_protocol::{
-    Activation, Command, Estimate, Handover, Measurement, SpareOrder, SpareStatus, Telemetry, flags,
+    Activation, Command, Estimate, Handover, Measurement, PlantSettings, SpareOrder, SpareStatus,
+    Telemetry, flags,
 };
 use flexloop_transport::{ChannelHold, Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
 use std::time::Instant;
@@ -20,6 +23,7 @@ use std::time::Instant;
 pub struct Ports {
     // Ports before the node: they must drop first.
     activation_out: Outlet<Activation>,
+    plant_settings_out: Outlet<PlantSettings>,
     controller_states: Inlet<Handover>,
     observer_states: Inlet<Handover>,
     controller_state_out: Outlet<Handover>,
@@ -62,6 +66,7 @@ impl Ports {
         }
         Ok(Self {
             activation_out: Outlet::open(&node, &ACTIVATION)?,
+            plant_settings_out: Outlet::open(&node, &PLANT_SETTINGS)?,
             controller_states: Inlet::open_polling(&node, &CONTROLLER_STATE, 8)?,
             observer_states: Inlet::open_polling(&node, &OBSERVER_STATE, 8)?,
             controller_state_out: Outlet::open(&node, &CONTROLLER_STATE)?,
@@ -148,6 +153,15 @@ impl Ports {
         activation.published_ns = flexloop_runtime::monotonic_ns();
         self.activation_out.publish(|a| *a = activation)?;
         Ok(activation)
+    }
+
+    /// Publishes the plant's safety settings, stamped now (the plant takes
+    /// them at its next tick).
+    pub fn publish_plant_settings(&self, mut settings: PlantSettings) -> Result<()> {
+        settings.published_ns = flexloop_runtime::monotonic_ns();
+        self.plant_settings_out.connect()?;
+        self.plant_settings_out.publish(|s| *s = settings)?;
+        Ok(())
     }
 
     /// Publishes a dead instance's last state for its replacement (best

@@ -362,7 +362,12 @@ impl Conductor {
             first.get_or_insert((role, switch.generation));
             switches.push(switch);
         }
-        let (role, generation) = first.expect("a set plan names at least one role");
+        if let Some(settings) = plan.plant {
+            self.ports.publish_plant_settings(settings)?;
+            self.note_swapped(Role::Plant, &plan.file);
+            first.get_or_insert((Role::Plant, 0));
+        }
+        let (role, generation) = first.expect("a set plan names a role or the plant's settings");
         let outcome = SetOutcome {
             fields: plan.fields,
             file: Some(plan.file.display().to_string()),
@@ -370,10 +375,9 @@ impl Conductor {
             check_s,
             handover_s: since.elapsed().as_secs_f64() - check_s,
         };
-        self.record_action(
-            self.core
-                .note("set", role, Some(generation), json!(outcome)),
-        );
+        // The plant has no generation: it is never swapped.
+        let generation = (role != Role::Plant).then_some(generation);
+        self.record_action(self.core.note("set", role, generation, json!(outcome)));
         self.publish_files();
         Ok(outcome)
     }

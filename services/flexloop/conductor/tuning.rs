@@ -8,19 +8,23 @@ use flexloop_components::{ControllerCore, ObserverCore};
 use flexloop_design::LoopDesign;
 use flexloop_design::acceptance::{Accepted, accept_text};
 use flexloop_node::Role;
+use flexloop_protocol::PlantSettings;
+use flexloop_protocol::plant_settings::{SAFE_HOLD, SAFE_STANDBY, SAFE_ZERO};
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::supervision::{FieldChange, SetRequest};
+use flexloop_scenario::schema::SafeAction;
 use flexloop_scenario::tune::{self, Change, TunedRole};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 
 const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
 
-/// What a set will do once checked: the roles to hand over, in order, the
-/// file to hand them over to and the fields it changes.
+/// What a set will do once checked: the roles to hand over, in order, or
+/// the plant's settings to publish; the file and the fields it changes.
 #[derive(Debug)]
 pub struct SetPlan {
     pub roles: Vec<Role>,
+    pub plant: Option<PlantSettings>,
     pub file: PathBuf,
     pub fields: Vec<FieldChange>,
 }
@@ -97,6 +101,7 @@ impl Tuning {
             match tune::check_changes(&changes, |field| tune::known_field(&now, field), program)? {
                 TunedRole::Controller => Role::Controller,
                 TunedRole::Observer => Role::Observer,
+                TunedRole::Plant => Role::Plant,
             };
         let table = tune::with_changes(&now, &changes)?;
         let old = Scenario::from_text(&now_path, &toml::to_string(&now)?, overrides)
@@ -139,13 +144,14 @@ impl Tuning {
             flexloop_runtime::realtime::online_cpus(),
         )
         .context(NOT_VALID)?;
+        let (roles, plant) = match role {
+            Role::Observer => (observer_roles(&old, &design)?, None),
+            Role::Plant => (Vec::new(), Some(plant_settings(&old, &new)?)),
+            _ => (vec![role], None),
+        };
         // A program's law is its own: it checks its parameters when it
         // starts (a law that refuses them fails the swap, the loop
         // untouched), and the built-in design's rule does not judge it.
-        let roles = match role {
-            Role::Observer => observer_roles(&old, &design)?,
-            _ => vec![role],
-        };
         let report = flexloop_analysis::loop_report::loop_check(&new, &design)
             .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
         if !program && !report.meets_6db_rule {
@@ -162,6 +168,7 @@ impl Tuning {
         self.written = index;
         Ok(Some(SetPlan {
             roles,
+            plant,
             file,
             fields,
         }))
@@ -170,7 +177,9 @@ impl Tuning {
     /// `role` now runs `file` (a swap or a set's hand-over): its part of
     /// the scenario as it stands is now that file's, rewritten in
     /// `scenario-now.toml`. The controller's part is `[controller]` and
-    /// `supervision.estimate_watchdog_ticks`; the observer's `[observer]`.
+    /// `supervision.estimate_watchdog_ticks`; the observer's `[observer]`;
+    /// the plant's (a set of its settings) `supervision.safe_action` and
+    /// `command_watchdog_ticks`.
     pub fn swapped(
         &mut self,
         run_dir: &RunDir,
@@ -187,21 +196,13 @@ impl Tuning {
         let now = self.now.as_mut().expect("loaded above");
         match role {
             Role::Observer => take(now, &from, "observer"),
+            Role::Plant => {
+                take_supervision(now, &from, "safe_action");
+                take_supervision(now, &from, "command_watchdog_ticks");
+            }
             _ => {
                 take(now, &from, "controller");
-                let ticks = from
-                    .get("supervision")
-                    .and_then(|s| s.get("estimate_watchdog_ticks"))
-                    .cloned();
-                let supervision = now
-                    .entry("supervision")
-                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-                if let toml::Value::Table(supervision) = supervision {
-                    match ticks {
-                        Some(v) => supervision.insert("estimate_watchdog_ticks".into(), v),
-                        None => supervision.remove("estimate_watchdog_ticks"),
-                    };
-                }
+                take_supervision(now, &from, "estimate_watchdog_ticks");
             }
         }
         let text = toml::to_string(now)?;
@@ -214,11 +215,47 @@ impl Tuning {
 }
 
 /// `table`'s section `name` replaced by `from`'s (removed if it has none).
+/// `supervision.<name>` as `from` has it (absent: the default).
+fn take_supervision(table: &mut toml::Table, from: &toml::Table, name: &str) {
+    let value = from.get("supervision").and_then(|s| s.get(name)).cloned();
+    let supervision = table
+        .entry("supervision")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let toml::Value::Table(supervision) = supervision {
+        match value {
+            Some(v) => supervision.insert(name.into(), v),
+            None => supervision.remove(name),
+        };
+    }
+}
+
 fn take(table: &mut toml::Table, from: &toml::Table, name: &str) {
     match from.get(name) {
         Some(section) => table.insert(name.into(), section.clone()),
         None => table.remove(name),
     };
+}
+
+/// The plant's settings a set changes. `safe_action = "standby"` is set at
+/// the start only: it decides whether the supervisor keeps a standby
+/// controller, which a set neither starts nor stops.
+fn plant_settings(running: &Scenario, new: &Scenario) -> Result<PlantSettings> {
+    let (was, asked) = (running.supervision.safe_action, new.supervision.safe_action);
+    if was != asked && (was == SafeAction::Standby || asked == SafeAction::Standby) {
+        bail!(
+            "supervision.safe_action: \"standby\" is set at the start only (it decides whether a \
+             standby controller runs); change it in the scenario and start the loop again"
+        );
+    }
+    Ok(PlantSettings {
+        published_ns: 0,
+        command_watchdog_ticks: new.supervision.command_watchdog_ticks,
+        safe_action: match asked {
+            SafeAction::Hold => SAFE_HOLD,
+            SafeAction::Zero => SAFE_ZERO,
+            SafeAction::Standby => SAFE_STANDBY,
+        },
+    })
 }
 
 /// The roles an observer set hands over: the observer, on the running
@@ -336,7 +373,7 @@ mod tests {
         let mut tuning = Tuning::default();
         for (field, value, says) in [
             ("plant.output", "3", "a swap may not change it"),
-            ("supervision.safe_action", "\"hold\"", "reads it once"),
+            ("loop.duration_s", "5.0", "not a tunable"),
             ("controller.bandwith_hz", "40", "no such field"),
         ] {
             let e = tuning
@@ -356,6 +393,37 @@ mod tests {
         let written = run_dir.tuned().exists() || run_dir.scenario_now().exists();
         let _ = std::fs::remove_dir_all(run_dir.path());
         assert!(!written);
+    }
+
+    #[test]
+    fn a_plant_set_publishes_its_settings_and_standby_stays_as_started() {
+        let request = |value: &str| SetRequest {
+            changes: vec![FieldValue {
+                field: "supervision.safe_action".into(),
+                value: value.into(),
+            }],
+        };
+        let plain = Overrides::default();
+        let (run_dir, running) = run_dir_of("plant", &default_scenario(), &plain);
+        let plan = Tuning::default()
+            .plan(&run_dir, &running, &plain, &request("\"zero\""))
+            .unwrap()
+            .unwrap();
+        let standby = Tuning::default()
+            .plan(&run_dir, &running, &plain, &request("\"standby\""))
+            .unwrap_err();
+        let _ = std::fs::remove_dir_all(run_dir.path());
+        assert!(plan.roles.is_empty());
+        let settings = plan.plant.unwrap();
+        assert_eq!(settings.safe_action, SAFE_ZERO);
+        assert_eq!(
+            settings.command_watchdog_ticks,
+            running.supervision.command_watchdog_ticks
+        );
+        assert!(
+            format!("{standby:#}").contains("at the start only"),
+            "{standby:#}"
+        );
     }
 
     #[test]

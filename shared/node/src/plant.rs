@@ -4,12 +4,16 @@ use crate::args::{Role, ServiceArgs, realtime_settings, wait_mode};
 use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
-use flexloop_protocol::channels::{COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP};
-use flexloop_protocol::{Activation, Command, Measurement, flags};
+use flexloop_protocol::channels::{
+    COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP, PLANT_SETTINGS,
+};
+use flexloop_protocol::plant_settings::{SAFE_HOLD, SAFE_STANDBY, SAFE_ZERO};
+use flexloop_protocol::{Activation, Command, Measurement, PlantSettings, flags};
 use flexloop_runtime::clock::{TickGrid, wait_until};
 use flexloop_runtime::wait::wait_readable;
 use flexloop_runtime::{monotonic_ns, realtime, shutdown};
 use flexloop_scenario::Mode;
+use flexloop_scenario::schema::SafeAction;
 use flexloop_transport::{Domain, Inlet, Outlet, Wakeup};
 use std::time::Duration;
 
@@ -36,6 +40,12 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         &node,
         &LOGGER_PROGRESS,
         LOGGER_PROGRESS.qos.loop_buffer_size,
+    )?;
+    // The safe action and the command watchdog as the supervisor changes them.
+    let settings = Inlet::<PlantSettings>::open_polling(
+        &node,
+        &PLANT_SETTINGS,
+        PLANT_SETTINGS.qos.loop_buffer_size,
     )?;
 
     // Start-up handshake: the observer and the logger subscribe once they are
@@ -95,6 +105,11 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
 
     let mut k: u64 = 0;
     loop {
+        while let Some(changed) = settings.receive()? {
+            if let Some(action) = safe_action(changed.safe_action) {
+                core.set_watchdog(changed.command_watchdog_ticks, action);
+            }
+        }
         let stopping = shutdown::requested();
         let (tick_ns, woke_ns) = if lockstep {
             if k > 0 {
@@ -283,6 +298,17 @@ fn awaits_new_observer(a: &Activation, k: u64, last_served: Option<u64>) -> bool
         && last_served.is_none_or(|s| s < a.observer_from_seq)
 }
 
+/// The safe action a [`PlantSettings`] names; None for a value no
+/// supervisor sends (the plant keeps what it has).
+fn safe_action(wire: u32) -> Option<SafeAction> {
+    match wire {
+        SAFE_HOLD => Some(SafeAction::Hold),
+        SAFE_ZERO => Some(SafeAction::Zero),
+        SAFE_STANDBY => Some(SafeAction::Standby),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -303,5 +329,13 @@ mod tests {
         assert!(!awaits_new_observer(&a, 392, Some(390)));
         // Without a replaced observer, nothing to wait for.
         assert!(!awaits_new_observer(&Activation::INITIAL, 391, Some(389)));
+    }
+
+    #[test]
+    fn the_settings_name_a_safe_action_or_change_nothing() {
+        assert_eq!(safe_action(SAFE_HOLD), Some(SafeAction::Hold));
+        assert_eq!(safe_action(SAFE_ZERO), Some(SafeAction::Zero));
+        assert_eq!(safe_action(SAFE_STANDBY), Some(SafeAction::Standby));
+        assert_eq!(safe_action(7), None);
     }
 }

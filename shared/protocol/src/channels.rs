@@ -160,6 +160,21 @@ pub const SPARE_STATUS: Channel = Channel {
     qos: SPARE_QOS,
 };
 
+/// The plant's safety settings as the supervisor changes them (see
+/// [`crate::plant_settings`]); the newest kept for a plant that opens late.
+pub const PLANT_SETTINGS: Channel = Channel {
+    name: "flexloop/plant-settings",
+    qos: ChannelQos {
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 8,
+        history_size: 1,
+        subscriber_max_buffer_size: 4,
+        loop_buffer_size: 4,
+        logger_buffer_size: 4,
+    },
+};
+
 const SPARE_QOS: ChannelQos = ChannelQos {
     max_publishers: 12,
     max_subscribers: 12,
@@ -171,7 +186,7 @@ const SPARE_QOS: ChannelQos = ChannelQos {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 12] = [
+pub const ALL: [Channel; 13] = [
     MEASUREMENT,
     MEASUREMENT_REPLAY,
     OBSERVER_WAKEUP,
@@ -184,6 +199,7 @@ pub const ALL: [Channel; 12] = [
     ACTIVATION,
     SPARE_ORDER,
     SPARE_STATUS,
+    PLANT_SETTINGS,
 ];
 
 /// Event ids on the event service paired with each channel.

@@ -9,6 +9,8 @@
 //! - [`joining`]: how a process enters the loop (start, swap, restart,
 //!   standby, spare).
 //! - [`spare`]: orders to idle warm spares and their reports.
+//! - [`plant_settings`]: the plant's safe action and command watchdog, as
+//!   the supervisor changes them while the loop runs.
 //! - [`layout`]: every recorded message's fields as data (ROS1 definitions,
 //!   export columns).
 //! - [`time`]: the monotonic nanosecond clock all timestamps use.
@@ -20,6 +22,7 @@ pub mod handover;
 pub mod joining;
 pub mod layout;
 pub mod messages;
+pub mod plant_settings;
 pub mod spare;
 pub mod time;
 pub mod wire;
@@ -31,4 +34,5 @@ pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement, NO_SEQ, Telemetry, WireBytes, flags,
 };
+pub use plant_settings::PlantSettings;
 pub use spare::{SpareOrder, SpareStatus};

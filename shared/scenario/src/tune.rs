@@ -4,11 +4,11 @@
 //!
 //! A tunable is a field that a swap of the controller or the observer
 //! carries bumplessly ([`crate::swap`], docs/architecture.md "What a swap
-//! may change" and "Live tuning"). Some fields a swap may differ in are
-//! still not tunables, because no swapped process reads them:
-//! `supervision.safe_action` and `supervision.command_watchdog_ticks` are
-//! the plant's (read once at its start; the plant is never swapped), and
-//! `safe_action = "standby"` also sets what the supervisor keeps running.
+//! may change" and "Live tuning"), or one of the plant's safety settings
+//! (`supervision.safe_action`, `supervision.command_watchdog_ticks`), which
+//! the plant takes from the supervisor at its next tick (the plant is never
+//! swapped). `safe_action = "standby"` is set at the start only: it also
+//! decides whether a standby controller runs.
 //!
 //! A controller program of one's own (`controller.exec`) is tuned by its
 //! own `controller.params.*` ([`program_param`]), which its law reads; the
@@ -22,7 +22,7 @@
 //! refused by the supervisor, which designs both (a set names the
 //! controller's or the observer's fields, not both: each is one hand-over).
 
-use crate::schema::{PidBandwidth, Scenario};
+use crate::schema::{PidBandwidth, SafeAction, Scenario};
 use std::fmt;
 
 /// Which process runs a tunable, and so which one a change hands over.
@@ -30,12 +30,14 @@ use std::fmt;
 pub enum TunedRole {
     Controller,
     Observer,
+    Plant,
 }
 
 impl TunedRole {
     pub fn name(self) -> &'static str {
         match self {
             TunedRole::Controller => "controller",
+            TunedRole::Plant => "plant",
             TunedRole::Observer => "observer",
         }
     }
@@ -122,6 +124,29 @@ pub const TUNABLES: &[Tunable] = &[
         },
     },
     Tunable {
+        field: "supervision.safe_action",
+        role: TunedRole::Plant,
+        value: |s| {
+            Some(toml::Value::String(
+                match s.supervision.safe_action {
+                    SafeAction::Hold => "hold",
+                    SafeAction::Zero => "zero",
+                    SafeAction::Standby => "standby",
+                }
+                .into(),
+            ))
+        },
+    },
+    Tunable {
+        field: "supervision.command_watchdog_ticks",
+        role: TunedRole::Plant,
+        value: |s| {
+            Some(toml::Value::Integer(i64::from(
+                s.supervision.command_watchdog_ticks,
+            )))
+        },
+    },
+    Tunable {
         field: "observer.damping_increase",
         role: TunedRole::Observer,
         value: |s| float(s.observer.damping_increase),
@@ -203,15 +228,10 @@ pub enum TuneError {
     UnknownField(String),
     /// A field a swap may not change (the plant, rate, set-point, delay).
     NotSwappable(String),
-    /// A field the plant or the supervisor reads once at the start.
-    ReadAtStart(String),
     /// Another field a swap may differ in but that is no tunable.
     NotTunable(String),
-    /// The controller's and the observer's fields in one set.
-    BothRoles {
-        controller: String,
-        observer: String,
-    },
+    /// Fields of two roles (controller, observer, plant) in one set.
+    TwoRoles { first: String, second: String },
     /// The same field twice in one change.
     Repeated(String),
     /// A built-in controller's field while a program of one's own serves.
@@ -247,21 +267,13 @@ impl fmt::Display for TuneError {
                 "{field}: a swap may not change it: the loop's rate, mode, plant, set-point and \
                  loop delay stay as they run (docs/architecture.md#what-a-swap-may-change)"
             ),
-            TuneError::ReadAtStart(field) => write!(
-                f,
-                "{field}: not tunable: the plant reads it once at its start and is never swapped \
-                 (docs/architecture.md#live-tuning)"
-            ),
             TuneError::NotTunable(field) => {
                 write!(f, "{field}: not a tunable (tunables: {})", tunables())
             }
-            TuneError::BothRoles {
-                controller,
-                observer,
-            } => write!(
+            TuneError::TwoRoles { first, second } => write!(
                 f,
-                "{controller} and {observer}: the controller's and the observer's fields are \
-                 handed over apart; set them in two sets"
+                "{first} and {second}: the controller's, the observer's and the plant's fields \
+                 are handed over apart; set them in two sets"
             ),
             TuneError::Repeated(field) => write!(f, "{field}: given twice"),
             TuneError::BuiltInOnProgram(field) => write!(
@@ -285,9 +297,6 @@ pub fn refusal(field: &str, known: bool) -> TuneError {
     }
     let section = field.split('.').next().unwrap_or_default();
     match field {
-        "supervision.safe_action" | "supervision.command_watchdog_ticks" => {
-            TuneError::ReadAtStart(field.to_string())
-        }
         "loop.duration_s" => TuneError::NotTunable(field.to_string()),
         "controller.extra_delay_samples" | "controller.feedback" => {
             TuneError::NotSwappable(field.to_string())
@@ -374,39 +383,37 @@ pub fn check_changes(
     known: impl Fn(&str) -> bool,
     program: bool,
 ) -> Result<TunedRole, TuneError> {
-    let mut controller_field: Option<&str> = None;
-    let mut observer_field: Option<&str> = None;
+    // The first field of each role the change names.
+    let mut roles: Vec<(TunedRole, &str)> = Vec::new();
     for (i, change) in changes.iter().enumerate() {
         if changes[..i].iter().any(|c| c.field == change.field) {
             return Err(TuneError::Repeated(change.field.clone()));
         }
-        if program_param(&change.field) {
+        let role = if program_param(&change.field) {
             if !program {
                 return Err(TuneError::NotTunable(change.field.clone()));
             }
-            controller_field.get_or_insert(&change.field);
-            continue;
-        }
-        if program && change.field.starts_with("controller.") {
-            return Err(TuneError::BuiltInOnProgram(change.field.clone()));
-        }
-        match tunable(&change.field) {
-            None => return Err(refusal(&change.field, known(&change.field))),
-            Some(t) if t.role == TunedRole::Observer => {
-                observer_field.get_or_insert(&change.field);
+            TunedRole::Controller
+        } else {
+            if program && change.field.starts_with("controller.") {
+                return Err(TuneError::BuiltInOnProgram(change.field.clone()));
             }
-            Some(_) => {
-                controller_field.get_or_insert(&change.field);
+            match tunable(&change.field) {
+                None => return Err(refusal(&change.field, known(&change.field))),
+                Some(t) => t.role,
             }
+        };
+        if !roles.iter().any(|(r, _)| *r == role) {
+            roles.push((role, &change.field));
         }
     }
-    match (controller_field, observer_field) {
-        (Some(c), Some(o)) => Err(TuneError::BothRoles {
-            controller: c.to_string(),
-            observer: o.to_string(),
+    match roles.as_slice() {
+        [] | [(TunedRole::Controller, _)] => Ok(TunedRole::Controller),
+        [(role, _)] => Ok(*role),
+        [(_, first), (_, second), ..] => Err(TuneError::TwoRoles {
+            first: first.to_string(),
+            second: second.to_string(),
         }),
-        (None, Some(_)) => Ok(TunedRole::Observer),
-        _ => Ok(TunedRole::Controller),
     }
 }
 
@@ -489,7 +496,12 @@ mod tests {
             known,
             false,
         );
-        assert!(matches!(both, Err(TuneError::BothRoles { .. })), "{both:?}");
+        assert!(matches!(both, Err(TuneError::TwoRoles { .. })), "{both:?}");
+        assert_eq!(one("supervision.safe_action"), Ok(TunedRole::Plant));
+        assert_eq!(
+            one("supervision.command_watchdog_ticks"),
+            Ok(TunedRole::Plant)
+        );
         assert!(matches!(
             one("plant.output"),
             Err(TuneError::NotSwappable(_))
@@ -501,10 +513,6 @@ mod tests {
         assert!(matches!(
             one("controller.extra_delay_samples"),
             Err(TuneError::NotSwappable(_))
-        ));
-        assert!(matches!(
-            one("supervision.safe_action"),
-            Err(TuneError::ReadAtStart(_))
         ));
         assert!(matches!(
             one("realtime.profile"),

@@ -294,8 +294,8 @@ async def tune(url, seconds, token):
     out["breaks_rule"] = await c.set_parameters(
         "breaks-rule", [{"name": "controller.bandwidth_hz", "value": 83.0}]
     )
-    out["plant_field"] = await c.set_parameters(
-        "plant-field", [{"name": "supervision.command_watchdog_ticks", "value": 3}]
+    out["not_swappable"] = await c.set_parameters(
+        "not-swappable", [{"name": "loop.rate_hz", "value": 5000.0}]
     )
     out["odd_rate"] = await c.set_parameters("odd-rate", [{"name": "live.rate_hz", "value": 333.0}])
     out["after"] = await c.get_parameters("after", ["controller.bandwidth_hz", "live.rate_hz"])
