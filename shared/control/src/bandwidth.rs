@@ -677,6 +677,32 @@ mod tests {
         );
     }
 
+    /// The command applied on arrival (issue 20): the plant integrated in
+    /// two pieces around τ, no whole sample of delay. The original PID's
+    /// largest f_bw against τ, as the independent model of the issue has it.
+    #[test]
+    fn discrete_baseline_bandwidth_with_the_command_applied_on_arrival() {
+        for (tau, want) in [(TS_10KHZ, 35.5), (30e-6, 35.0), (0.0, 35.5)] {
+            let plants: Vec<_> = (1..=7)
+                .map(|i| {
+                    let sys = thesis_plant(i).unwrap().state_space();
+                    crate::discretise::zoh_split(&sys, TS_10KHZ, tau)
+                        .unwrap()
+                        .plant(&sys.c, &sys.d, TS_10KHZ)
+                        .unwrap()
+                })
+                .collect();
+            let pb =
+                DiscreteBandwidthProblem::new(plants, vec![None; 7], 0, CHAIN_MASS, 6.0, false)
+                    .unwrap();
+            assert_eq!(
+                pb.max_bandwidth_refined(0.5, 250.0, 4.0, 0.5).unwrap(),
+                Some(want),
+                "τ = {tau}"
+            );
+        }
+    }
+
     fn mc_ad_options() -> (ContinuousObserverOptions, ModalObserverOptions) {
         let damping = Some(DampingOptions {
             increase: vec![0.035; 3],

@@ -15,6 +15,8 @@ pub enum DiscretiseError {
     InvalidPeriod(f64),
     /// Pre-warp frequency at or above Nyquist, where tan() blows up.
     PrewarpAboveNyquist(f64),
+    /// An input switch instant not within the sample period.
+    SwitchOutsidePeriod { tau: f64, ts: f64 },
     /// The matrix exponential or the Tustin inverse failed.
     Linalg(LinalgError),
     /// The result is not a valid state space.
@@ -28,6 +30,10 @@ impl fmt::Display for DiscretiseError {
             Self::PrewarpAboveNyquist(w) => {
                 write!(f, "pre-warp frequency {w} rad/s is at or above Nyquist")
             }
+            Self::SwitchOutsidePeriod { tau, ts } => write!(
+                f,
+                "input switch at {tau} s is not within the sample period [0, {ts}] s"
+            ),
             Self::Linalg(e) => write!(f, "discretisation: {e}"),
             Self::StateSpace(e) => write!(f, "discretisation: {e}"),
         }
@@ -74,6 +80,89 @@ pub fn zoh(sys: &ContinuousStateSpace, ts: f64) -> Result<DiscreteStateSpace, Di
         sys.d.clone(),
         ts,
     )?)
+}
+
+/// One sample of a plant whose input changes within it: the previous input
+/// u(k−1) held over [t_k, t_k + τ), the new u(k) over [t_k + τ, t_{k+1}),
+/// integrated exactly as x(k+1) = Φ x(k) + G_new u(k) + G_old u(k−1) (the
+/// command applied on arrival, issue 20; docs/control.md §10.1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplitHold {
+    /// Φ = e^{A Ts}.
+    pub phi: DMatrix<f64>,
+    /// G_new = ∫₀^{Ts−τ} e^{As} ds B: the input from t_k + τ on.
+    pub g_new: DMatrix<f64>,
+    /// G_old = e^{A(Ts−τ)} ∫₀^{τ} e^{As} ds B: the input before t_k + τ.
+    pub g_old: DMatrix<f64>,
+    /// Where in the period the input switches [s].
+    pub tau: f64,
+}
+
+impl SplitHold {
+    /// The sampled plant as one state space whose input acts in the same
+    /// sample: state [x(k); u(k−1)], input u(k), output y(k) = C x(k) +
+    /// D u(k−1) (at t_k the input still applied is u(k−1)). With τ = Ts it
+    /// is the plain ZOH behind one sample of delay.
+    pub fn plant(
+        &self,
+        c: &DMatrix<f64>,
+        d: &DMatrix<f64>,
+        ts: f64,
+    ) -> Result<DiscreteStateSpace, DiscretiseError> {
+        let (n, m) = (self.phi.nrows(), self.g_new.ncols());
+        let p = c.nrows();
+        let mut a = DMatrix::zeros(n + m, n + m);
+        a.view_mut((0, 0), (n, n)).copy_from(&self.phi);
+        a.view_mut((0, n), (n, m)).copy_from(&self.g_old);
+        let mut b = DMatrix::zeros(n + m, m);
+        b.view_mut((0, 0), (n, m)).copy_from(&self.g_new);
+        b.view_mut((n, 0), (m, m)).fill_with_identity();
+        let mut c_aug = DMatrix::zeros(p, n + m);
+        c_aug.view_mut((0, 0), (p, n)).copy_from(c);
+        c_aug.view_mut((0, n), (p, m)).copy_from(d);
+        Ok(DiscreteStateSpace::new(
+            a,
+            b,
+            c_aug,
+            DMatrix::zeros(p, m),
+            ts,
+        )?)
+    }
+}
+
+/// [`SplitHold`] of `sys` at period `ts` with the input switching `tau`
+/// after each tick (0 ≤ τ ≤ Ts: τ = 0 is the plain ZOH, τ = Ts one whole
+/// sample of delay). Each piece is one exact ZOH (the augmented
+/// exponential), so rigid modes are fine.
+pub fn zoh_split(
+    sys: &ContinuousStateSpace,
+    ts: f64,
+    tau: f64,
+) -> Result<SplitHold, DiscretiseError> {
+    check_ts(ts)?;
+    if !(tau.is_finite() && (0.0..=ts).contains(&tau)) {
+        return Err(DiscretiseError::SwitchOutsidePeriod { tau, ts });
+    }
+    // (e^{Ah}, ∫₀^h e^{As} ds B) for one hold of length h.
+    let hold = |h: f64| -> Result<(DMatrix<f64>, DMatrix<f64>), DiscretiseError> {
+        let (n, m) = (sys.states(), sys.inputs());
+        let mut aug = DMatrix::zeros(n + m, n + m);
+        aug.view_mut((0, 0), (n, n)).copy_from(&(&sys.a * h));
+        aug.view_mut((0, n), (n, m)).copy_from(&(&sys.b * h));
+        let e = expm(&aug)?;
+        Ok((
+            e.view((0, 0), (n, n)).into_owned(),
+            e.view((0, n), (n, m)).into_owned(),
+        ))
+    };
+    let (phi_before, gamma_before) = hold(tau)?;
+    let (phi_after, gamma_after) = hold(ts - tau)?;
+    Ok(SplitHold {
+        phi: &phi_after * &phi_before,
+        g_new: gamma_after,
+        g_old: &phi_after * gamma_before,
+        tau,
+    })
 }
 
 /// Tustin (bilinear) transform s = c (z − 1)/(z + 1), with c = 2/Ts, or with
@@ -150,6 +239,61 @@ mod tests {
     use crate::freq::{freq_response_continuous, freq_response_discrete};
     use crate::lti::LtiRunner;
     use crate::models::{TS_10KHZ, thesis_chain_modal, thesis_plant};
+    use nalgebra::DVector;
+
+    #[test]
+    fn a_split_hold_is_the_plain_zoh_at_its_ends_and_refuses_a_switch_outside() {
+        let sys = thesis_chain_modal().unwrap().state_space();
+        let ts = TS_10KHZ;
+        let d = zoh(&sys, ts).unwrap();
+        let close =
+            |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).amax() <= 1e-12 * b.amax().max(1e-300);
+        let at_arrival = zoh_split(&sys, ts, 0.0).unwrap();
+        assert!(close(&at_arrival.phi, &d.a) && close(&at_arrival.g_new, &d.b));
+        assert_eq!(at_arrival.g_old.amax(), 0.0);
+        let one_sample = zoh_split(&sys, ts, ts).unwrap();
+        assert!(close(&one_sample.phi, &d.a) && close(&one_sample.g_old, &d.b));
+        assert_eq!(one_sample.g_new.amax(), 0.0);
+        for tau in [-1e-6, 1.5 * ts, f64::NAN] {
+            assert!(matches!(
+                zoh_split(&sys, ts, tau),
+                Err(DiscretiseError::SwitchOutsidePeriod { .. })
+            ));
+        }
+    }
+
+    /// The two-piece sample against a fine-step simulation of the same
+    /// continuous model (each fine step an exact ZOH of 1/1000 of the
+    /// period, the input switching on the fine grid at τ).
+    #[test]
+    fn a_split_hold_matches_a_fine_step_simulation() {
+        let sys = thesis_chain_modal().unwrap().state_space();
+        let ts = TS_10KHZ;
+        let steps = 1000;
+        let fine = zoh(&sys, ts / steps as f64).unwrap();
+        let (n, m) = (sys.states(), sys.inputs());
+        let x0 = DVector::from_fn(n, |i, _| 1e-6 * (i as f64 + 1.0).sin());
+        let (u_old, u_new) = (
+            DVector::from_element(m, 3.0),
+            DVector::from_element(m, -5.0),
+        );
+        for switch_at in [0, 300, 700, 1000] {
+            let tau = ts * switch_at as f64 / steps as f64;
+            let split = zoh_split(&sys, ts, tau).unwrap();
+            let exact = &split.phi * &x0 + &split.g_new * &u_new + &split.g_old * &u_old;
+            let mut x = x0.clone();
+            for step in 0..steps {
+                let u = if step < switch_at { &u_old } else { &u_new };
+                x = &fine.a * &x + &fine.b * u;
+            }
+            let error = (&x - &exact).amax();
+            assert!(
+                error <= 1e-9 * exact.amax(),
+                "τ = {tau}: {error:e} against {:e}",
+                exact.amax()
+            );
+        }
+    }
 
     #[test]
     fn zoh_matches_closed_form_per_mode() {
