@@ -12,11 +12,15 @@
 //! - [`clients`]: each client's rate, subscriptions and token.
 //! - [`parameters`]: tunables as Foxglove parameters and back.
 //! - [`tuning`]: what the server asks of the loop ([`Tuner`]).
-//! - [`server`]: the server and the reader that feeds it.
+//! - [`server`]: the server, its parameters and the loop that feeds it.
+//! - `reader`: the loop's samples as the server reads them.
+//! - `feeds`: what the JSON channels carry (latency, events, scenario).
 
 pub mod clients;
+mod feeds;
 pub mod options;
 pub mod parameters;
+mod reader;
 pub mod server;
 pub mod tuning;
 

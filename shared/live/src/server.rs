@@ -11,24 +11,21 @@
 //! clients never wait for it.
 
 use crate::clients::{ClientTable, RATE_PARAMETER, Route, TOKEN_PARAMETER, targets};
+use crate::feeds::{EventsTail, LatencyFeed, ScenarioWatch};
 use crate::options::LiveOptions;
 use crate::parameters;
+use crate::reader::LoopReader;
 use crate::tuning::{SetOutcome, Tuner};
 use flexloop_components::sample_file::{
     COMMAND_TOPIC, ESTIMATE_TOPIC, EVENT_SCHEMA, EVENT_SCHEMA_NAME, EVENTS_TOPIC, MEASUREMENT_TOPIC,
 };
 use flexloop_node::NodeError;
-use flexloop_node::handover::ActivationView;
-use flexloop_node::in_order::{InOrder, STAGED};
-use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::layout::{self, MessageLayout};
-use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, WireBytes};
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::live::{LiveEndpoint, LiveSummary};
-use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_runtime::{monotonic_ns, shutdown};
-use flexloop_transport::{Domain, Inlet, LoopNode};
+use flexloop_transport::Domain;
 use foxglove::websocket::{
     AnyClient, Capability, ChannelView, Client, ClientId, GetParametersResponder, Parameter,
     ParameterHandler, ParameterValue, ServerListener, SetParametersResponder,
@@ -39,7 +36,6 @@ use foxglove::{
 };
 use std::collections::HashMap;
 use std::fmt;
-use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -505,69 +501,16 @@ fn feed(
     Ok(())
 }
 
-/// The loop's messages as the logger records them: measurements as they
-/// come, estimates and commands in sequence order, commands only from the
-/// generation that owns their sample (`Activation::counts_command`).
-struct LoopReader {
-    measurements: Inlet<Measurement>,
-    estimates: Inlet<Estimate>,
-    commands: Inlet<Command>,
-    activation: ActivationView,
-    estimate_order: InOrder<Estimate>,
-    command_order: InOrder<Command>,
-}
-
-impl LoopReader {
-    fn open(node: &LoopNode) -> Result<Self, LiveError> {
-        Ok(Self {
-            measurements: Inlet::open_polling(
-                node,
-                &MEASUREMENT,
-                MEASUREMENT.qos.logger_buffer_size,
-            )?,
-            estimates: Inlet::open_polling(node, &ESTIMATE, ESTIMATE.qos.logger_buffer_size)?,
-            commands: Inlet::open_polling(node, &COMMAND, COMMAND.qos.logger_buffer_size)?,
-            activation: ActivationView::open(node)?,
-            estimate_order: InOrder::new(STAGED),
-            command_order: InOrder::new(STAGED),
-        })
-    }
-
-    /// Everything the channels hold now, to `each(channel, seq,
-    /// published_ns, bytes)` (channel 0 measurement, 1 estimate, 2 command).
-    fn drain(&mut self, each: &mut impl FnMut(usize, u64, u64, &[u8])) -> Result<(), LiveError> {
-        while let Some(m) = self.measurements.receive()? {
-            each(0, m.seq, m.published_ns, m.wire_bytes());
-        }
-        self.estimate_order.drain(
-            &self.estimates,
-            |e| e.seq,
-            |e| each(1, e.seq, e.published_ns, e.wire_bytes()),
-        )?;
-        let activation = *self.activation.refresh()?;
-        self.command_order.drain(
-            &self.commands,
-            |c| c.seq,
-            |c| {
-                if activation.counts_command(c) {
-                    each(2, c.seq, c.published_ns, c.wire_bytes());
-                }
-            },
-        )?;
-        Ok(())
-    }
-}
-
 /// The server's own counts: messages sent, and samples its reader never
 /// got (its queue overflowed: it was not scheduled for 51 ms).
 #[derive(Debug, Default)]
-struct Counts {
-    sent: u64,
+pub(crate) struct Counts {
+    pub(crate) sent: u64,
     /// Messages handed to each client (kept for the server's life: one
     /// number per connection).
     handed_to: HashMap<SinkId, u64>,
     last_seq: [Option<u64>; 3],
-    lost: [u64; 3],
+    pub(crate) lost: [u64; 3],
     most_clients: usize,
 }
 
@@ -602,136 +545,6 @@ impl Counts {
     }
 }
 
-/// `/latency`: each of the logger's telemetry messages (once a second), with
-/// the server's counts.
-struct LatencyFeed {
-    inlet: Inlet<Telemetry>,
-    previous: Option<Telemetry>,
-}
-
-impl LatencyFeed {
-    fn open(node: &LoopNode) -> Result<Self, LiveError> {
-        Ok(Self {
-            inlet: Inlet::open_polling(node, &TELEMETRY, TELEMETRY.qos.loop_buffer_size)?,
-            previous: None,
-        })
-    }
-
-    fn poll(
-        &mut self,
-        counts: &Counts,
-        clients: usize,
-    ) -> Result<Option<serde_json::Value>, LiveError> {
-        let mut newest = None;
-        while let Some(t) = self.inlet.receive()? {
-            newest = Some(*t);
-        }
-        let Some(t) = newest else {
-            return Ok(None);
-        };
-        let rate_hz = self
-            .previous
-            .filter(|p| t.published_ns > p.published_ns && t.samples >= p.samples)
-            .map(|p| {
-                (t.samples - p.samples) as f64 / ((t.published_ns - p.published_ns) as f64 / 1e9)
-            });
-        self.previous = Some(t);
-        let percentiles = |v: [u64; 6]| {
-            QUANTILE_LABELS
-                .iter()
-                .zip(v)
-                .map(|(label, ns)| ((*label).to_string(), serde_json::json!(ns as f64 / 1e3)))
-                .collect::<serde_json::Map<_, _>>()
-        };
-        Ok(Some(serde_json::json!({
-            "seq": t.seq,
-            "rate_hz": rate_hz,
-            "samples": t.samples,
-            "misses": t.misses,
-            "late_commands": t.late_commands,
-            "stalled_ticks": t.stalled_ticks,
-            "stall_misses": t.stall_misses,
-            "stale_estimates": t.stale_estimates,
-            "log_gaps": t.gaps,
-            "round_trip_us": percentiles(t.round_trip),
-            "tick_lateness_us": percentiles(t.tick_lateness),
-            "live": {
-                "clients": clients,
-                "sent": counts.sent,
-                "lost_by_reader": {
-                    "measurement": counts.lost[0],
-                    "estimate": counts.lost[1],
-                    "command": counts.lost[2],
-                },
-            },
-        })))
-    }
-}
-
-/// New complete lines of `events.jsonl` (the supervisor's events: swaps,
-/// sets, crashes, restarts) since the last call.
-struct EventsTail {
-    path: PathBuf,
-    offset: u64,
-    partial: String,
-}
-
-impl EventsTail {
-    fn new(path: PathBuf) -> Self {
-        Self {
-            path,
-            offset: 0,
-            partial: String::new(),
-        }
-    }
-
-    fn new_lines(&mut self) -> Vec<String> {
-        let Ok(mut file) = std::fs::File::open(&self.path) else {
-            return Vec::new();
-        };
-        if file.seek(SeekFrom::Start(self.offset)).is_err() {
-            return Vec::new();
-        }
-        let mut text = String::new();
-        let Ok(read) = file.read_to_string(&mut text) else {
-            return Vec::new();
-        };
-        self.offset += read as u64;
-        self.partial.push_str(&text);
-        let mut lines = Vec::new();
-        while let Some(end) = self.partial.find('\n') {
-            let line: String = self.partial.drain(..=end).collect();
-            let line = line.trim();
-            if !line.is_empty() {
-                lines.push(line.to_string());
-            }
-        }
-        lines
-    }
-}
-
-/// `/scenario`: the loop's scenario as it stands, sent again when it changes.
-#[derive(Default)]
-struct ScenarioWatch {
-    last: Option<String>,
-}
-
-impl ScenarioWatch {
-    fn current(&mut self, tuner: &Arc<dyn Tuner>) -> Option<String> {
-        let (file, text) = tuner.scenario().ok()?;
-        let json = serde_json::json!({"file": file, "toml": text}).to_string();
-        self.last = Some(json.clone());
-        Some(json)
-    }
-
-    /// The scenario, if it changed since the last call that saw it.
-    fn changed(&mut self, tuner: &Arc<dyn Tuner>) -> Option<String> {
-        let before = self.last.clone();
-        let now = self.current(tuner)?;
-        (before.is_some() && before.as_deref() != Some(now.as_str())).then_some(now)
-    }
-}
-
 fn wall_clock_ns() -> u64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
@@ -755,19 +568,5 @@ mod tests {
         }
         assert_eq!(counts.lost[0], 2);
         assert_eq!(counts.last_seq[0], Some(6));
-    }
-
-    #[test]
-    fn events_are_read_line_by_line_across_partial_writes() {
-        let dir = std::env::temp_dir().join(format!("flexloop-live-events-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("events.jsonl");
-        let mut tail = EventsTail::new(path.clone());
-        assert!(tail.new_lines().is_empty());
-        std::fs::write(&path, "{\"a\":1}\n{\"b\":").unwrap();
-        assert_eq!(tail.new_lines(), ["{\"a\":1}"]);
-        std::fs::write(&path, "{\"a\":1}\n{\"b\":2}\n").unwrap();
-        assert_eq!(tail.new_lines(), ["{\"b\":2}"]);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
