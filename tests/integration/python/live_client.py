@@ -132,7 +132,7 @@ class Client:
     def total(self):
         return sum(r["count"] for r in self.received.values())
 
-    async def settle(self, quiet=0.5, seconds=60):
+    async def settle(self, quiet=1.5, seconds=60):
         """Reads until `quiet` seconds pass without a message (what the
         server had queued for this client before it unsubscribed)."""
         end = time.monotonic() + seconds
