@@ -132,17 +132,6 @@ class Client:
     def total(self):
         return sum(r["count"] for r in self.received.values())
 
-    async def settle(self, quiet=1.5, seconds=60):
-        """Reads until `quiet` seconds pass without a message (what the
-        server had queued for this client before it unsubscribed)."""
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and self.closed is None:
-            before = self.total()
-            await self.pump(quiet)
-            if self.total() == before:
-                return
-        raise SystemExit(f"still receiving after {seconds} s")
-
     async def until(self, predicate, seconds):
         end = time.monotonic() + seconds
         while not predicate() and time.monotonic() < end and self.closed is None:
@@ -165,8 +154,8 @@ class Client:
             subs.append({"id": sub_id, "channelId": by_topic[topic]["id"]})
         await self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
-    async def unsubscribe_all(self):
-        ids = list(self.subscriptions)
+    async def unsubscribe(self, topics):
+        ids = [i for i, c in self.subscriptions.items() if c["topic"] in topics]
         await self.ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds": ids}))
 
     async def get_parameters(self, request_id, names=()):
@@ -253,11 +242,20 @@ async def observe(url, seconds):
         drop_abruptly(),
         garbage.pump(seconds),
     )
-    await full.unsubscribe_all()
-    await full.settle()
-    after_unsubscribe = full.total()
-    await full.pump(1.0)
-    after_a_second = full.total()
+    # Unsubscribed from all but /latency, whose copies say what the server
+    # handed this client: past the unsubscribe, only themselves (one each).
+    # (By the server's count, not by a quiet spell: a client behind still
+    # drains its queue for a while.)
+    await full.unsubscribe([t for t in ALL_TOPICS if t != "/latency"])
+    latencies = lambda: full.received.get("/latency", {}).get("json", [])
+    seen_at_unsubscribe = len(latencies())
+    await full.until(lambda: len(latencies()) >= seen_at_unsubscribe + 3, 60)
+    after = latencies()[seen_at_unsubscribe:]
+    handed_after_unsubscribing = (
+        after[2]["live"]["you"]["handed"] - after[1]["live"]["you"]["handed"] - 1
+        if len(after) >= 3
+        else None
+    )
     channels = list(full.channels.values())
     result = {
         "server_info": full.server_info,
@@ -267,7 +265,7 @@ async def observe(url, seconds):
         "full": full.report(),
         "decimated": decimated.report(),
         "garbage": garbage.report(),
-        "messages_after_unsubscribing": after_a_second - after_unsubscribe,
+        "handed_after_unsubscribing": handed_after_unsubscribing,
     }
     for c in (full, decimated, silent, garbage):
         try:
