@@ -56,6 +56,9 @@ impl Options {
     }
 }
 
+/// What the two runs' difference is worth on a shared machine.
+pub const NOISE_CAVEAT: &str = "(one run each, one after the other: on a shared machine a stall in either moves p99.99 by more than this)";
+
 /// The round trip's percentile differences `with − without` [µs].
 pub struct Cost {
     pub p50_us: f64,

@@ -167,9 +167,7 @@ pub fn live_cost(o: Options) -> anyhow::Result<i32> {
         received.messages,
         received.bytes as f64 / 1e6 / o.duration_s
     );
-    println!(
-        "(one run each, one after the other: on a shared machine a stall in either moves p99.99 by more than this)"
-    );
+    println!("{}", crate::ab_table::NOISE_CAVEAT);
     let document = LiveCost {
         scenario: scenario.display().to_string(),
         duration_s: o.duration_s,

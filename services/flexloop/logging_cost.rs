@@ -72,9 +72,7 @@ pub fn logging_cost(o: Options) -> anyhow::Result<i32> {
             "NOT met"
         }
     );
-    println!(
-        "(one run each, one after the other: on a shared machine a stall in either moves p99.99 by more than this)"
-    );
+    println!("{}", crate::ab_table::NOISE_CAVEAT);
     let document = LoggingCost {
         scenario: scenario.display().to_string(),
         duration_s: o.duration_s,

@@ -313,8 +313,7 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
         .collect();
     assert_eq!(sets.len(), 1);
     assert_eq!(&sets[0], live_sets[0]);
-    let now: toml::Table =
-        toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap();
+    let now = scenario_now(&dir);
     assert_eq!(now["controller"]["bandwidth_hz"].as_float(), Some(35.5));
     assert_clean(&dir);
 }

@@ -196,8 +196,7 @@ fn an_observer_set_continues_the_estimate_and_hands_over_without_a_step() {
             "{switch}"
         );
     }
-    let now: toml::Table =
-        toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap();
+    let now = scenario_now(&dir);
     assert_eq!(now["observer"]["damping_increase"].as_float(), Some(0.05));
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =
@@ -263,8 +262,7 @@ fn a_set_safe_action_is_what_the_plant_does_when_commands_stop() {
     assert_eq!(sets.len(), 1, "{sets:?}");
     assert_eq!(sets[0]["role"], "plant");
     assert!(sets[0]["detail"]["switches"].as_array().unwrap().is_empty());
-    let now: toml::Table =
-        toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap();
+    let now = scenario_now(&dir);
     assert_eq!(now["supervision"]["safe_action"].as_str(), Some("zero"));
     assert_eq!(
         now["supervision"]["command_watchdog_ticks"].as_integer(),

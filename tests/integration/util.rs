@@ -438,3 +438,8 @@ pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, t
     assert!(log.commands().all(|c| c.generation == 0));
     assert_clean(dir);
 }
+
+/// The run's scenario as it stands after swaps and sets (`scenario-now.toml`).
+pub fn scenario_now(dir: &Path) -> toml::Table {
+    toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap()
+}

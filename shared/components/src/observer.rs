@@ -365,9 +365,11 @@ impl ObserverCore {
         {
             return false;
         }
+        // x̂ is the block's leading states (`new`): the same numbers.
         self.block.set_leading_state(&from.state[at..at + len]);
-        let s = DVectorView::from_slice(self.block.state(), self.block.state().len());
-        self.x_hat.gemv(1.0, &self.estimate_map, &s, 0.0);
+        self.x_hat
+            .as_mut_slice()
+            .copy_from_slice(&from.state[at..at + len]);
         self.next_seq = from.seq + 1;
         true
     }

@@ -61,18 +61,29 @@ fn check_ts(ts: f64) -> Result<(), DiscretiseError> {
     }
 }
 
+/// One input held for `h`: (e^{A h}, ∫₀^h e^{As} ds B), from the exponential
+/// of the augmented matrix [[A, B], [0, 0]] h.
+fn hold(
+    sys: &ContinuousStateSpace,
+    h: f64,
+) -> Result<(DMatrix<f64>, DMatrix<f64>), DiscretiseError> {
+    let (n, m) = (sys.states(), sys.inputs());
+    let mut aug = DMatrix::zeros(n + m, n + m);
+    aug.view_mut((0, 0), (n, n)).copy_from(&(&sys.a * h));
+    aug.view_mut((0, n), (n, m)).copy_from(&(&sys.b * h));
+    let e = expm(&aug)?;
+    Ok((
+        e.view((0, 0), (n, n)).into_owned(),
+        e.view((0, n), (n, m)).into_owned(),
+    ))
+}
+
 /// Exact ZOH: A_d = e^{A Ts}, B_d = ∫₀^Ts e^{Aτ}dτ B from the exponential of
 /// the augmented matrix [[A, B], [0, 0]] Ts, so a singular A (rigid modes) is
 /// fine. C and D (e.g. T_DC) are unchanged (Theorem 2.4.1).
 pub fn zoh(sys: &ContinuousStateSpace, ts: f64) -> Result<DiscreteStateSpace, DiscretiseError> {
     check_ts(ts)?;
-    let (n, m) = (sys.states(), sys.inputs());
-    let mut aug = DMatrix::zeros(n + m, n + m);
-    aug.view_mut((0, 0), (n, n)).copy_from(&(&sys.a * ts));
-    aug.view_mut((0, n), (n, m)).copy_from(&(&sys.b * ts));
-    let e = expm(&aug)?;
-    let ad = e.view((0, 0), (n, n)).into_owned();
-    let bd = e.view((0, n), (n, m)).into_owned();
+    let (ad, bd) = hold(sys, ts)?;
     Ok(DiscreteStateSpace::new(
         ad,
         bd,
@@ -143,20 +154,8 @@ pub fn zoh_split(
     if !(tau.is_finite() && (0.0..=ts).contains(&tau)) {
         return Err(DiscretiseError::SwitchOutsidePeriod { tau, ts });
     }
-    // (e^{Ah}, ∫₀^h e^{As} ds B) for one hold of length h.
-    let hold = |h: f64| -> Result<(DMatrix<f64>, DMatrix<f64>), DiscretiseError> {
-        let (n, m) = (sys.states(), sys.inputs());
-        let mut aug = DMatrix::zeros(n + m, n + m);
-        aug.view_mut((0, 0), (n, n)).copy_from(&(&sys.a * h));
-        aug.view_mut((0, n), (n, m)).copy_from(&(&sys.b * h));
-        let e = expm(&aug)?;
-        Ok((
-            e.view((0, 0), (n, n)).into_owned(),
-            e.view((0, n), (n, m)).into_owned(),
-        ))
-    };
-    let (phi_before, gamma_before) = hold(tau)?;
-    let (phi_after, gamma_after) = hold(ts - tau)?;
+    let (phi_before, gamma_before) = hold(sys, tau)?;
+    let (phi_after, gamma_after) = hold(sys, ts - tau)?;
     Ok(SplitHold {
         phi: &phi_after * &phi_before,
         g_new: gamma_after,

@@ -66,7 +66,7 @@ impl LatencyFeed {
             "tick_lateness_us": percentiles(t.tick_lateness),
             "live": {
                 "clients": clients,
-                "sent": counts.sent,
+                "sent": counts.sent(),
                 "lost_by_reader": {
                     "measurement": counts.lost[0],
                     "estimate": counts.lost[1],

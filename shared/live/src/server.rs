@@ -414,7 +414,7 @@ pub fn serve(
         &LiveSummary {
             cpu_s: flexloop_runtime::usage::process_cpu_ns() as f64 / 1e9,
             wall_s: started.elapsed().as_secs_f64(),
-            messages_sent: counts.sent,
+            messages_sent: counts.sent(),
             lost_by_reader: counts.lost,
             most_clients: counts.most_clients,
         },
@@ -505,7 +505,6 @@ fn feed(
 /// got (its queue overflowed: it was not scheduled for 51 ms).
 #[derive(Debug, Default)]
 pub(crate) struct Counts {
-    pub(crate) sent: u64,
     /// Messages handed to each client (kept for the server's life: one
     /// number per connection).
     handed_to: HashMap<SinkId, u64>,
@@ -516,8 +515,12 @@ pub(crate) struct Counts {
 
 impl Counts {
     fn handed(&mut self, sink: SinkId) {
-        self.sent += 1;
         *self.handed_to.entry(sink).or_insert(0) += 1;
+    }
+
+    /// Messages handed to all clients.
+    pub(crate) fn sent(&self) -> u64 {
+        self.handed_to.values().sum()
     }
 
     fn handed_to(&self, sink: SinkId) -> u64 {
