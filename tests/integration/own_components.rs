@@ -385,14 +385,17 @@ fn a_program_that_cannot_serve_is_refused_and_the_loop_runs_on() {
     // its start, naming the field), a program that crashes at start, and
     // `--exec` of a program that does not exist. Each swap is refused; the
     // built-in controller keeps the loop.
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 1_000);
-    let controller = pid_on_duty(&dir, "controller", "active");
+    // Written (and the example built, minutes on a fresh machine) before
+    // the loop starts: a lockstep loop left running meanwhile records
+    // millions of samples.
     let bad_params = example_scenario(
         &dir,
         "bad-params.toml",
         "[controller.params]\nkp = 9000.0\nki = 90000.0\nkd = 110.0\nderivative_filter = 3000.0",
     );
+    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 1_000);
+    let controller = pid_on_duty(&dir, "controller", "active");
     let out = swap_to(&prefix, &["controller", bad_params.to_str().unwrap()]);
     assert!(!out.status.success(), "{}", describe(&out));
     let generation = 1;
