@@ -141,6 +141,43 @@ impl SplitHold {
     }
 }
 
+impl SplitHold {
+    /// The sampled plant in the coordinates the loop's blocks use: input
+    /// u_a(k), the input present at t_k (held until t_k + τ; u_a(k+1) acts
+    /// from then on), state z(k) = x(k) − G_new u_a(k):
+    /// z(k+1) = Φ z(k) + (Φ G_new + G_old) u_a(k),
+    /// y(k) = C z(k) + (C G_new + D) u_a(k).
+    /// Causal in u_a, so a loop, an observer or the emulator runs it exactly
+    /// as a plant behind one sample of delay; with τ = Ts (G_new = 0) it is
+    /// the plain ZOH (Φ, Γ, C, D).
+    pub fn delayed_input_form(
+        &self,
+        c: &DMatrix<f64>,
+        d: &DMatrix<f64>,
+        ts: f64,
+    ) -> Result<DiscreteStateSpace, DiscretiseError> {
+        Ok(DiscreteStateSpace::new(
+            self.phi.clone(),
+            &self.phi * &self.g_new + &self.g_old,
+            c.clone(),
+            c * &self.g_new + d,
+            ts,
+        )?)
+    }
+}
+
+/// (e^{A h}, ∫₀^h e^{As} ds B) of `sys`: the state moved on by `h` with
+/// the input held (for an estimate at an instant inside a sample).
+pub fn hold_for(
+    sys: &ContinuousStateSpace,
+    h: f64,
+) -> Result<(DMatrix<f64>, DMatrix<f64>), DiscretiseError> {
+    if !(h.is_finite() && h >= 0.0) {
+        return Err(DiscretiseError::InvalidPeriod(h));
+    }
+    hold(sys, h)
+}
+
 /// [`SplitHold`] of `sys` at period `ts` with the input switching `tau`
 /// after each tick (0 ≤ τ ≤ Ts: τ = 0 is the plain ZOH, τ = Ts one whole
 /// sample of delay). Each piece is one exact ZOH (the augmented
@@ -292,6 +329,38 @@ mod tests {
                 exact.amax()
             );
         }
+    }
+
+    /// The delayed-input form driven by u_a(k) gives the outputs of the
+    /// two-piece plant, and the moved-on state by `hold_for` is the split's
+    /// first piece.
+    #[test]
+    fn the_delayed_input_form_runs_the_split_plant() {
+        let sys = thesis_plant(5).unwrap().state_space();
+        let ts = TS_10KHZ;
+        let tau = 30e-6;
+        let split = zoh_split(&sys, ts, tau).unwrap();
+        let form = split.delayed_input_form(&sys.c, &sys.d, ts).unwrap();
+        let u_a: Vec<f64> = (0..400).map(|k| (0.37 * k as f64).sin() * 40.0).collect();
+        let mut x = DVector::zeros(sys.states());
+        let mut z = LtiRunner::new(form);
+        for k in 0..u_a.len() - 1 {
+            let y_split = (&sys.c * &x)[0] + sys.d[(0, 0)] * u_a[k];
+            let y_form = z.output(&[u_a[k]])[0];
+            assert!(
+                (y_split - y_form).abs() <= 1e-9 * y_split.abs().max(1e-12),
+                "k = {k}: {y_split:e} vs {y_form:e}"
+            );
+            z.advance(&[u_a[k]]);
+            x = &split.phi * &x
+                + &split.g_old * DVector::from_element(1, u_a[k])
+                + &split.g_new * DVector::from_element(1, u_a[k + 1]);
+        }
+        let (e_tau, gamma_tau) = hold_for(&sys, tau).unwrap();
+        let (e_rest, _) = hold_for(&sys, ts - tau).unwrap();
+        let close = (&e_rest * &gamma_tau - &split.g_old).amax() <= 1e-12 * split.g_old.amax();
+        assert!(close && (&e_rest * &e_tau - &split.phi).amax() <= 1e-12);
+        assert!(hold_for(&sys, -1.0).is_err());
     }
 
     #[test]

@@ -40,7 +40,7 @@
 use crate::continuous::ContinuousStateSpace;
 use crate::damping::{ActiveDamping, DampingMethod};
 use crate::design_error::{DesignError, check_matrix};
-use crate::discretise::zoh;
+use crate::discretise::{hold_for, zoh, zoh_split};
 use crate::kalman::{
     ContinuousKalmanGains, KalmanGains, KalmanWeights, NoiseModel, steady_state_kalman,
     steady_state_kalman_continuous, with_noise_model, with_noise_model_continuous,
@@ -100,24 +100,7 @@ pub fn compile_observer_block(
         }
         None => DMatrix::zeros(ny, n),
     };
-    let fb = match &design.feedback {
-        Some(k) => {
-            if k.inputs() != n || k.outputs() != nu {
-                return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
-                    what: "K(z) (outputs x inputs)",
-                    expected: (nu, n),
-                    found: (k.outputs(), k.inputs()),
-                }));
-            }
-            if (k.ts - m.ts).abs() > 1e-12 * m.ts {
-                return Err(DesignError::InvalidParameter(
-                    "K(z) and observer sample periods differ".into(),
-                ));
-            }
-            k.clone()
-        }
-        None => DiscreteStateSpace::gain(DMatrix::zeros(nu, n), m.ts)?,
-    };
+    let fb = damping_block(design)?;
     let l = &design.gain;
     let f = &m.a - l * &m.c;
     let n_in = ny + nu * (1 + extra_delay_samples);
@@ -135,20 +118,155 @@ pub fn compile_observer_block(
         h_in.view_mut((0, ny + nu), (n, nu)).copy_from(&m.b);
         (&m.a * &f, h_in)
     };
+    let parts = BlockParts {
+        f,
+        g_in,
+        h_x,
+        h_in,
+        compensation: cf,
+        compensation_in: DMatrix::zeros(ny, n_in),
+    };
+    assemble_block(design, &fb, parts, extra_delay_samples)
+}
+
+/// The command applied on arrival (issue 20; docs/control.md §10.1): u_c(k)
+/// acts from t_k + τ, the input present at t_k, u_a(k) = u_c(k−1), until
+/// then. The observer's model is then the split plant's delayed-input form
+/// ([`crate::discretise::SplitHold::delayed_input_form`]), whose state is
+/// z = x − G_new u_a; these are the pieces that turn its estimate back into
+/// the plant's state at the instants MC and AD need.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OnArrival {
+    /// τ [s]: where in the period the command starts to act.
+    pub deadline_s: f64,
+    /// G_new (n_o × n_u): x̂ = ẑ + G_new u_a.
+    pub g_new: DMatrix<f64>,
+    /// e^{A τ} (n_o × n_o) and ∫₀^τ e^{As} ds B (n_o × n_u) of the model:
+    /// the state moved from t_k to t_k + τ under u_a(k).
+    pub e_tau: DMatrix<f64>,
+    pub gamma_tau: DMatrix<f64>,
+    /// Kalman filter gain M (n_o × n_y): ẑ(k|k) = ẑ(k|k−1) + M (y(k) − ŷ(k|k−1)).
+    pub filter_gain: DMatrix<f64>,
+}
+
+/// Compiles a design whose model is the delayed-input form of a split
+/// plant (see [`OnArrival`]). Inputs [y(k); u_a(k)], outputs as for
+/// [`compile_observer_block`]:
+/// * ŷ_flex(k) = C_f x̂(k|k−1) = C_f (ẑ(k|k−1) + G_new u_a(k));
+/// * u_d(k) = K(z) x̂(t_k + τ), the estimate at the instant u_c(k) starts to
+///   act: e^{Aτ} x̂(k|k) + Γ_τ u_a(k), x̂(k|k) = ẑ(k|k) + G_new u_a(k).
+///
+/// At τ = Ts (G_new = 0, e^{Aτ} = A, Γ_τ = B, L = A M) this is exactly the
+/// one-sample block of [`compile_observer_block`].
+pub fn compile_observer_block_on_arrival(
+    design: &ObserverDesign,
+    on_arrival: &OnArrival,
+) -> Result<ObserverBlock, DesignError> {
+    let m = &design.model;
+    let (n, ny, nu) = (m.states(), m.outputs(), m.inputs());
+    check_matrix(&design.gain, "observer gain L", n, ny)?;
+    check_matrix(&on_arrival.g_new, "G_new", n, nu)?;
+    check_matrix(&on_arrival.e_tau, "e^{Aτ}", n, n)?;
+    check_matrix(&on_arrival.gamma_tau, "Γ_τ", n, nu)?;
+    check_matrix(&on_arrival.filter_gain, "filter gain M", n, ny)?;
+    let cf = match &design.compensation {
+        Some(c) => {
+            check_matrix(c, "C_f", ny, n)?;
+            c.clone()
+        }
+        None => DMatrix::zeros(ny, n),
+    };
+    let fb = damping_block(design)?;
+    let l = &design.gain;
+    let f = &m.a - l * &m.c;
+    let n_in = ny + nu;
+    let mut g_in = DMatrix::zeros(n, n_in);
+    g_in.view_mut((0, 0), (n, ny)).copy_from(l);
+    g_in.view_mut((0, ny), (n, nu))
+        .copy_from(&(&m.b - l * &m.d));
+    let (e, mg) = (&on_arrival.e_tau, &on_arrival.filter_gain);
+    // v = e^{Aτ} [(I − M C) ẑ + M y + (G_new − M D) u_a] + Γ_τ u_a.
+    let h_x = e * (DMatrix::identity(n, n) - mg * &m.c);
+    let mut h_in = DMatrix::zeros(n, n_in);
+    h_in.view_mut((0, 0), (n, ny)).copy_from(&(e * mg));
+    h_in.view_mut((0, ny), (n, nu))
+        .copy_from(&(e * (&on_arrival.g_new - mg * &m.d) + &on_arrival.gamma_tau));
+    let mut compensation_in = DMatrix::zeros(ny, n_in);
+    compensation_in
+        .view_mut((0, ny), (ny, nu))
+        .copy_from(&(&cf * &on_arrival.g_new));
+    let parts = BlockParts {
+        f,
+        g_in,
+        h_x,
+        h_in,
+        compensation: cf,
+        compensation_in,
+    };
+    assemble_block(design, &fb, parts, 0)
+}
+
+/// K(z) of the design, or a zero gain (AD off).
+fn damping_block(design: &ObserverDesign) -> Result<DiscreteStateSpace, DesignError> {
+    let m = &design.model;
+    let (n, nu) = (m.states(), m.inputs());
+    match &design.feedback {
+        Some(k) => {
+            if k.inputs() != n || k.outputs() != nu {
+                return Err(DesignError::Matrix(MatrixError::DimensionMismatch {
+                    what: "K(z) (outputs x inputs)",
+                    expected: (nu, n),
+                    found: (k.outputs(), k.inputs()),
+                }));
+            }
+            if (k.ts - m.ts).abs() > 1e-12 * m.ts {
+                return Err(DesignError::InvalidParameter(
+                    "K(z) and observer sample periods differ".into(),
+                ));
+            }
+            Ok(k.clone())
+        }
+        None => Ok(DiscreteStateSpace::gain(DMatrix::zeros(nu, n), m.ts)?),
+    }
+}
+
+/// The affine maps a block is made of: x̂(k+1|k) = F x̂ + G_in in, the
+/// estimate fed to K(z) v = H_x x̂ + H_in in, and ŷ_flex = C_f x̂ + D_f in.
+struct BlockParts {
+    f: DMatrix<f64>,
+    g_in: DMatrix<f64>,
+    h_x: DMatrix<f64>,
+    h_in: DMatrix<f64>,
+    compensation: DMatrix<f64>,
+    compensation_in: DMatrix<f64>,
+}
+
+/// One state space [x̂; w] from the affine maps and K(z).
+fn assemble_block(
+    design: &ObserverDesign,
+    fb: &DiscreteStateSpace,
+    p: BlockParts,
+    extra_delay_samples: usize,
+) -> Result<ObserverBlock, DesignError> {
+    let m = &design.model;
+    let (n, ny, nu) = (m.states(), m.outputs(), m.inputs());
+    let n_in = p.g_in.ncols();
     let nw = fb.states();
     let mut a = DMatrix::zeros(n + nw, n + nw);
-    a.view_mut((0, 0), (n, n)).copy_from(&f);
-    a.view_mut((n, 0), (nw, n)).copy_from(&(&fb.b * &h_x));
+    a.view_mut((0, 0), (n, n)).copy_from(&p.f);
+    a.view_mut((n, 0), (nw, n)).copy_from(&(&fb.b * &p.h_x));
     a.view_mut((n, n), (nw, nw)).copy_from(&fb.a);
     let mut b = DMatrix::zeros(n + nw, n_in);
-    b.view_mut((0, 0), (n, n_in)).copy_from(&g_in);
-    b.view_mut((n, 0), (nw, n_in)).copy_from(&(&fb.b * &h_in));
+    b.view_mut((0, 0), (n, n_in)).copy_from(&p.g_in);
+    b.view_mut((n, 0), (nw, n_in)).copy_from(&(&fb.b * &p.h_in));
     let mut c = DMatrix::zeros(ny + nu, n + nw);
-    c.view_mut((0, 0), (ny, n)).copy_from(&cf);
-    c.view_mut((ny, 0), (nu, n)).copy_from(&(&fb.d * &h_x));
+    c.view_mut((0, 0), (ny, n)).copy_from(&p.compensation);
+    c.view_mut((ny, 0), (nu, n)).copy_from(&(&fb.d * &p.h_x));
     c.view_mut((ny, n), (nu, nw)).copy_from(&fb.c);
     let mut d = DMatrix::zeros(ny + nu, n_in);
-    d.view_mut((ny, 0), (nu, n_in)).copy_from(&(&fb.d * &h_in));
+    d.view_mut((0, 0), (ny, n_in)).copy_from(&p.compensation_in);
+    d.view_mut((ny, 0), (nu, n_in))
+        .copy_from(&(&fb.d * &p.h_in));
     let mut estimate_map = DMatrix::zeros(n, n + nw);
     estimate_map.view_mut((0, 0), (n, n)).fill_with_identity();
     Ok(ObserverBlock {
@@ -187,6 +305,9 @@ pub struct ModalObserverOptions {
     /// R = σ_v² + σ_d²).
     pub weights: Option<KalmanWeights>,
     pub extra_delay_samples: usize,
+    /// τ [s] when the command acts on arrival, from t_k + τ (see
+    /// [`OnArrival`]); None: one whole sample of loop delay.
+    pub command_deadline: Option<f64>,
 }
 
 impl ModalObserverOptions {
@@ -204,6 +325,7 @@ impl ModalObserverOptions {
             q_nu: Some(1e3),
             weights: None,
             extra_delay_samples: 0,
+            command_deadline: None,
         }
     }
 }
@@ -223,16 +345,35 @@ pub fn design_modal_observer(
     reduced: &ReducedModel,
     options: &ModalObserverOptions,
 ) -> Result<ModalObserver, DesignError> {
-    let base = zoh(&reduced.state_space(), options.ts)?;
+    let continuous = reduced.state_space();
+    // The process noise and the noise model enter as a force held over
+    // whole samples (G = U = Γ) whenever the command itself acts.
+    let plain = zoh(&continuous, options.ts)?;
     let weights = match &options.weights {
         Some(w) => w.clone(),
-        None => KalmanWeights::thesis(&base),
+        None => KalmanWeights::thesis(&plain),
+    };
+    let base = match options.command_deadline {
+        None => plain.clone(),
+        Some(tau) => {
+            if options.extra_delay_samples != 0 {
+                return Err(DesignError::InvalidParameter(
+                    "a command applied on arrival has no extra sample of delay to predict over"
+                        .into(),
+                ));
+            }
+            zoh_split(&continuous, options.ts, tau)?.delayed_input_form(
+                &continuous.c,
+                &continuous.d,
+                options.ts,
+            )?
+        }
     };
     let n_t = base.states();
     let (model, weights) = match (options.mc, options.q_nu) {
         (true, Some(q_nu)) => {
             check_q_nu(q_nu)?;
-            with_noise_model(&base, &weights, &NoiseModel::thesis(&base, q_nu))?
+            with_noise_model(&base, &weights, &NoiseModel::thesis(&plain, q_nu))?
         }
         _ => (base, weights),
     };
@@ -259,12 +400,57 @@ pub fn design_modal_observer(
         compensation,
         feedback,
     };
-    let block = compile_observer_block(&design, options.extra_delay_samples)?;
+    let block = match options.command_deadline {
+        None => compile_observer_block(&design, options.extra_delay_samples)?,
+        Some(tau) => {
+            let on_arrival =
+                on_arrival_pieces(&continuous, options.ts, tau, &design.model, &kalman)?;
+            compile_observer_block_on_arrival(&design, &on_arrival)?
+        }
+    };
     Ok(ModalObserver {
         block,
         design,
         kalman,
         damping,
+    })
+}
+
+/// [`OnArrival`] for a reduced model `continuous` whose discrete observer
+/// model `model` may carry noise-model states after its own (a force held
+/// over the sample, U = Γ: over τ it moves the state by Γ_τ).
+fn on_arrival_pieces(
+    continuous: &ContinuousStateSpace,
+    ts: f64,
+    tau: f64,
+    model: &DiscreteStateSpace,
+    kalman: &KalmanGains,
+) -> Result<OnArrival, DesignError> {
+    let (n, nu) = (continuous.states(), continuous.inputs());
+    let n_o = model.states();
+    let split = zoh_split(continuous, ts, tau)?;
+    let (e, gamma) = hold_for(continuous, tau)?;
+    let mut g_new = DMatrix::zeros(n_o, nu);
+    g_new.view_mut((0, 0), (n, nu)).copy_from(&split.g_new);
+    let mut e_tau = DMatrix::identity(n_o, n_o);
+    e_tau.view_mut((0, 0), (n, n)).copy_from(&e);
+    if n_o > n {
+        if n_o - n != nu {
+            return Err(DesignError::InvalidParameter(format!(
+                "an observer applied on arrival takes one noise state per input, not {}",
+                n_o - n
+            )));
+        }
+        e_tau.view_mut((0, n), (n, nu)).copy_from(&gamma);
+    }
+    let mut gamma_tau = DMatrix::zeros(n_o, nu);
+    gamma_tau.view_mut((0, 0), (n, nu)).copy_from(&gamma);
+    Ok(OnArrival {
+        deadline_s: tau,
+        g_new,
+        e_tau,
+        gamma_tau,
+        filter_gain: kalman.m.clone(),
     })
 }
 
@@ -390,6 +576,7 @@ pub fn thesis_observer_block(
         q_nu,
         weights: None,
         extra_delay_samples,
+        command_deadline: None,
     };
     design_modal_observer(&reduced, &options)
 }
@@ -459,6 +646,7 @@ mod tests {
             q_nu: None,
             weights: None,
             extra_delay_samples: extra,
+            command_deadline: None,
         };
         let obs = design_modal_observer(&red, &opts).unwrap();
         let pid = thesis_pid(35.5, TS_10KHZ).unwrap();
@@ -616,6 +804,7 @@ mod tests {
                 q_nu,
                 weights: None,
                 extra_delay_samples: 0,
+                command_deadline: None,
             };
             let b = design_modal_observer(&red, &opts).unwrap().block.system;
             let n = b.states();

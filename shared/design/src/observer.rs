@@ -246,6 +246,7 @@ pub fn kalman_options(
         q_nu,
         weights,
         extra_delay_samples: extra_delay,
+        command_deadline: None,
     })
 }
 

@@ -96,7 +96,15 @@ pub enum DesignDomain {
     /// Sampled at `ts` [s]: exact ZOH plant, Tustin controller, DARE
     /// predictor observer, and `loop_delay` samples between computing u_c(k)
     /// and applying it (docs/control.md §10.1: 1 is the 10 kHz reference).
-    Discrete { ts: f64, loop_delay: usize },
+    /// With `command_deadline_s` = τ (and `loop_delay` 1) u_c(k) acts from
+    /// t_k + τ instead: the plant is integrated in two pieces and the
+    /// observer designed for it (issue 20, [`ThesisDesignSpec::on_arrival`]).
+    Discrete {
+        ts: f64,
+        loop_delay: usize,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        command_deadline_s: Option<f64>,
+    },
 }
 
 /// The design cases of docs/control.md §9.
@@ -296,8 +304,51 @@ impl ThesisDesignSpec {
     /// uses ts = 1e-4 and delays 0, 1, 2) at y5.
     pub fn discrete(ts: f64, loop_delay: usize) -> Self {
         Self {
-            domain: DesignDomain::Discrete { ts, loop_delay },
+            domain: DesignDomain::Discrete {
+                ts,
+                loop_delay,
+                command_deadline_s: None,
+            },
             ..Self::continuous()
+        }
+    }
+
+    /// All cases sampled at `ts` with each command applied on arrival, from
+    /// t_k + `deadline_s` (0 ≤ τ ≤ Ts; τ = Ts is one sample of delay).
+    pub fn on_arrival(ts: f64, deadline_s: f64) -> Self {
+        Self {
+            domain: DesignDomain::Discrete {
+                ts,
+                loop_delay: 1,
+                command_deadline_s: Some(deadline_s),
+            },
+            ..Self::continuous()
+        }
+    }
+
+    /// The sampled plant at output y_i: exact ZOH, or with a command
+    /// deadline the two-piece plant in the observer's coordinates
+    /// ([`flexloop_control::discretise::SplitHold::delayed_input_form`]).
+    pub(crate) fn discrete_plant(
+        &self,
+        output: usize,
+        ts: f64,
+    ) -> Result<DiscreteStateSpace, DesignError> {
+        let sys = self.plant(output)?.state_space();
+        Ok(match self.command_deadline() {
+            None => zoh(&sys, ts)?,
+            Some(tau) => flexloop_control::discretise::zoh_split(&sys, ts, tau)?
+                .delayed_input_form(&sys.c, &sys.d, ts)?,
+        })
+    }
+
+    /// τ [s] when the study's commands act on arrival.
+    pub fn command_deadline(&self) -> Option<f64> {
+        match self.domain {
+            DesignDomain::Discrete {
+                command_deadline_s, ..
+            } => command_deadline_s,
+            DesignDomain::Continuous => None,
         }
     }
 
@@ -350,7 +401,20 @@ impl ThesisDesignSpec {
                 self.ad_check_f_bw
             )));
         }
-        if let DesignDomain::Discrete { ts, loop_delay } = self.domain {
+        if let DesignDomain::Discrete {
+            ts,
+            loop_delay,
+            command_deadline_s,
+        } = self.domain
+        {
+            if let Some(tau) = command_deadline_s
+                && !(tau.is_finite() && (0.0..=ts).contains(&tau) && loop_delay == 1)
+            {
+                return Err(DesignError::InvalidParameter(format!(
+                    "command deadline {tau} s with loop delay {loop_delay} (0 ≤ τ ≤ Ts = {ts} s, \
+                     one sample of delay)"
+                )));
+            }
             // The slowest retained flexible mode must lie below Nyquist for
             // the pre-warped band-pass filters; 100 samples of delay is far
             // beyond anything meaningful here.
@@ -523,10 +587,9 @@ impl Plants {
             .collect::<Result<Vec<_>, DesignError>>()?;
         Ok(match spec.domain {
             DesignDomain::Continuous => Self::Continuous(cont),
-            DesignDomain::Discrete { ts, loop_delay } => Self::Discrete {
-                plants: cont
-                    .iter()
-                    .map(|p| Ok(zoh(p, ts)?))
+            DesignDomain::Discrete { ts, loop_delay, .. } => Self::Discrete {
+                plants: (1..=THESIS_OUTPUTS)
+                    .map(|i| spec.discrete_plant(i, ts))
                     .collect::<Result<_, DesignError>>()?,
                 ts,
                 loop_delay,

@@ -30,6 +30,7 @@ pub(super) fn discrete_observer(
         q_nu: case.q_nu(),
         weights: None,
         extra_delay_samples: extra_delay(loop_delay, case.ad().is_some()),
+        command_deadline: spec.command_deadline(),
     };
     design_modal_observer(&spec.reduced(output)?, &opts)
 }
@@ -71,7 +72,7 @@ pub(super) fn observer_poles(spec: &ThesisDesignSpec) -> Result<Vec<PoleRow>, De
                 })
                 .collect()
         }
-        DesignDomain::Discrete { ts, loop_delay } => {
+        DesignDomain::Discrete { ts, loop_delay, .. } => {
             let o = discrete_observer(spec, spec.output, ts, loop_delay, case)?;
             let d = &o.design;
             flexloop_control::linalg::eigenvalues(&(&d.model.a - &d.gain * &d.model.c))?
@@ -107,8 +108,8 @@ pub(super) fn ad_damping_check(spec: &ThesisDesignSpec) -> Result<AdDampingCheck
                 .collect::<Vec<_>>();
             (continuous_closed_loop_modes(&cl)?, obs)
         }
-        DesignDomain::Discrete { ts, loop_delay } => {
-            let plant = zoh(&spec.plant(spec.output)?.state_space(), ts)?;
+        DesignDomain::Discrete { ts, loop_delay, .. } => {
+            let plant = spec.discrete_plant(spec.output, ts)?;
             let o = discrete_observer(spec, spec.output, ts, loop_delay, case)?;
             let cl = assemble_loop(&LoopSpec {
                 plant: &plant,

@@ -133,6 +133,72 @@ fn discrete_mc_ad_bandwidth_with_loop_delay() {
     discrete_case(DesignCase::McAdBandpass);
 }
 
+/// Issue 20: each command applied on arrival at t_k + τ. The largest f_bw
+/// of the observer loops against τ (0 the limit, 30 µs, 100 µs = one
+/// sample), as the issue's independent model has them, within ±0.5 Hz.
+const ON_ARRIVAL_F_BW: [(DesignCase, [f64; 3]); 3] = [
+    (DesignCase::McRe, [44.5, 44.5, 35.0]),
+    (DesignCase::AdBandpass, [58.5, 50.5, 36.0]),
+    (DesignCase::McAdBandpass, [69.0, 62.0, 43.5]),
+];
+
+fn on_arrival_case(case: DesignCase) {
+    let want = ON_ARRIVAL_F_BW.iter().find(|c| c.0 == case).unwrap().1;
+    for (tau, want) in [0.0, 30e-6, TS_10KHZ].into_iter().zip(want) {
+        let spec = ThesisDesignSpec::on_arrival(TS_10KHZ, tau);
+        let (best, _) = near(&spec, case, want);
+        assert!(
+            (best - want).abs() <= 0.5,
+            "{case:?} τ = {tau}: {best} vs {want}"
+        );
+    }
+}
+
+#[test]
+fn mc_bandwidth_with_the_command_applied_on_arrival() {
+    on_arrival_case(DesignCase::McRe);
+}
+
+#[test]
+fn ad_bandwidth_with_the_command_applied_on_arrival() {
+    on_arrival_case(DesignCase::AdBandpass);
+}
+
+#[test]
+fn mc_ad_bandwidth_with_the_command_applied_on_arrival() {
+    on_arrival_case(DesignCase::McAdBandpass);
+}
+
+/// τ = Ts is the one-sample design exactly: the same observer block and
+/// the same plant.
+#[test]
+fn a_deadline_of_one_period_is_the_one_sample_design() {
+    let one = ThesisDesignSpec::discrete(TS_10KHZ, 1);
+    let at_period = ThesisDesignSpec::on_arrival(TS_10KHZ, TS_10KHZ);
+    for case in [DesignCase::McRe, DesignCase::McAdBandpass] {
+        let a = observers::discrete_observer(&one, 5, TS_10KHZ, 1, case).unwrap();
+        let b = observers::discrete_observer(&at_period, 5, TS_10KHZ, 1, case).unwrap();
+        let (sa, sb) = (&a.block.system, &b.block.system);
+        for (x, y) in [
+            (&sa.a, &sb.a),
+            (&sa.b, &sb.b),
+            (&sa.c, &sb.c),
+            (&sa.d, &sb.d),
+        ] {
+            assert!((x - y).amax() <= 1e-9 * x.amax().max(1.0), "{case:?}");
+        }
+    }
+    let (pa, pb) = (
+        one.discrete_plant(5, TS_10KHZ).unwrap(),
+        at_period.discrete_plant(5, TS_10KHZ).unwrap(),
+    );
+    assert!((&pa.b - &pb.b).amax() <= 1e-12 * pa.b.amax() && pb.d.amax() == 0.0);
+    for bad in [-1e-6, 2.0 * TS_10KHZ, f64::NAN] {
+        let spec = ThesisDesignSpec::on_arrival(TS_10KHZ, bad);
+        assert!(thesis_design_report(&spec).is_err(), "{bad}");
+    }
+}
+
 #[test]
 fn report_parts_with_one_sample_of_delay() {
     let mut spec = ThesisDesignSpec::discrete(TS_10KHZ, 1);

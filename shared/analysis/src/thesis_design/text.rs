@@ -10,7 +10,17 @@ impl DesignReport {
         let spec = &self.spec;
         let domain = match spec.domain {
             DesignDomain::Continuous => "continuous time".to_string(),
-            DesignDomain::Discrete { ts, loop_delay } => format!(
+            DesignDomain::Discrete {
+                ts,
+                command_deadline_s: Some(tau),
+                ..
+            } => format!(
+                "discrete, Ts = {:.1} us ({:.1} kHz), each command applied on arrival at t_k + {:.0} us",
+                ts * 1e6,
+                1e-3 / ts,
+                tau * 1e6
+            ),
+            DesignDomain::Discrete { ts, loop_delay, .. } => format!(
                 "discrete, Ts = {:.1} us ({:.1} kHz), loop delay {} sample{}",
                 ts * 1e6,
                 1e-3 / ts,
