@@ -33,7 +33,15 @@ pub struct DesignArgs {
     /// The study in continuous time (the thesis' setting) instead of the scenario's rate and delay
     #[arg(long, requires = "study")]
     continuous: bool,
-    /// Print JSON ({"loop": ..., "study": ... or null}) instead of text
+    /// Add the largest f_bw meeting the 6 dB rule against the command deadline tau_d
+    /// (each command applied on arrival; docs/deadline.md)
+    #[arg(long)]
+    deadline_sweep: bool,
+    /// With --deadline-sweep: a recorded run (e.g. `flexloop bench`'s) whose
+    /// tick_to_command histogram gives each tau_d's share of late commands
+    #[arg(long, value_name = "RUN_DIR", requires = "deadline_sweep")]
+    latency: Option<PathBuf>,
+    /// Print JSON ({"loop": ..., "study": ... or null, "deadline_sweep": ... or null}) instead of text
     #[arg(long)]
     json: bool,
 }
@@ -74,6 +82,8 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         scenario,
         study,
         continuous,
+        deadline_sweep,
+        latency,
         json,
     } = args;
     let path = crate::launch::resolve_scenario(scenario)?;
@@ -111,13 +121,13 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
     };
     let study_part = match study_output {
         Some((output, _, _)) => {
-            let mut spec = if continuous {
-                ThesisDesignSpec::continuous()
-            } else {
-                ThesisDesignSpec::discrete(
-                    1.0 / s.timing.rate_hz,
-                    1 + s.controller.extra_delay_samples as usize,
-                )
+            let ts = 1.0 / s.timing.rate_hz;
+            let mut spec = match (continuous, s.command_deadline_s()) {
+                (true, _) => ThesisDesignSpec::continuous(),
+                (false, Some(tau)) => ThesisDesignSpec::on_arrival(ts, tau),
+                (false, None) => {
+                    ThesisDesignSpec::discrete(ts, 1 + s.controller.extra_delay_samples as usize)
+                }
             };
             spec.output = output;
             // The scenario's chain (its masses, springs, ζ, actuator), not Table 3.2's.
@@ -127,9 +137,22 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         }
         None => None,
     };
+    let sweep_part = if deadline_sweep {
+        Some(
+            crate::deadline_sweep::sweep(&s, latency.as_deref())
+                .with_context(|| path.display().to_string())?,
+        )
+    } else {
+        None
+    };
     let programs = programs_of(&s)?;
     if json {
-        let value = serde_json::json!({ "loop": own, "study": study_part, "programs": programs });
+        let value = serde_json::json!({
+            "loop": own,
+            "study": study_part,
+            "deadline_sweep": sweep_part,
+            "programs": programs,
+        });
         println!("{}", serde_json::to_string_pretty(&value)?);
         return Ok(0);
     }
@@ -156,6 +179,10 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
             );
         }
         print!("{}", t.render_text());
+    }
+    if let Some(sweep) = &sweep_part {
+        println!();
+        print!("{}", sweep.render_text());
     }
     Ok(0)
 }

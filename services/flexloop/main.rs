@@ -14,6 +14,7 @@ mod bench;
 mod chaos;
 mod conductor;
 mod dead_loops;
+mod deadline_sweep;
 mod design;
 mod export;
 mod finish;

@@ -84,6 +84,9 @@ pub struct LoopReport {
     pub model: String,
     pub rate_hz: f64,
     pub loop_delay_samples: u32,
+    /// τ_d [µs] when each command acts on arrival (`loop.command_deadline_us`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub command_deadline_us: Option<f64>,
     pub outputs: Vec<String>,
     pub inputs: usize,
     pub output_unit: &'static str,
@@ -387,6 +390,7 @@ fn report(
         model: scenario.plant.model.clone(),
         rate_hz: scenario.timing.rate_hz,
         loop_delay_samples: design.loop_delay_samples,
+        command_deadline_us: design.command_deadline_s.map(|s| s * 1e6),
         outputs: design.output_names.clone(),
         inputs: design.n_inputs,
         output_unit: design.output_unit,
@@ -415,7 +419,10 @@ fn report(
 
 /// The largest f_bw meeting the rule on this loop (flexloop-design's
 /// `pid_bandwidth`, the search `"auto"` makes), or why there is none.
-fn largest_bandwidth(scenario: &Scenario, design: &LoopDesign) -> (Option<f64>, Option<String>) {
+pub fn largest_bandwidth(
+    scenario: &Scenario,
+    design: &LoopDesign,
+) -> (Option<f64>, Option<String>) {
     if design.pid_bandwidth.is_none() {
         return (None, Some("no PID feedback".into()));
     }
@@ -476,20 +483,31 @@ fn largest_singular_value(m: &DMatrix<Complex<f64>>) -> f64 {
 }
 
 impl LoopReport {
+    /// When each command acts: "loop delay 1 sample", or on arrival.
+    fn delay_words(&self) -> String {
+        match self.command_deadline_us {
+            Some(us) => format!("each command applied on arrival at t_k + {us} us"),
+            None => format!(
+                "loop delay {} sample{}",
+                self.loop_delay_samples,
+                if self.loop_delay_samples == 1 {
+                    ""
+                } else {
+                    "s"
+                }
+            ),
+        }
+    }
+
     pub fn render_text(&self) -> String {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "Loop design of `{}` ({}): {} Hz, loop delay {} sample{}",
+            "Loop design of `{}` ({}): {} Hz, {}",
             self.scenario,
             self.model,
             self.rate_hz,
-            self.loop_delay_samples,
-            if self.loop_delay_samples == 1 {
-                ""
-            } else {
-                "s"
-            }
+            self.delay_words()
         );
         let _ = writeln!(
             s,
@@ -578,13 +596,8 @@ impl LoopReport {
                 let _ = writeln!(
                     s,
                     "  largest f_bw meeting the 6 dB rule with a stable loop here \
-                     ({} sample{} of loop delay, this observer): {hz:.1} Hz",
-                    self.loop_delay_samples,
-                    if self.loop_delay_samples == 1 {
-                        ""
-                    } else {
-                        "s"
-                    }
+                     ({}, this observer): {hz:.1} Hz",
+                    self.delay_words()
                 );
             }
             (None, Some(note)) => {

@@ -31,6 +31,7 @@ pub struct ControllerCore {
     direction: [f64; MAX_OUTPUTS],
     ts: f64,
     loop_delay_samples: u32,
+    command_deadline_s: Option<f64>,
     n_outputs: usize,
     n_inputs: usize,
     /// Inputs of the observer block: [y; u_a] or [y; u_a; u_pending].
@@ -129,6 +130,7 @@ impl ControllerCore {
             direction,
             ts: design.ts,
             loop_delay_samples: design.loop_delay_samples,
+            command_deadline_s: design.command_deadline_s,
             n_outputs: design.n_outputs,
             n_inputs: design.n_inputs,
             n_block_inputs: design.observer.system.inputs(),
@@ -275,13 +277,21 @@ impl ControllerCore {
     }
 
     /// [u0; r] at the tick sample `seq`'s command applies; returns r's derivatives there.
+    /// With a command deadline τ_d u0 is the feedforward at the instant the
+    /// command starts to act, t_seq + τ_d (a snap mistimed by τ_d costs
+    /// nanometres, docs/deadline.md), and r the reference at the next tick,
+    /// the sample the command is first seen in.
     fn fill_feedforward_input(&mut self, seq: u64) -> [f64; 5] {
         let (ny, nu) = (self.n_outputs, self.n_inputs);
-        let t_applied = (seq + self.loop_delay_samples as u64) as f64 * self.ts;
-        let r_applied = self.reference.sample(t_applied);
+        let t_next_tick = (seq + self.loop_delay_samples as u64) as f64 * self.ts;
+        let r_applied = self.reference.sample(t_next_tick);
+        let u0_from = match self.command_deadline_s {
+            Some(tau) => self.reference.sample(seq as f64 * self.ts + tau),
+            None => r_applied,
+        };
         for i in 0..nu {
             let gains = &self.feedforward[i];
-            self.feedforward_input[i] = gains.iter().zip(&r_applied).map(|(g, r)| g * r).sum();
+            self.feedforward_input[i] = gains.iter().zip(&u0_from).map(|(g, r)| g * r).sum();
         }
         for i in 0..ny {
             self.feedforward_input[nu + i] = self.direction[i] * r_applied[0];

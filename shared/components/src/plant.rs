@@ -8,6 +8,17 @@
 //! With an extra sample of loop delay (a scenario setting, to show what a
 //! slower pipeline costs), an on-time command waits one more tick in a delay
 //! line; the deadline for the command stays one sample.
+//!
+//! With a command deadline τ_d (`loop.command_deadline_us`, docs/deadline.md)
+//! u_c(k−1) acts from t_{k−1} + τ_d if it was sent by then: the sample
+//! [t_{k−1}, t_k) is integrated in two pieces, exactly, without a second
+//! wake-up. The model runs in the delayed-input form (state z = x − G_new
+//! u_a, input u_a(k) = the input present at t_k), so the decision at tick k
+//! (on time: u_c(k−1); late: hold) is all the two pieces need. A command
+//! sent after its deadline is a miss and is dropped, not applied a sample
+//! later: it was computed for an input that by then has acted for a whole
+//! sample, and the next command, computed from a y that saw the hold, is
+//! the one that fits.
 
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
@@ -73,6 +84,9 @@ pub struct PlantCore {
     sensor_sigma: f64,
     reference_sigma: f64,
     extra_delay: bool,
+    /// With a command deadline: T − τ_d [ns], how long before its tick a
+    /// command is due (the command due at tick k must be sent by t_{k−1} + τ_d).
+    deadline_before_tick_ns: Option<u64>,
     /// With extra delay: the input for [t_k+1, t_k+2), already accepted.
     pending: [f64; MAX_INPUTS],
     pending_seq: u64,
@@ -116,6 +130,9 @@ impl PlantCore {
             sensor_sigma: design.sensor_noise,
             reference_sigma: design.reference_noise,
             extra_delay: design.loop_delay_samples > 1,
+            deadline_before_tick_ns: design
+                .command_deadline_s
+                .map(|tau| ((design.ts - tau) * 1e9).round() as u64),
             pending: [0.0; MAX_INPUTS],
             pending_seq: NO_SEQ,
             noise: Gaussian::new(design.seed),
@@ -148,12 +165,14 @@ impl PlantCore {
 
     /// Judges a command received before tick `k`, whose scheduled time is
     /// `tick_ns`. In lockstep mode pass `tick_ns = u64::MAX` (nothing is late).
+    /// Due by `tick_ns`, or with a command deadline by t_{k−1} + τ_d.
     pub fn offer(&mut self, cmd: &Command, k: u64, tick_ns: u64) -> CommandVerdict {
         let due = k.wrapping_sub(1);
+        let due_by_ns = tick_ns.saturating_sub(self.deadline_before_tick_ns.unwrap_or(0));
         if cmd.flags & flags::STANDBY != 0
             && cmd.generation != self.activation.controller_for(cmd.seq)
         {
-            return self.offer_standby(cmd, due, tick_ns);
+            return self.offer_standby(cmd, due, due_by_ns);
         }
         if cmd.generation != self.activation.controller_for(cmd.seq) {
             self.counters.wrong_generation += 1;
@@ -167,7 +186,7 @@ impl PlantCore {
             CommandVerdict::Stale
         } else if cmd.seq > due {
             CommandVerdict::Early
-        } else if cmd.published_ns > tick_ns {
+        } else if cmd.published_ns > due_by_ns {
             self.counters.late_commands += 1;
             CommandVerdict::Late
         } else if cmd.u[..self.n_inputs].iter().any(|v| !v.is_finite()) {
@@ -190,12 +209,12 @@ impl PlantCore {
     /// A standby command is kept only when it is the one due, on time and
     /// finite; it is never counted against the loop (it is not the active
     /// instance's to miss).
-    fn offer_standby(&mut self, cmd: &Command, due: u64, tick_ns: u64) -> CommandVerdict {
+    fn offer_standby(&mut self, cmd: &Command, due: u64, due_by_ns: u64) -> CommandVerdict {
         if self.safe_action != SafeAction::Standby {
             self.counters.wrong_generation += 1;
             return CommandVerdict::WrongGeneration;
         }
-        if cmd.seq != due || cmd.published_ns > tick_ns {
+        if cmd.seq != due || cmd.published_ns > due_by_ns {
             return CommandVerdict::Stale;
         }
         if cmd.u[..self.n_inputs].iter().any(|v| !v.is_finite()) {
@@ -306,6 +325,10 @@ impl PlantCore {
                     .sum();
             }
             None => {
+                if self.deadline_before_tick_ns.is_some() {
+                    // y(k) = C z(k) + C G_new u_a(k): the input present at t_k.
+                    self.model_input[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
+                }
                 let y = self.model.output(&self.model_input);
                 self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
             }

@@ -64,6 +64,10 @@ pub struct LoopDesign {
     pub seed: u64,
     /// Samples between y(k) and the tick its command is applied at (1, or 2 with extra delay).
     pub loop_delay_samples: u32,
+    /// τ_d [s] when each command acts on arrival, from t_k + τ_d
+    /// (`loop.command_deadline_us`, docs/deadline.md); `plant` and the
+    /// blocks are then in the delayed-input form. None: one sample of delay.
+    pub command_deadline_s: Option<f64>,
     /// The loop as the design sees it (closed_loop module of flexloop-control):
     /// inputs `[r; n; u_ff; w]`, outputs `[e_meas; y_meas; e_true; u_c]`.
     pub closed_loop: DiscreteStateSpace,
@@ -86,6 +90,7 @@ impl LoopDesign {
         let extra_delay = s.controller.extra_delay_samples as usize;
         let loop_delay_samples = 1 + s.controller.extra_delay_samples;
         let reference = Reference::from_scenario(s)?;
+        check_deadline_applies(s)?;
         let parts = model_parts(s, ts, extra_delay)?;
         let (n_outputs, n_inputs) = (parts.plant_u.outputs(), parts.plant_u.inputs());
         check_protocol_limits(s, &parts)?;
@@ -109,7 +114,7 @@ impl LoopDesign {
         let sensor_scan = design_sensor_scan(s, ts, extra_delay, &reference, controller)?;
         let modified_feedforward =
             feedforward_form(s, &parts.observer, controller, loop_delay_samples)?;
-        let plant = with_input_disturbance(s, &parts.plant_u, ts)?;
+        let plant = with_input_disturbance(s, &parts, ts)?;
         // The two-inertia setup turns (rad) and is driven by a current (A).
         let rotary = s.plant.model == "two-inertia";
         Ok(LoopDesign {
@@ -139,6 +144,7 @@ impl LoopDesign {
             reference_noise: s.plant.reference_noise,
             seed: s.plant.seed,
             loop_delay_samples,
+            command_deadline_s: s.command_deadline_s(),
             closed_loop,
             flexible_modes: parts.flexible_modes,
             observer_modes: parts.observer_modes,
@@ -165,4 +171,40 @@ fn reference_direction(s: &Scenario, n_outputs: usize) -> Result<Vec<f64>, Scena
             .map(|i| if i == 0 { 1.0 } else { 0.0 })
             .collect()),
     }
+}
+
+/// A command deadline needs a loop designed for it: a Kalman observer (or
+/// none) on a modal model with a fixed sensor (the scenario's own check
+/// refuses programs of one's own).
+fn check_deadline_applies(s: &Scenario) -> Result<(), ScenarioError> {
+    if s.command_deadline_s().is_none() {
+        return Ok(());
+    }
+    let refuse = |reason: String| {
+        Err(ScenarioError::new(
+            &s.source,
+            Some("loop.command_deadline_us"),
+            reason,
+        ))
+    };
+    if s.plant.model == "double-integrator" {
+        return refuse(
+            "the double integrator's state feedback is placed for one sample of delay; \
+             a deadline needs a modal model"
+                .into(),
+        );
+    }
+    if !matches!(s.observer.design.as_str(), "kalman" | "none") {
+        return refuse(format!(
+            "observer.design = \"{}\" is designed for one sample of delay; \
+             a deadline needs \"kalman\" or \"none\"",
+            s.observer.design
+        ));
+    }
+    if s.plant.sensor_scan.is_some() {
+        return refuse(
+            "a scanned sensor's scheduled observer is designed for one sample of delay".into(),
+        );
+    }
+    Ok(())
 }

@@ -246,7 +246,7 @@ pub fn kalman_options(
         q_nu,
         weights,
         extra_delay_samples: extra_delay,
-        command_deadline: None,
+        command_deadline: s.command_deadline_s(),
     })
 }
 

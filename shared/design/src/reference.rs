@@ -161,18 +161,24 @@ fn scan_index(t: f64, repeat_s: f64) -> (u64, f64) {
 
 impl Reference {
     /// The profile of `s.reference` (a scan checked for its lead-in and repeat).
+    /// With a command deadline τ_d the profile starts τ_d later: each
+    /// command acts from t_k + τ_d, and so the profile's switching instants
+    /// (the snap's steps, on the sample grid from `start_s`) fall on that
+    /// actuation grid; evaluated at t_k + τ_d the feedforward then switches
+    /// exactly when the profile does, rather than τ_d late (docs/deadline.md).
     pub fn from_scenario(s: &Scenario) -> Result<Self, ScenarioError> {
         let r = &s.reference;
+        let start_s = r.start_s + s.command_deadline_s().unwrap_or(0.0);
         Ok(match r.shape.as_str() {
             "hold" => Reference::Hold,
             "step" => Reference::Step {
                 amplitude: r.amplitude,
-                start_s: r.start_s,
+                start_s,
             },
             "sine" => Reference::Sine {
                 amplitude: r.amplitude,
                 omega: 2.0 * PI * r.frequency_hz,
-                start_s: r.start_s,
+                start_s,
             },
             "scan" => {
                 let ts = 1.0 / s.timing.rate_hz;
@@ -210,7 +216,7 @@ impl Reference {
                 };
                 Reference::Scan {
                     setpoint: Box::new(setpoint),
-                    start_s: r.start_s,
+                    start_s,
                     repeat_s: r.repeat_s,
                     scale,
                 }

@@ -520,3 +520,66 @@ fn a_repeating_scan_is_checked_over_one_period_with_the_same_peak() {
         "{horizon}"
     );
 }
+
+/// `loop.command_deadline_us`: inside the period, without an extra sample
+/// of delay, and only where the design can use it; each refusal names the
+/// field and says why.
+#[test]
+fn a_command_deadline_is_refused_where_it_cannot_act() {
+    let with = |text: &str, deadline: &str| {
+        text.replace(
+            "rate_hz = 10000\n",
+            &format!("rate_hz = 10000\n{deadline}\n"),
+        )
+    };
+    for (text, reason) in [
+        (
+            with(THESIS, "command_deadline_us = 0.0"),
+            "strictly between 0",
+        ),
+        (
+            with(THESIS, "command_deadline_us = -5.0"),
+            "strictly between 0",
+        ),
+        (
+            with(THESIS, "command_deadline_us = 100.0"),
+            "sample period 100 µs",
+        ),
+        (
+            with(THESIS, "command_deadline_us = 30.0")
+                .replace("[controller]\n", "[controller]\nextra_delay_samples = 1\n"),
+            "extra sample",
+        ),
+        (
+            with(LECTURE, "command_deadline_us = 30.0"),
+            "placed for one sample of delay",
+        ),
+        (
+            with(THESIS, "command_deadline_us = 30.0").replace(
+                "design = \"kalman\"",
+                "design = \"io\"\ncorrection = \"observer-based\"",
+            ),
+            "observer.design = \"io\"",
+        ),
+        (
+            with(THESIS, "command_deadline_us = 30.0")
+                .replace("[observer]\n", "[observer]\nexec = [\"./my-observer\"]\n"),
+            "observer.exec",
+        ),
+    ] {
+        let e = design(&text).unwrap_err();
+        assert_eq!(e.field.as_deref(), Some("loop.command_deadline_us"), "{e}");
+        assert!(e.reason.contains(reason), "{e}");
+    }
+    // At the deadline the design is the two-piece plant and counts on it.
+    let d = design(&with(THESIS, "command_deadline_us = 30.0")).unwrap();
+    assert_eq!(d.command_deadline_s, Some(30e-6));
+    let one = design(THESIS).unwrap();
+    assert_eq!(one.command_deadline_s, None);
+    assert!(d.plant.d[(0, 0)] != 0.0 && one.plant.d.amax() == 0.0);
+    assert_eq!(
+        d.plant.b.column(1),
+        one.plant.b.column(1),
+        "w: whole samples"
+    );
+}

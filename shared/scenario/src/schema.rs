@@ -75,6 +75,11 @@ pub struct LoopSection {
     /// Seconds of loop time; 0 runs until stopped.
     #[serde(default = "default_duration")]
     pub duration_s: f64,
+    /// The command deadline τ_d [µs]: each command u_c(k), computed from
+    /// y(k), acts from t_k + τ_d if it was sent by then, and the design
+    /// counts on that (docs/deadline.md). None: one whole sample of loop
+    /// delay, u_c(k) acting from t_{k+1}.
+    pub command_deadline_us: Option<f64>,
 }
 
 fn default_rate() -> f64 {
@@ -798,6 +803,11 @@ impl Scenario {
 
     pub fn period_ns(&self) -> u64 {
         (1e9 / self.timing.rate_hz).round() as u64
+    }
+
+    /// The command deadline τ_d in seconds, if the scenario sets one.
+    pub fn command_deadline_s(&self) -> Option<f64> {
+        self.timing.command_deadline_us.map(|us| us / 1e6)
     }
 
     /// Ticks to run; `None` runs until stopped.

@@ -30,6 +30,12 @@ pub fn swap_conflicts(running: &Scenario, new: &Scenario, swapped: Swapped) -> V
     // The plant's clock: the sample period every block was discretised for.
     check("loop.rate_hz", running.timing.rate_hz != new.timing.rate_hz);
     check("loop.mode", running.timing.mode != new.timing.mode);
+    // When each command starts to act: the plant's integration and every
+    // block's design.
+    check(
+        "loop.command_deadline_us",
+        running.timing.command_deadline_us != new.timing.command_deadline_us,
+    );
     // (loop.duration_s is the plant's alone: it ends the run.)
     plant_conflicts(&running.plant, &new.plant, &mut check);
     // The same file name next to another scenario is another file, and the

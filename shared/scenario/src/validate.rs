@@ -7,6 +7,48 @@ use crate::schema::{DEDICATED_CORES_MIN_CPUS, MODELS, Profile, SENSOR_POSITION_M
 use crate::{ScenarioError, limits};
 
 impl Scenario {
+    /// `loop.command_deadline_us`: inside the period, and only where the
+    /// loop can use it (issue 20, docs/deadline.md); what the design cannot
+    /// use it for (the model, the observer) the design step refuses.
+    fn validate_command_deadline(&self) -> Result<(), ScenarioError> {
+        let Some(deadline) = self.timing.command_deadline_us else {
+            return Ok(());
+        };
+        let field = "loop.command_deadline_us";
+        let period_us = 1e6 / self.timing.rate_hz;
+        if !(deadline.is_finite() && deadline > 0.0 && deadline < period_us) {
+            return Err(self.err(
+                field,
+                format!(
+                    "must lie strictly between 0 and the sample period {} µs, got {}",
+                    number(period_us),
+                    number(deadline)
+                ),
+            ));
+        }
+        if self.controller.extra_delay_samples > 0 {
+            return Err(self.err(
+                field,
+                "a command applied on arrival cannot also wait an extra sample: \
+                 remove controller.extra_delay_samples or the deadline",
+            ));
+        }
+        for (role, exec) in [
+            ("controller", &self.controller.exec),
+            ("observer", &self.observer.exec),
+        ] {
+            if exec.is_some() {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "{role}.exec runs a program of one's own, written for one sample of delay"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     pub(crate) fn err(&self, field: &str, reason: impl Into<String>) -> ScenarioError {
         ScenarioError::new(&self.source, Some(field), reason)
     }
@@ -14,6 +56,9 @@ impl Scenario {
     /// Checks ranges and consistency; the design step checks the maths.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         self.validate_name()?;
+        // Before the programs are looked for: a program is refused with a
+        // deadline whether it exists or not.
+        self.validate_command_deadline()?;
         self.validate_program()?;
         let (rate_min, rate_max) = limits::RATE_HZ;
         self.within(

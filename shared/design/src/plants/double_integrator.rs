@@ -95,6 +95,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         feedback: FeedbackPlan::Mass(m),
         output_names: vec!["y".into()],
         plant_u: plant,
+        continuous_plant: continuous,
         flexible_modes: Vec::new(),
         observer_modes,
     })

@@ -17,6 +17,8 @@ pub mod thesis_chain;
 use crate::feedback::FeedbackPlan;
 use crate::feedforward::FeedforwardPlan;
 use crate::observer::OutputPrediction;
+use flexloop_control::continuous::ContinuousStateSpace;
+use flexloop_control::discretise::{zoh, zoh_split};
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::observer_block::ObserverBlock;
 use flexloop_scenario::schema::MODELS;
@@ -25,8 +27,12 @@ use nalgebra::DMatrix;
 
 /// The parts every model branch produces.
 pub struct Parts {
-    /// Inputs u (the commands), outputs the true y.
+    /// Inputs u (the commands), outputs the true y: the exact ZOH of
+    /// `continuous_plant`, or with a command deadline its two-piece
+    /// integration in the delayed-input form ([`model_parts`]).
     pub plant_u: DiscreteStateSpace,
+    /// The plant in continuous time, what `plant_u` samples.
+    pub continuous_plant: ContinuousStateSpace,
     pub observer: ObserverBlock,
     pub output_prediction: OutputPrediction,
     pub feedforward: FeedforwardPlan,
@@ -38,6 +44,29 @@ pub struct Parts {
 
 /// The parts of the model `plant.model` names.
 pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
+    let mut parts = model_parts_one_sample(s, ts, extra_delay)?;
+    if let Some(tau) = s.command_deadline_s() {
+        // The observer reads the deadline from the scenario itself
+        // (`observer::kalman_options`); the plant is sampled in two pieces.
+        let sys = &parts.continuous_plant;
+        parts.plant_u = zoh_split(sys, ts, tau)
+            .and_then(|split| split.delayed_input_form(&sys.c, &sys.d, ts))
+            .map_err(|e| {
+                ScenarioError::new(
+                    &s.source,
+                    Some("loop.command_deadline_us"),
+                    format!("two-piece sampling: {e}"),
+                )
+            })?;
+    }
+    Ok(parts)
+}
+
+fn model_parts_one_sample(
+    s: &Scenario,
+    ts: f64,
+    extra_delay: usize,
+) -> Result<Parts, ScenarioError> {
     match s.plant.model.as_str() {
         "double-integrator" => double_integrator::parts(s, ts, extra_delay),
         "thesis-chain" => thesis_chain::parts(s, ts, extra_delay),
@@ -57,16 +86,29 @@ pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, S
 }
 
 /// `plant_u` with a force disturbance w on every input: inputs `[u; w]`.
+/// w is a force held over whole samples (its B is the plain ZOH's); with a
+/// command deadline u acts through the delayed-input form, whose output
+/// depends on the input present at the tick (D = C G_new).
 pub fn with_input_disturbance(
     s: &Scenario,
-    plant_u: &DiscreteStateSpace,
+    parts: &Parts,
     ts: f64,
 ) -> Result<DiscreteStateSpace, ScenarioError> {
+    let plant_u = &parts.plant_u;
     let b_u = &plant_u.b;
     let mut b_plant = DMatrix::zeros(b_u.nrows(), 2 * b_u.ncols());
     b_plant.columns_mut(0, b_u.ncols()).copy_from(b_u);
-    b_plant.columns_mut(b_u.ncols(), b_u.ncols()).copy_from(b_u);
-    let d_plant = DMatrix::zeros(plant_u.outputs(), 2 * b_u.ncols());
+    let mut d_plant = DMatrix::zeros(plant_u.outputs(), 2 * b_u.ncols());
+    if s.command_deadline_s().is_some() {
+        let plain = zoh(&parts.continuous_plant, ts)
+            .map_err(|e| ScenarioError::new(&s.source, Some("plant"), format!("ZOH: {e}")))?;
+        b_plant
+            .columns_mut(b_u.ncols(), b_u.ncols())
+            .copy_from(&plain.b);
+        d_plant.columns_mut(0, b_u.ncols()).copy_from(&plant_u.d);
+    } else {
+        b_plant.columns_mut(b_u.ncols(), b_u.ncols()).copy_from(b_u);
+    }
     DiscreteStateSpace::new(plant_u.a.clone(), b_plant, plant_u.c.clone(), d_plant, ts)
         .map_err(|e| ScenarioError::new(&s.source, Some("plant"), format!("plant model: {e}")))
 }

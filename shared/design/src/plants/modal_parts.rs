@@ -124,6 +124,7 @@ pub fn modal_parts(
         })?;
     Ok(Parts {
         plant_u,
+        continuous_plant: full.state_space(),
         observer,
         output_prediction,
         feedforward,
