@@ -348,6 +348,12 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         "  tick {}, samples {}, misses {}, late commands {}, stalled ticks {}, stale estimates {}, log gaps {}",
         t.seq, t.samples, t.misses, t.late_commands, t.stalled_ticks, t.stale_estimates, t.gaps
     );
+    if let Some(us) = command_deadline_us(&run_dir) {
+        println!(
+            "  command deadline tau_d {us} us: its misses are commands sent after t_k + tau_d \
+             (the plant held its input for that sample); docs/deadline.md"
+        );
+    }
     let fmt = |v: [u64; 6]| {
         QUANTILE_LABELS
             .iter()
@@ -369,6 +375,14 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
     println!("  {}", grid.late_components(t.stale_estimates));
     println!("  verdict: {}", grid.verdict());
     Ok(grid.stalls_dominate())
+}
+
+/// `loop.command_deadline_us` of the run's scenario, if it sets one (a
+/// deadline cannot change while the loop runs: a swap refuses it).
+fn command_deadline_us(run_dir: &RunDir) -> Option<f64> {
+    let text = std::fs::read_to_string(run_dir.scenario_copy()).ok()?;
+    let table: toml::Table = toml::from_str(&text).ok()?;
+    table.get("loop")?.get("command_deadline_us")?.as_float()
 }
 
 /// The loop's processes and their duties, from the supervisor's list.
