@@ -118,6 +118,7 @@ fn latency(
             &format!("one-sample budget ({budget_us:.0} µs)"),
             RED,
         );
+        deadline_line(&mut figure, data);
     }
     figure.empty_note = "no histograms in the latency log".into();
     let file = if budget {
@@ -209,6 +210,7 @@ pub fn tick_timing(data: &RunData) -> Plot {
         &format!("one-sample budget ({budget_us:.0} µs)"),
         RED,
     );
+    deadline_line(&mut figure, data);
     let marks = |pick: fn(&flexloop_analysis::trace::TickTiming) -> bool| -> Vec<f64> {
         timing
             .iter()
@@ -528,5 +530,14 @@ mod tests {
         assert_eq!(points[3].0, 2.0);
         assert!(points[3].1.is_nan(), "a break before tick 5");
         assert_eq!(points[4], (2.5, 5.0));
+    }
+}
+
+/// With a command deadline τ_d, the line u(k) must stay below to act at
+/// t_k + τ_d (docs/deadline.md); a command above it was a deadline miss.
+fn deadline_line(figure: &mut Figure, data: &RunData) {
+    if let Some(tau) = data.run.design.command_deadline_s {
+        let us = tau * 1e6;
+        figure.hline(us, &format!("command deadline τ_d ({us:.0} µs)"), ORANGE);
     }
 }
