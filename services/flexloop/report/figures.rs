@@ -517,6 +517,15 @@ fn flexible_caption(c: &FlexibleComparison, length: super::Length) -> String {
     )
 }
 
+/// With a command deadline τ_d, the line u(k) must stay below to act at
+/// t_k + τ_d (docs/deadline.md); a command above it was a deadline miss.
+fn deadline_line(figure: &mut Figure, data: &RunData) {
+    if let Some(tau) = data.run.design.command_deadline_s {
+        let us = tau * 1e6;
+        figure.hline(us, &format!("command deadline τ_d ({us:.0} µs)"), ORANGE);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -530,14 +539,5 @@ mod tests {
         assert_eq!(points[3].0, 2.0);
         assert!(points[3].1.is_nan(), "a break before tick 5");
         assert_eq!(points[4], (2.5, 5.0));
-    }
-}
-
-/// With a command deadline τ_d, the line u(k) must stay below to act at
-/// t_k + τ_d (docs/deadline.md); a command above it was a deadline miss.
-fn deadline_line(figure: &mut Figure, data: &RunData) {
-    if let Some(tau) = data.run.design.command_deadline_s {
-        let us = tau * 1e6;
-        figure.hline(us, &format!("command deadline τ_d ({us:.0} µs)"), ORANGE);
     }
 }
