@@ -3,17 +3,18 @@
 //! to the whole period (one sample of delay): the largest f_bw meeting the
 //! 6 dB rule with the scenario's loop redesigned for that deadline, on the
 //! scenario's outputs and, for the thesis chain's cases, on y1..y7 as the
-//! thesis' rule (3.2) holds it; next to it, from a recorded run, the share
-//! of commands that came later than τ_d after their tick (`tick_to_command`),
-//! and the smallest τ_d whose share stays under 1e-4.
+//! thesis' rule (3.2) holds it; next to it, from a recorded realtime run,
+//! the share of commands sent later than τ_d after their tick (the loop's
+//! own: commands of ticks the plant woke late for are the machine's stalls
+//! and left out), and the smallest τ_d whose share stays under 1e-4.
 
 use anyhow::Context;
-use flexloop_analysis::latency_log::LatencyLog;
 use flexloop_analysis::loop_report::largest_bandwidth;
 use flexloop_analysis::thesis_design::{DesignCase, ThesisDesignSpec, evaluate_design_case};
+use flexloop_components::{LogReader, Record};
 use flexloop_design::LoopDesign;
 use flexloop_design::plants::thesis_chain::{chain_mass, chain_modal};
-use flexloop_runtime::latency::Metric;
+use flexloop_protocol::flags;
 use flexloop_scenario::Scenario;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -50,6 +51,9 @@ pub struct DeadlineSweep {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub latency_run: Option<String>,
     pub commands: u64,
+    /// Commands of ticks the plant woke late for (the machine's stalls,
+    /// not the loop's latency), left out of the shares.
+    pub after_stalls: u64,
     /// The smallest τ_d whose late share stays under [`MISS_RATE_BUDGET`].
     pub recommended_deadline_us: Option<f64>,
 }
@@ -58,14 +62,7 @@ pub struct DeadlineSweep {
 pub fn sweep(s: &Scenario, latency: Option<&Path>) -> anyhow::Result<DeadlineSweep> {
     let period_s = 1.0 / s.timing.rate_hz;
     let measured = match latency {
-        Some(dir) => {
-            let log = LatencyLog::read_run(dir)?;
-            let name = Metric::TickToCommand.name();
-            let histogram = log.histograms.get(name).cloned().with_context(|| {
-                format!("{}: the run's latency log has no {name}", dir.display())
-            })?;
-            Some((dir.display().to_string(), histogram))
-        }
+        Some(dir) => Some((dir.display().to_string(), CommandTimes::read(dir)?)),
         None => None,
     };
     let case = study_case(s);
@@ -83,10 +80,9 @@ pub fn sweep(s: &Scenario, latency: Option<&Path>) -> anyhow::Result<DeadlineSwe
             Some(case) => thesis_rule_bandwidth(&at, case, period_s, deadline_s)?,
             None => None,
         };
-        let late_share = measured.as_ref().map(|(_, h)| {
-            let within = h.count_between(0, (deadline_s * 1e9) as u64);
-            (h.len() - within) as f64 / h.len().max(1) as f64
-        });
+        let late_share = measured
+            .as_ref()
+            .map(|(_, times)| times.share_later_than((deadline_s * 1e9) as u64));
         rows.push(DeadlineRow {
             deadline_us: deadline_s * 1e6,
             largest_bandwidth_hz: largest,
@@ -102,10 +98,75 @@ pub fn sweep(s: &Scenario, latency: Option<&Path>) -> anyhow::Result<DeadlineSwe
     Ok(DeadlineSweep {
         period_us: period_s * 1e6,
         rows,
-        commands: measured.as_ref().map_or(0, |(_, h)| h.len()),
+        commands: measured.as_ref().map_or(0, |(_, t)| t.ours.len() as u64),
+        after_stalls: measured.as_ref().map_or(0, |(_, t)| t.after_stalls),
         latency_run: measured.map(|(dir, _)| dir),
         recommended_deadline_us,
     })
+}
+
+/// When each recorded command was sent after its tick, from a run's sample
+/// files: the loop's own (ticks the plant kept), and how many commands
+/// answered a tick the plant itself woke late for (the machine's stalls,
+/// counted apart as `flexloop bench` counts misses after stalls).
+struct CommandTimes {
+    ours: Vec<u64>,
+    after_stalls: u64,
+}
+
+impl CommandTimes {
+    fn read(dir: &Path) -> anyhow::Result<Self> {
+        let run_dir = flexloop_runfiles::RunDir::new(dir);
+        let files = run_dir.sample_files();
+        anyhow::ensure!(
+            !files.is_empty(),
+            "{}: no sample file (is it a run directory?)",
+            dir.display()
+        );
+        // Per sequence number: the tick's time and whether the plant woke
+        // late for it; each command's publication.
+        let mut ticks: std::collections::HashMap<u64, (u64, bool)> = Default::default();
+        let mut sent: Vec<(u64, u64)> = Vec::new();
+        for (_, file) in files {
+            let log = LogReader::scan(&file, |r| match r {
+                Record::Measurement(m) => {
+                    ticks.insert(m.seq, (m.tick_ns, m.flags & flags::STALLED_TICK != 0));
+                }
+                Record::Command(c) => sent.push((c.seq, c.published_ns)),
+                Record::Estimate(_) => {}
+            })
+            .with_context(|| file.display().to_string())?;
+            anyhow::ensure!(
+                log.metadata.get("mode").is_none_or(|m| m == "realtime"),
+                "{}: a lockstep run has no command times to judge a deadline by",
+                file.display()
+            );
+        }
+        let mut times = Self {
+            ours: Vec::with_capacity(sent.len()),
+            after_stalls: 0,
+        };
+        for (seq, published) in sent {
+            match ticks.get(&seq) {
+                Some((_, true)) => times.after_stalls += 1,
+                Some((tick, false)) => times.ours.push(published.saturating_sub(*tick)),
+                None => {}
+            }
+        }
+        times.ours.sort_unstable();
+        anyhow::ensure!(
+            !times.ours.is_empty(),
+            "{}: no command with its tick in the sample files",
+            dir.display()
+        );
+        Ok(times)
+    }
+
+    /// The share of the loop's commands sent later than `ns` after their tick.
+    fn share_later_than(&self, ns: u64) -> f64 {
+        let within = self.ours.partition_point(|t| *t <= ns);
+        (self.ours.len() - within) as f64 / self.ours.len() as f64
+    }
 }
 
 /// The thesis study's case this scenario's loop is, if it is one (the
@@ -211,8 +272,10 @@ impl DeadlineSweep {
                 let _ = writeln!(
                     s,
                     "  recommended: tau_d = {us:.0} us, the smallest whose share of late \
-                     commands in {run} ({} commands) stays under {MISS_RATE_BUDGET:e}{}",
+                     commands in {run} ({} commands; {} after the machine's stalls left out) \
+                     stays under {MISS_RATE_BUDGET:e}{}",
                     self.commands,
+                    self.after_stalls,
                     f_bw.map_or_else(String::new, |hz| format!("; it allows f_bw {hz:.1} Hz"))
                 );
                 if (self.commands as f64) * MISS_RATE_BUDGET < 10.0 {
