@@ -298,3 +298,19 @@ impl DeadlineSweep {
         s
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shares_count_the_commands_later_than_the_deadline() {
+        let times = CommandTimes {
+            ours: vec![10_000, 20_000, 30_000, 40_000],
+            after_stalls: 3,
+        };
+        assert_eq!(times.share_later_than(5_000), 1.0);
+        assert_eq!(times.share_later_than(30_000), 0.25);
+        assert_eq!(times.share_later_than(40_000), 0.0);
+    }
+}

@@ -139,3 +139,66 @@ fn auto_bandwidth_is_resolved_once_and_shown() {
     assert!(!err.contains("flexloop: warning"), "{err}");
     assert_clean(&run);
 }
+
+/// `design --deadline-sweep`: the largest f_bw against the command
+/// deadline, on y5 and, for a thesis case, on y1..y7 (issue 20's table at
+/// 30 µs and one sample); a lockstep run has no command times to judge a
+/// deadline by, and a deadline scenario's own report says when its
+/// commands act.
+#[test]
+fn the_deadline_sweep_tables_what_each_deadline_buys() {
+    let mut cmd = flexloop();
+    cmd.args(["design", "--json", "--deadline-sweep"])
+        .arg(scenario("thesis-mc-ad-redesigned"));
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = report["deadline_sweep"]["rows"].as_array().unwrap();
+    let deadlines: Vec<f64> = rows
+        .iter()
+        .map(|r| r["deadline_us"].as_f64().unwrap())
+        .collect();
+    assert_eq!(deadlines.len(), 10);
+    assert!((deadlines[2] - 30.0).abs() < 1e-9 && (deadlines[9] - 100.0).abs() < 1e-9);
+    let y1_y7: Vec<f64> = rows
+        .iter()
+        .map(|r| r["largest_bandwidth_y1_y7_hz"].as_f64().unwrap())
+        .collect();
+    assert_eq!((y1_y7[2], y1_y7[9]), (62.0, 43.5), "{y1_y7:?}");
+    assert!(y1_y7.windows(2).all(|w| w[0] >= w[1]), "{y1_y7:?}");
+    assert_eq!(
+        report["loop"]["largest_bandwidth_hz"], rows[9]["largest_bandwidth_hz"],
+        "the one-sample row is the scenario's own loop"
+    );
+    assert!(report["deadline_sweep"]["recommended_deadline_us"].is_null());
+
+    let dir = temp_dir("deadline-sweep-lockstep");
+    let mut run = flexloop();
+    run.args([
+        "run",
+        "lecture-double-integrator",
+        "--mode",
+        "lockstep",
+        "--no-realtime",
+    ])
+    .arg("--run-dir")
+    .arg(dir.join("run"));
+    let out = run_bounded(run, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let mut cmd = flexloop();
+    cmd.args(["design", "--deadline-sweep", "--latency"])
+        .arg(dir.join("run"))
+        .arg(scenario("thesis-mc-ad-redesigned"));
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("samples.mcap") && err.contains("lockstep"),
+        "{err}"
+    );
+
+    let own = design_json(&scenario("thesis-mc-ad-deadline-30us"));
+    assert_eq!(own["loop"]["command_deadline_us"], 30.0);
+    assert_eq!(own["loop"]["pid_bandwidth_hz"], 62.0);
+    assert_eq!(own["loop"]["meets_6db_rule"], true, "{}", own["loop"]);
+}
