@@ -103,6 +103,23 @@ fn thesis_extra_delay_does_not_allocate() {
     assert_eq!(l.plant.counters.misses, 0);
 }
 
+#[test]
+fn a_command_applied_on_arrival_does_not_allocate() {
+    // The plant's two-piece sample (the held input through D = C G_new),
+    // the observer's estimate at t_k + τ_d, the feedforward at that instant.
+    let mut s = with_noise();
+    s.timing.command_deadline_us = Some(30.0);
+    s.validate().unwrap();
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    assert_eq!(design.command_deadline_s, Some(30e-6));
+    let (l, [u_ff, u_d, y_flex]) = run_guarded(&design);
+    assert!(
+        u_ff > 0.0 && u_d > 0.0 && y_flex > 0.0,
+        "{u_ff} {u_d} {y_flex}"
+    );
+    assert_eq!(l.plant.counters.misses, 0);
+}
+
 fn shipped(name: &str) -> Scenario {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../scenarios")
