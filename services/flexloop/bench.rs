@@ -276,10 +276,10 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
     };
     // With a command deadline the plant's misses are against t_k + τ_d
     // (docs/deadline.md); the one-sample count stays beside them.
-    let (due, budget, miss_kind) = match scenario.command_deadline_s() {
-        Some(tau) => (
-            format!("t_k + {:.0} µs (its deadline)", tau * 1e6),
-            format!("its command deadline of {:.0} µs", tau * 1e6),
+    let (due, budget, miss_kind) = match scenario.timing.command_deadline_us {
+        Some(us) => (
+            format!("t_k + {us} µs (its deadline)"),
+            format!("its command deadline of {us} µs"),
             "deadline misses",
         ),
         None => (

@@ -72,17 +72,23 @@ pub fn sweep(s: &Scenario, latency: Option<&Path>) -> anyhow::Result<DeadlineSwe
         let mut at = s.clone();
         // A whole period is the one-sample loop (a deadline must lie inside it).
         at.timing.command_deadline_us = (tenth < 10).then_some(deadline_s * 1e6);
-        let (largest, note) = match LoopDesign::from_scenario(&at) {
-            Ok(design) => largest_bandwidth(&at, &design),
-            Err(e) => (None, Some(e.reason)),
-        };
-        let y1_y7 = match case {
-            Some(case) => thesis_rule_bandwidth(&at, case, period_s, deadline_s)?,
-            None => None,
+        // The check every command makes (the deadline's own rules among
+        // them), then the design.
+        let designed = at.validate().and_then(|()| LoopDesign::from_scenario(&at));
+        let (largest, note, y1_y7) = match designed {
+            Ok(design) => {
+                let (largest, note) = largest_bandwidth(&at, &design);
+                let y1_y7 = match case {
+                    Some(case) => thesis_rule_bandwidth(&at, case, period_s)?,
+                    None => None,
+                };
+                (largest, note, y1_y7)
+            }
+            Err(e) => (None, Some(e.reason), None),
         };
         let late_share = measured
             .as_ref()
-            .map(|(_, times)| times.share_later_than((deadline_s * 1e9) as u64));
+            .map(|(_, times)| times.share_later_than((deadline_s * 1e9).round() as u64));
         rows.push(DeadlineRow {
             deadline_us: deadline_s * 1e6,
             largest_bandwidth_hz: largest,
@@ -132,7 +138,11 @@ impl CommandTimes {
                 Record::Measurement(m) => {
                     ticks.insert(m.seq, (m.tick_ns, m.flags & flags::STALLED_TICK != 0));
                 }
-                Record::Command(c) => sent.push((c.seq, c.published_ns)),
+                // The active controller's (a standby's never act on time).
+                Record::Command(c) if c.flags & flags::STANDBY == 0 => {
+                    sent.push((c.seq, c.published_ns))
+                }
+                Record::Command(_) => {}
                 Record::Estimate(_) => {}
             })
             .with_context(|| file.display().to_string())?;
@@ -199,15 +209,17 @@ fn study_case(s: &Scenario) -> Option<DesignCase> {
     })
 }
 
-/// The case's largest f_bw on y1..y7 at this deadline, the study at the
-/// scenario's output and chain.
+/// The case's largest f_bw on y1..y7 for `s`'s loop timing (its deadline,
+/// or its loop delay), the study at the scenario's output and chain.
 fn thesis_rule_bandwidth(
     s: &Scenario,
     case: DesignCase,
     period_s: f64,
-    deadline_s: f64,
 ) -> anyhow::Result<Option<f64>> {
-    let mut spec = ThesisDesignSpec::on_arrival(period_s, deadline_s);
+    let mut spec = match s.command_deadline_s() {
+        Some(tau) => ThesisDesignSpec::on_arrival(period_s, tau),
+        None => ThesisDesignSpec::discrete(period_s, 1 + s.controller.extra_delay_samples as usize),
+    };
     spec.output = s.plant.output;
     spec.cases = vec![case];
     spec = spec.with_chain(chain_modal(s)?, chain_mass(s));

@@ -382,7 +382,10 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
 fn command_deadline_us(run_dir: &RunDir) -> Option<f64> {
     let text = std::fs::read_to_string(run_dir.scenario_copy()).ok()?;
     let table: toml::Table = toml::from_str(&text).ok()?;
-    table.get("loop")?.get("command_deadline_us")?.as_float()
+    let value = table.get("loop")?.get("command_deadline_us")?;
+    value
+        .as_float()
+        .or_else(|| value.as_integer().map(|us| us as f64))
 }
 
 /// The loop's processes and their duties, from the supervisor's list.

@@ -71,6 +71,9 @@ fn a_command_applied_on_arrival_buys_bandwidth_and_scan_error() {
     let one_sample = scan_rms_nm(&run_lockstep("thesis-mc-ad-redesigned"));
     let at_30_us = run_lockstep("thesis-mc-ad-deadline-30us");
     let rms = scan_rms_nm(&at_30_us);
+    // Lockstep is deterministic: this loop's own figure, and the issue's
+    // model's within the gap docs/deadline.md explains.
+    assert!((rms - 2.044).abs() < 0.02 * 2.044, "{rms} nm");
     assert!((rms - 2.233).abs() < 0.1 * 2.233, "{rms} nm");
     assert!(rms < 0.9 * one_sample, "{rms} nm against {one_sample} nm");
     assert_eq!(

@@ -54,9 +54,13 @@ pub fn fit_from_run(design: &LoopDesign, trace: &RunTrace) -> Result<FittedFeedf
         let mut modified = design.modified_feedforward.clone().map(LtiRunner::new);
         let mut modified_input = vec![0.0; modified.as_ref().map_or(0, |m| m.system().inputs())];
         for (k, out) in response.iter_mut().enumerate() {
-            let d = design
-                .reference
-                .sample((k as u64 + delay) as f64 * design.ts);
+            // At the instant the command acts (the controller's
+            // `fill_feedforward_input`): a loop delay on, or t_k + τ_d.
+            let t = match design.command_deadline_s {
+                Some(tau) => k as f64 * design.ts + tau,
+                None => (k as u64 + delay) as f64 * design.ts,
+            };
+            let d = design.reference.sample(t);
             // Regressor order [snap, jerk, acc, vel].
             let u0 = [d[4], d[3], d[2], d[1]][basis];
             input[u_ff_index] = match &mut modified {

@@ -136,6 +136,23 @@ impl FlexibleComparison {
         }
 
         let b_u = plant.b.column(0).into_owned();
+        // With a command deadline the plant runs z = x − G_new u_a and the
+        // observer's x̂ is ẑ: both are moved back by G_new u_a(k), the input
+        // present at t_k (docs/deadline.md); the observer's by its MC row's
+        // direct gain on u_a, C_f G_new (zero without a deadline).
+        let g_new = design
+            .plant_g_new
+            .as_ref()
+            .map_or_else(|| DVector::zeros(n), |g| g.column(0).into_owned());
+        let ny = design.n_outputs;
+        let predicted_from_u = design
+            .observer
+            .system
+            .d
+            .get((0, ny))
+            .copied()
+            .unwrap_or(0.0);
+        let mut z = DVector::<f64>::zeros(n);
         let mut x = DVector::<f64>::zeros(n);
         let mut next = DVector::<f64>::zeros(n);
         let mut out = Self {
@@ -150,6 +167,8 @@ impl FlexibleComparison {
         };
         let mut residual_sq = 0.0;
         for (i, row) in trace.rows[..contiguous].iter().enumerate() {
+            x.copy_from(&z);
+            x.axpy(row.u_applied, &g_new, 1.0);
             let rigid: f64 = (0..n_rigid).map(|j| plant.c[(0, j)] * x[j]).sum();
             let modelled: f64 = (n_rigid..shared).map(|j| plant.c[(0, j)] * x[j]).sum();
             let left_out: f64 = (shared..n).map(|j| plant.c[(0, j)] * x[j]).sum();
@@ -158,15 +177,20 @@ impl FlexibleComparison {
             out.time_s.push(trace.time(row));
             out.true_flexible.push(flexible);
             out.true_modelled.push(modelled);
-            out.predicted
-                .push(c_f.iter().zip(trace.x_hat(i)).map(|(c, x)| c * x).sum());
+            out.predicted.push(
+                c_f.iter()
+                    .zip(trace.x_hat(i))
+                    .map(|(c, x)| c * x)
+                    .sum::<f64>()
+                    + predicted_from_u * row.u_applied,
+            );
             if let Some(c) = &mut out.compensation {
                 c.push(row.y + row.e_meas - row.r);
             }
-            // x(k+1) = A x(k) + B_u u_a(k).
-            next.gemv(1.0, &plant.a, &x, 0.0);
+            // z(k+1) = A z(k) + B_u u_a(k) (z = x without a deadline).
+            next.gemv(1.0, &plant.a, &z, 0.0);
             next.axpy(row.u_applied, &b_u, 1.0);
-            std::mem::swap(&mut x, &mut next);
+            std::mem::swap(&mut z, &mut next);
         }
         out.residual_rms = (residual_sq / contiguous.max(1) as f64).sqrt();
         Ok(out)

@@ -132,3 +132,18 @@ fn without_active_damping_the_modes_keep_their_own_damping() {
         );
     }
 }
+
+/// With each command applied on arrival (issue 20) the fit takes its
+/// regressors at the instant the command acts, t_k + τ_d, as the
+/// controller does: fitted from the mass alone, the 30 µs MC case scans
+/// as with its shipped gains, and the fit finds the rigid mass.
+#[test]
+fn the_feedforward_fit_holds_with_a_command_deadline() {
+    let (fitted, acc, _, _) = fitted_scan_rms("thesis-mc-deadline-30us");
+    let shipped = scan_rms_as_shipped("thesis-mc-deadline-30us");
+    assert!(
+        (fitted - shipped).abs() < 0.02 * shipped,
+        "{fitted} vs {shipped} nm"
+    );
+    assert!((acc - 12.5).abs() < 1e-3, "Θ_acc {acc}");
+}

@@ -391,7 +391,8 @@ impl PlantCore {
         }
     }
 
-    /// The input that will be applied over the current interval.
+    /// The input that will be applied over the current interval (with a
+    /// command deadline: until t_k + τ_d, when the next command may take over).
     pub fn held_input(&self) -> &[f64] {
         &self.held[..self.n_inputs]
     }

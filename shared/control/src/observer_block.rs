@@ -1,7 +1,11 @@
 //! The observer block of the loop: one [`DiscreteStateSpace`] that holds a
 //! predictor-form observer plus its measurement-compensation (MC) and
 //! active-damping (AD) outputs, timed for one sample of loop delay
-//! (docs/control.md §3 "Synchronization", §5, §10.1).
+//! (docs/control.md §3 "Synchronization", §5, §10.1). What follows is that
+//! block ([`compile_observer_block`]); a block for commands applied on
+//! arrival ([`compile_observer_block_on_arrival`], docs/deadline.md) keeps
+//! the layout, but u_a(k) is the input present at t_k, ŷ_flex has a direct
+//! gain on it and u_d comes from the estimate at t_k + τ_d.
 //!
 //! # Layout
 //! Inputs, per tick k:
@@ -137,8 +141,6 @@ pub fn compile_observer_block(
 /// the plant's state at the instants MC and AD need.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OnArrival {
-    /// τ [s]: where in the period the command starts to act.
-    pub deadline_s: f64,
     /// G_new (n_o × n_u): x̂ = ẑ + G_new u_a.
     pub g_new: DMatrix<f64>,
     /// e^{A τ} (n_o × n_o) and ∫₀^τ e^{As} ds B (n_o × n_u) of the model:
@@ -446,7 +448,6 @@ fn on_arrival_pieces(
     let mut gamma_tau = DMatrix::zeros(n_o, nu);
     gamma_tau.view_mut((0, 0), (n, nu)).copy_from(&gamma);
     Ok(OnArrival {
-        deadline_s: tau,
         g_new,
         e_tau,
         gamma_tau,

@@ -13,6 +13,7 @@ use crate::pid_bandwidth::{self, PidBandwidthChoice};
 use crate::plants::{model_parts, with_input_disturbance};
 use crate::reference::{Derivatives, Reference};
 use crate::sensor_scan::{SensorScan, design_sensor_scan};
+use flexloop_control::discretise::zoh_split;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::observer_block::ObserverBlock;
 use flexloop_scenario::{Scenario, ScenarioError};
@@ -68,6 +69,11 @@ pub struct LoopDesign {
     /// (`loop.command_deadline_us`, docs/deadline.md); `plant` and the
     /// blocks are then in the delayed-input form. None: one sample of delay.
     pub command_deadline_s: Option<f64>,
+    /// With a command deadline: G_new (plant states × inputs), the part of
+    /// the sample the input present at t_k has not yet acted over; `plant`
+    /// runs z = x − G_new u_a, so the plant's state is x(k) = z(k) +
+    /// G_new u_a(k) (what a replay of the plant's modes needs).
+    pub plant_g_new: Option<DMatrix<f64>>,
     /// The loop as the design sees it (closed_loop module of flexloop-control):
     /// inputs `[r; n; u_ff; w]`, outputs `[e_meas; y_meas; e_true; u_c]`.
     pub closed_loop: DiscreteStateSpace,
@@ -115,6 +121,20 @@ impl LoopDesign {
         let modified_feedforward =
             feedforward_form(s, &parts.observer, controller, loop_delay_samples)?;
         let plant = with_input_disturbance(s, &parts, ts)?;
+        let plant_g_new = match s.command_deadline_s() {
+            Some(tau) => Some(
+                zoh_split(&parts.continuous_plant, ts, tau)
+                    .map_err(|e| {
+                        ScenarioError::new(
+                            &s.source,
+                            Some("loop.command_deadline_us"),
+                            format!("two-piece sampling: {e}"),
+                        )
+                    })?
+                    .g_new,
+            ),
+            None => None,
+        };
         // The two-inertia setup turns (rad) and is driven by a current (A).
         let rotary = s.plant.model == "two-inertia";
         Ok(LoopDesign {
@@ -145,6 +165,7 @@ impl LoopDesign {
             seed: s.plant.seed,
             loop_delay_samples,
             command_deadline_s: s.command_deadline_s(),
+            plant_g_new,
             closed_loop,
             flexible_modes: parts.flexible_modes,
             observer_modes: parts.observer_modes,
