@@ -96,23 +96,8 @@ pub fn compile_observer_block(
     }
     let m = &design.model;
     let (n, ny, nu) = (m.states(), m.outputs(), m.inputs());
-    check_matrix(&design.gain, "observer gain L", n, ny)?;
-    let cf = match &design.compensation {
-        Some(c) => {
-            check_matrix(c, "C_f", ny, n)?;
-            c.clone()
-        }
-        None => DMatrix::zeros(ny, n),
-    };
-    let fb = damping_block(design)?;
-    let l = &design.gain;
-    let f = &m.a - l * &m.c;
     let n_in = ny + nu * (1 + extra_delay_samples);
-    // x̂(k+1|k) = F x̂ + G_in in.
-    let mut g_in = DMatrix::zeros(n, n_in);
-    g_in.view_mut((0, 0), (n, ny)).copy_from(l);
-    g_in.view_mut((0, ny), (n, nu))
-        .copy_from(&(&m.b - l * &m.d));
+    let Predictor { cf, fb, f, g_in } = predictor(design, n_in)?;
     // The estimate fed to K(z): v = H_x x̂ + H_in in.
     let (h_x, h_in) = if extra_delay_samples == 0 {
         (f.clone(), g_in.clone())
@@ -166,26 +151,12 @@ pub fn compile_observer_block_on_arrival(
 ) -> Result<ObserverBlock, DesignError> {
     let m = &design.model;
     let (n, ny, nu) = (m.states(), m.outputs(), m.inputs());
-    check_matrix(&design.gain, "observer gain L", n, ny)?;
     check_matrix(&on_arrival.g_new, "G_new", n, nu)?;
     check_matrix(&on_arrival.e_tau, "e^{Aτ}", n, n)?;
     check_matrix(&on_arrival.gamma_tau, "Γ_τ", n, nu)?;
     check_matrix(&on_arrival.filter_gain, "filter gain M", n, ny)?;
-    let cf = match &design.compensation {
-        Some(c) => {
-            check_matrix(c, "C_f", ny, n)?;
-            c.clone()
-        }
-        None => DMatrix::zeros(ny, n),
-    };
-    let fb = damping_block(design)?;
-    let l = &design.gain;
-    let f = &m.a - l * &m.c;
     let n_in = ny + nu;
-    let mut g_in = DMatrix::zeros(n, n_in);
-    g_in.view_mut((0, 0), (n, ny)).copy_from(l);
-    g_in.view_mut((0, ny), (n, nu))
-        .copy_from(&(&m.b - l * &m.d));
+    let Predictor { cf, fb, f, g_in } = predictor(design, n_in)?;
     let (e, mg) = (&on_arrival.e_tau, &on_arrival.filter_gain);
     // v = e^{Aτ} [(I − M C) ẑ + M y + (G_new − M D) u_a] + Γ_τ u_a.
     let h_x = e * (DMatrix::identity(n, n) - mg * &m.c);
@@ -206,6 +177,37 @@ pub fn compile_observer_block_on_arrival(
         compensation_in,
     };
     assemble_block(design, &fb, parts, 0)
+}
+
+/// The pieces every block starts from: C_f (zero with MC off), K(z), and
+/// the predictor x̂(k+1|k) = F x̂ + G_in in over `n_in` block inputs (y and
+/// u_a in the first ones; later inputs enter only the damping estimate).
+struct Predictor {
+    cf: DMatrix<f64>,
+    fb: DiscreteStateSpace,
+    f: DMatrix<f64>,
+    g_in: DMatrix<f64>,
+}
+
+fn predictor(design: &ObserverDesign, n_in: usize) -> Result<Predictor, DesignError> {
+    let m = &design.model;
+    let (n, ny, nu) = (m.states(), m.outputs(), m.inputs());
+    check_matrix(&design.gain, "observer gain L", n, ny)?;
+    let cf = match &design.compensation {
+        Some(c) => {
+            check_matrix(c, "C_f", ny, n)?;
+            c.clone()
+        }
+        None => DMatrix::zeros(ny, n),
+    };
+    let fb = damping_block(design)?;
+    let l = &design.gain;
+    let f = &m.a - l * &m.c;
+    let mut g_in = DMatrix::zeros(n, n_in);
+    g_in.view_mut((0, 0), (n, ny)).copy_from(l);
+    g_in.view_mut((0, ny), (n, nu))
+        .copy_from(&(&m.b - l * &m.d));
+    Ok(Predictor { cf, fb, f, g_in })
 }
 
 /// K(z) of the design, or a zero gain (AD off).
