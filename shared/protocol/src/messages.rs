@@ -92,7 +92,8 @@ pub struct Measurement {
     pub y: [f64; MAX_OUTPUTS],
     /// Noise-free outputs, for the logger only: no controller may use them.
     pub y_true: [f64; MAX_OUTPUTS],
-    /// The input the plant applies over [t_k, t_k+1).
+    /// The input the plant applies over [t_k, t_k+1) (with a command
+    /// deadline τ_d: the input present at t_k, until t_k + τ_d; docs/deadline.md).
     pub u_applied: [f64; MAX_INPUTS],
     /// The input already accepted for [t_k+1, t_k+2): with an extra sample
     /// of loop delay the observer needs it to predict two samples ahead.
@@ -130,7 +131,9 @@ pub struct Estimate {
     /// Row-major `direct[i * MAX_OBSERVER_INPUTS + j]`: feedthrough from input j
     /// ([y; u_a; u_pending]) to output i ([ŷ_flex; u_d]).
     pub direct: [f64; MAX_OBSERVER_OUTPUTS * MAX_OBSERVER_INPUTS],
-    /// x̂(k|k-1), for the logger and for a hand-over to another observer.
+    /// x̂(k|k-1), for the logger and for a hand-over to another observer
+    /// (with a command deadline in the observer model's coordinates,
+    /// x̂ − G_new u_a(k): docs/deadline.md).
     pub x_hat: [f64; MAX_STATES],
     /// Innovation of measurement k-1: y(k-1) − ŷ(k-1|k-2).
     pub innovation: [f64; MAX_OUTPUTS],
