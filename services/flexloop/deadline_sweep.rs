@@ -51,6 +51,10 @@ pub struct DeadlineSweep {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub latency_run: Option<String>,
     pub commands: u64,
+    /// The loop's `tick_to_command` in that run [µs]: p50, p90, p99,
+    /// p99.9, p99.99 and max (the machine's stalls left out).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tick_to_command_us: Option<[f64; 6]>,
     /// Commands of ticks the plant woke late for (the machine's stalls,
     /// not the loop's latency), left out of the shares.
     pub after_stalls: u64,
@@ -105,6 +109,7 @@ pub fn sweep(s: &Scenario, latency: Option<&Path>) -> anyhow::Result<DeadlineSwe
         period_us: period_s * 1e6,
         rows,
         commands: measured.as_ref().map_or(0, |(_, t)| t.ours.len() as u64),
+        tick_to_command_us: measured.as_ref().map(|(_, t)| t.percentiles_us()),
         after_stalls: measured.as_ref().map_or(0, |(_, t)| t.after_stalls),
         latency_run: measured.map(|(dir, _)| dir),
         recommended_deadline_us,
@@ -170,6 +175,16 @@ impl CommandTimes {
             dir.display()
         );
         Ok(times)
+    }
+
+    /// p50, p90, p99, p99.9, p99.99 and max of the loop's commands [µs]
+    /// (nearest rank on the sorted times).
+    fn percentiles_us(&self) -> [f64; 6] {
+        let at = |q: f64| {
+            let rank = ((q * self.ours.len() as f64).ceil() as usize).clamp(1, self.ours.len());
+            self.ours[rank - 1] as f64 / 1e3
+        };
+        [at(0.5), at(0.9), at(0.99), at(0.999), at(0.9999), at(1.0)]
     }
 
     /// The share of the loop's commands sent later than `ns` after their tick.
@@ -267,6 +282,14 @@ impl DeadlineSweep {
             }
             let _ = writeln!(s);
         }
+        if let (Some(run), Some(p)) = (&self.latency_run, self.tick_to_command_us) {
+            let _ = writeln!(
+                s,
+                "  tick_to_command in {run} (the loop's commands; the machine's stalls left out): \
+                 p50 {:.1}  p90 {:.1}  p99 {:.1}  p99.9 {:.1}  p99.99 {:.1}  max {:.1} us",
+                p[0], p[1], p[2], p[3], p[4], p[5]
+            );
+        }
         match (&self.latency_run, self.recommended_deadline_us) {
             (None, _) => {
                 let _ = writeln!(
@@ -324,5 +347,6 @@ mod tests {
         assert_eq!(times.share_later_than(5_000), 1.0);
         assert_eq!(times.share_later_than(30_000), 0.25);
         assert_eq!(times.share_later_than(40_000), 0.0);
+        assert_eq!(times.percentiles_us(), [20.0, 40.0, 40.0, 40.0, 40.0, 40.0]);
     }
 }
