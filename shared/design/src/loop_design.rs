@@ -13,7 +13,6 @@ use crate::pid_bandwidth::{self, PidBandwidthChoice};
 use crate::plants::{model_parts, with_input_disturbance};
 use crate::reference::{Derivatives, Reference};
 use crate::sensor_scan::{SensorScan, design_sensor_scan};
-use flexloop_control::discretise::zoh_split;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::observer_block::ObserverBlock;
 use flexloop_scenario::{Scenario, ScenarioError};
@@ -121,20 +120,6 @@ impl LoopDesign {
         let modified_feedforward =
             feedforward_form(s, &parts.observer, controller, loop_delay_samples)?;
         let plant = with_input_disturbance(s, &parts, ts)?;
-        let plant_g_new = match s.command_deadline_s() {
-            Some(tau) => Some(
-                zoh_split(&parts.continuous_plant, ts, tau)
-                    .map_err(|e| {
-                        ScenarioError::new(
-                            &s.source,
-                            Some("loop.command_deadline_us"),
-                            format!("two-piece sampling: {e}"),
-                        )
-                    })?
-                    .g_new,
-            ),
-            None => None,
-        };
         // The two-inertia setup turns (rad) and is driven by a current (A).
         let rotary = s.plant.model == "two-inertia";
         Ok(LoopDesign {
@@ -165,7 +150,7 @@ impl LoopDesign {
             seed: s.plant.seed,
             loop_delay_samples,
             command_deadline_s: s.command_deadline_s(),
-            plant_g_new,
+            plant_g_new: parts.plant_g_new.clone(),
             closed_loop,
             flexible_modes: parts.flexible_modes,
             observer_modes: parts.observer_modes,

@@ -96,6 +96,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         output_names: vec!["y".into()],
         plant_u: plant,
         continuous_plant: continuous,
+        plant_g_new: None,
         flexible_modes: Vec::new(),
         observer_modes,
     })

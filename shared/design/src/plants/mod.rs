@@ -33,6 +33,9 @@ pub struct Parts {
     pub plant_u: DiscreteStateSpace,
     /// The plant in continuous time, what `plant_u` samples.
     pub continuous_plant: ContinuousStateSpace,
+    /// With a command deadline: G_new of the plant's two-piece sample
+    /// (`plant_u` runs z = x − G_new u_a); None otherwise.
+    pub plant_g_new: Option<DMatrix<f64>>,
     pub observer: ObserverBlock,
     pub output_prediction: OutputPrediction,
     pub feedforward: FeedforwardPlan,
@@ -49,15 +52,16 @@ pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, S
         // The observer reads the deadline from the scenario itself
         // (`observer::kalman_options`); the plant is sampled in two pieces.
         let sys = &parts.continuous_plant;
-        parts.plant_u = zoh_split(sys, ts, tau)
-            .and_then(|split| split.delayed_input_form(&sys.c, &sys.d, ts))
-            .map_err(|e| {
-                ScenarioError::new(
-                    &s.source,
-                    Some("loop.command_deadline_us"),
-                    format!("two-piece sampling: {e}"),
-                )
-            })?;
+        let err = |e: flexloop_control::discretise::DiscretiseError| {
+            ScenarioError::new(
+                &s.source,
+                Some("loop.command_deadline_us"),
+                format!("two-piece sampling: {e}"),
+            )
+        };
+        let split = zoh_split(sys, ts, tau).map_err(err)?;
+        parts.plant_u = split.delayed_input_form(&sys.c, &sys.d, ts).map_err(err)?;
+        parts.plant_g_new = Some(split.g_new);
     }
     Ok(parts)
 }

@@ -125,6 +125,7 @@ pub fn modal_parts(
     Ok(Parts {
         plant_u,
         continuous_plant: full.state_space(),
+        plant_g_new: None,
         observer,
         output_prediction,
         feedforward,

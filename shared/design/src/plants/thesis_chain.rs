@@ -46,6 +46,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
     Ok(Parts {
         plant_u: plant,
         continuous_plant: modal.state_space(),
+        plant_g_new: None,
         observer,
         output_prediction,
         feedforward: FeedforwardPlan::Siso([0.0, 0.0, mass, 0.0, 0.0]),
