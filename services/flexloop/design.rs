@@ -15,7 +15,9 @@
 //! and sensor it takes, as `--continuous` already was.
 
 use anyhow::{Context, bail};
-use flexloop_analysis::loop_report::loop_report;
+use flexloop_analysis::loop_report::{
+    LoopReport, LoopReportError, ProgramLoopReport, loop_report, program_loop_report,
+};
 use flexloop_analysis::thesis_design::{ThesisDesignSpec, thesis_design_report};
 use flexloop_design::acceptance::{self, Accepted};
 use flexloop_design::plants::thesis_chain::{chain_mass, chain_modal};
@@ -46,6 +48,24 @@ pub struct DesignArgs {
     json: bool,
 }
 
+/// The scenario's own loop: analysed, or served by programs whose laws
+/// flexloop does not have.
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+enum OwnLoop {
+    Analysed(Box<LoopReport>),
+    Programs(Box<ProgramLoopReport>),
+}
+
+impl OwnLoop {
+    fn render_text(&self) -> String {
+        match self {
+            OwnLoop::Analysed(r) => r.render_text(),
+            OwnLoop::Programs(r) => r.render_text(),
+        }
+    }
+}
+
 /// The roles a program of one's own serves in `s`, with the program.
 fn programs_of(s: &flexloop_scenario::Scenario) -> anyhow::Result<serde_json::Value> {
     let mut programs = serde_json::Map::new();
@@ -60,9 +80,8 @@ fn programs_of(s: &flexloop_scenario::Scenario) -> anyhow::Result<serde_json::Va
     Ok(serde_json::Value::Object(programs))
 }
 
-/// What the report below is, when programs of one's own serve: flexloop
-/// does not know their laws, so it describes the built-in design the
-/// scenario's other fields give, not the loop that runs.
+/// Which programs serve, when any does: their laws are theirs, so the
+/// report below is of what was checked, not of the closed loop.
 pub fn programs_notice(programs: &serde_json::Value) -> Option<String> {
     let programs = programs.as_object().filter(|p| !p.is_empty())?;
     let named: Vec<String> = programs
@@ -70,9 +89,7 @@ pub fn programs_notice(programs: &serde_json::Value) -> Option<String> {
         .map(|(role, path)| format!("the {role} by {}", path.as_str().unwrap_or("?")))
         .collect();
     Some(format!(
-        "Served by programs of one's own: {}. Their laws are theirs: what follows is the \
-         built-in design the scenario's other fields give, not the loop that runs with them \
-         (docs/components.md).",
+        "Served by programs of one's own: {} (docs/components.md).",
         named.join(", ")
     ))
 }
@@ -96,9 +113,15 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         &Overrides::default(),
         flexloop_runtime::realtime::online_cpus(),
     )?;
-    let own = loop_report(&s, &design)
-        .map_err(anyhow::Error::msg)
-        .with_context(|| path.display().to_string())?;
+    // A program's law is its own: its loop is not analysed, and the
+    // report says what was checked instead.
+    let own = match loop_report(&s, &design) {
+        Ok(report) => OwnLoop::Analysed(Box::new(report)),
+        Err(LoopReportError::NotAnalysed(_)) => {
+            OwnLoop::Programs(Box::new(program_loop_report(&s, &design)))
+        }
+        Err(e) => return Err(anyhow::Error::msg(e).context(path.display().to_string())),
+    };
     // The study's mass: the sensor's, or the nearest (a scanned sensor
     // starts at its scan's first point).
     let study_output = if study {
@@ -160,7 +183,7 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         println!("{notice}\n");
     }
     print!("{}", own.render_text());
-    if let Some([from, to]) = s.plant.sensor_scan {
+    if let (Some([from, to]), OwnLoop::Analysed(_)) = (s.plant.sensor_scan, &own) {
         println!(
             "\nThe sensor is scanned from {from} to {to}: the figures above are the loop \
              frozen where the scan starts; the design was checked stable frozen at every \

@@ -64,6 +64,12 @@ pub struct SwapArgs {
     /// the rest of the line is its arguments
     #[arg(long, num_args = 1.., allow_hyphen_values = true, value_name = "PROGRAM [ARGS]")]
     pub exec: Option<Vec<String>>,
+    /// With --exec (and before it): one of the program's parameters, its
+    /// value in TOML (`kp=9000.0`, `mode="fast"`); given any, they are its
+    /// whole `[controller.params]` (or `[observer.params]`), else the loop's
+    /// own table stays
+    #[arg(long = "param", value_name = "KEY=VALUE", requires = "exec")]
+    pub params: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -216,11 +222,13 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
                 SwapRole::Controller => ProgramRole::Controller,
                 SwapRole::Observer => ProgramRole::Observer,
             };
+            let params = program_params(&args.params)?;
             with_program(
                 args.which.prefix.as_deref(),
                 &entry.run_dir,
                 program_role,
                 &exec,
+                params,
             )?
         }
         (scenario, None) => resolve_scenario(scenario)?,
@@ -240,6 +248,29 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+/// `--param KEY=VALUE`s as a params table (None when none is given).
+fn program_params(given: &[String]) -> anyhow::Result<Option<toml::Table>> {
+    if given.is_empty() {
+        return Ok(None);
+    }
+    let mut table = toml::Table::new();
+    for text in given {
+        let Some((key, value)) = text.split_once('=') else {
+            bail!("--param {text}: expected KEY=VALUE (kp=9000.0)");
+        };
+        let key = key.trim();
+        if key.is_empty() || key.contains('.') {
+            bail!("--param {text}: the key must be one plain name");
+        }
+        let value = flexloop_scenario::tune::parse_value(key, value.trim())
+            .map_err(|e| anyhow::anyhow!("--param {text}: {e}"))?;
+        if table.insert(key.to_string(), value).is_some() {
+            bail!("--param {key} is given twice");
+        }
+    }
+    Ok(Some(table))
+}
+
 /// The loop's scenario as it stands, with `role` served by the program
 /// `exec` (a path with a `/` is relative to the working directory, which
 /// the program runs in), written beside the run's other scenarios.
@@ -248,6 +279,7 @@ fn with_program(
     run_dir: &std::path::Path,
     role: ProgramRole,
     exec: &[String],
+    params: Option<toml::Table>,
 ) -> anyhow::Result<PathBuf> {
     let (path, text) = crate::tune::current(prefix)?;
     let mut table: toml::Table = toml::from_str(&text)?;
@@ -257,27 +289,7 @@ fn with_program(
     if exec[0].contains('/') {
         exec[0] = std::path::absolute(&exec[0])?.display().to_string();
     }
-    // The built-in law's fields do not apply to a program (and are refused).
-    for field in role.built_in_only() {
-        let (section, key) = field.split_once('.').expect("a dotted field");
-        if let Some(toml::Value::Table(section)) = table.get_mut(section) {
-            section.remove(key);
-        }
-    }
-    let section = table
-        .entry(role.section())
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    let toml::Value::Table(section) = section else {
-        bail!("{}: [{}] is not a table", path.display(), role.section());
-    };
-    section.insert(
-        "exec".into(),
-        toml::Value::Array(exec.into_iter().map(toml::Value::String).collect()),
-    );
-    section.insert(
-        "workdir".into(),
-        toml::Value::String(here.display().to_string()),
-    );
+    flexloop_scenario::program::served_by_program(&mut table, role, &exec, Some(&here), params);
     let dir = RunDir::new(run_dir).tuned();
     std::fs::create_dir_all(&dir)?;
     let file = (1..)

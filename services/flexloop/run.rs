@@ -392,6 +392,16 @@ pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
     if let Some(joined) = &report.joined {
         eprintln!("flexloop tune-ff: {joined}");
     }
+    let programs = flexloop_design::loop_design::unanalysed_roles(&report.scenario);
+    if !programs.is_empty() {
+        bail!(
+            "{}: tune-ff fits the built-in controller's four feedforward gains through the \
+             built-in loop; a program of one's own served the {} of this run (its feedforward \
+             is its own)",
+            run_dir.display(),
+            programs.join(" and the ")
+        );
+    }
     if report.design.n_inputs != 1 || report.design.n_outputs != 1 {
         bail!(
             "{}: tune-ff fits the four-gain feedforward of a loop with one input and one \

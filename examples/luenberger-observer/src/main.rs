@@ -6,7 +6,7 @@
 use flexloop_sdk::{Estimate, EstimationLaw, Handover, Measurement, ObserverSetup, SetupError};
 
 /// `[observer.params]`.
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 struct Params {
     /// The moving mass (kg).

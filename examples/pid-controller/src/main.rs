@@ -9,7 +9,7 @@ use flexloop_sdk::{
 };
 
 /// `[controller.params]`.
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 struct Params {
     /// Proportional gain (N/m).

@@ -151,10 +151,15 @@ impl Tuning {
         };
         // A program's law is its own: it checks its parameters when it
         // starts (a law that refuses them fails the swap, the loop
-        // untouched), and the built-in design's rule does not judge it.
-        let report = flexloop_analysis::loop_report::loop_check(&new, &design)
-            .map_err(|e| anyhow::anyhow!("the changed loop could not be checked: {e}"))?;
-        if !program && !report.meets_6db_rule {
+        // untouched), and the built-in design's rule does not judge it
+        // (nor a loop whose observer is a program: the design has no
+        // closed loop then).
+        let report = match flexloop_analysis::loop_report::loop_check(&new, &design) {
+            Ok(report) => Some(report),
+            Err(flexloop_analysis::loop_report::LoopReportError::NotAnalysed(_)) => None,
+            Err(e) => bail!("the changed loop could not be checked: {e}"),
+        };
+        if let Some(report) = report.filter(|r| !program && !r.meets_6db_rule) {
             bail!(
                 "the changed loop at {} Hz with {} sample(s) of loop delay: {}",
                 new.timing.rate_hz,

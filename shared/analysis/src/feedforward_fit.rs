@@ -33,7 +33,9 @@ pub struct FittedFeedforward {
 /// Fits the four gains on the ticks of `trace` (all of them: the whole
 /// trajectory, as the thesis fits over 0–0.19 s).
 pub fn fit_from_run(design: &LoopDesign, trace: &RunTrace) -> Result<FittedFeedforward, FitError> {
-    let cl = &design.closed_loop;
+    let Some(cl) = &design.closed_loop else {
+        return Err(FitError::NoClosedLoop);
+    };
     let ny = design.n_outputs;
     let e_true_index = 2 * ny;
     let u_ff_index = 2 * ny;

@@ -137,6 +137,10 @@ pub enum LoopReportError {
     Sensitivities(StateSpaceError),
     /// The frequency response at `hz`.
     Response { hz: f64, error: LinalgError },
+    /// Programs of one's own serve these roles: the closed loop is their
+    /// law's, not flexloop's to analyse ([`program_loop_report`] says what
+    /// was checked instead).
+    NotAnalysed(Vec<&'static str>),
 }
 
 impl fmt::Display for LoopReportError {
@@ -148,6 +152,11 @@ impl fmt::Display for LoopReportError {
             Self::Response { hz, error } => {
                 write!(f, "frequency response at {hz:.3} Hz: {error}")
             }
+            Self::NotAnalysed(roles) => write!(
+                f,
+                "the closed loop is not analysed: a program of one's own serves the {}",
+                roles.join(" and the ")
+            ),
         }
     }
 }
@@ -194,7 +203,11 @@ fn report(
     design: &LoopDesign,
     search: bool,
 ) -> Result<LoopReport, LoopReportError> {
-    let cl = &design.closed_loop;
+    let Some(cl) = &design.closed_loop else {
+        return Err(LoopReportError::NotAnalysed(
+            flexloop_design::loop_design::unanalysed_roles(scenario),
+        ));
+    };
     let ny = design.n_outputs;
     let radius = spectral_radius(&cl.a).map_err(LoopReportError::Eigenvalues)?;
     // Only r → e_meas and n → y_meas are needed: the first 2 n_y inputs and outputs.
@@ -715,5 +728,123 @@ mod tests {
             "{line}"
         );
         assert!(r.render_text().contains("|S^O| of y5 at 6.81 dB"));
+    }
+}
+
+/// What `design` reports of a loop a program of one's own serves: what is
+/// checked before it starts (the plant, a built-in observer's design, the
+/// messages' limits, the program's launch), and not the closed loop, whose
+/// law is the program's (docs/components.md, "What flexloop checks").
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProgramLoopReport {
+    pub scenario: String,
+    pub model: String,
+    pub rate_hz: f64,
+    pub loop_delay_samples: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub command_deadline_us: Option<f64>,
+    pub outputs: Vec<String>,
+    pub inputs: usize,
+    pub output_unit: &'static str,
+    pub input_unit: &'static str,
+    /// The roles programs serve (`controller`, `observer`).
+    pub program_roles: Vec<&'static str>,
+    /// The plant's flexible modes, open loop (Hz, ζ).
+    pub flexible_modes: Vec<(f64, f64)>,
+    /// The built-in observer's design and its error poles (Hz, ζ); None
+    /// when a program serves the observer.
+    pub observer: Option<String>,
+    pub observer_poles: Vec<(f64, f64)>,
+}
+
+/// The report of a loop served by programs of one's own (`design` prints
+/// it where [`loop_report`] says [`LoopReportError::NotAnalysed`]).
+pub fn program_loop_report(scenario: &Scenario, design: &LoopDesign) -> ProgramLoopReport {
+    let program_roles = flexloop_design::loop_design::unanalysed_roles(scenario);
+    let built_in_observer = !program_roles.contains(&"observer");
+    let mut observer_poles = if built_in_observer {
+        design.observer_modes.clone()
+    } else {
+        Vec::new()
+    };
+    observer_poles.sort_by(|a, b| a.0.total_cmp(&b.0));
+    ProgramLoopReport {
+        scenario: scenario.name.clone(),
+        model: scenario.plant.model.clone(),
+        rate_hz: scenario.timing.rate_hz,
+        loop_delay_samples: design.loop_delay_samples,
+        command_deadline_us: design.command_deadline_s.map(|s| s * 1e6),
+        outputs: design.output_names.clone(),
+        inputs: design.n_inputs,
+        output_unit: design.output_unit,
+        input_unit: design.input_unit,
+        program_roles,
+        flexible_modes: design.flexible_modes.clone(),
+        observer: built_in_observer.then(|| {
+            format!(
+                "{}, {} states",
+                scenario.observer.design,
+                design.observer.estimate_map.nrows()
+            )
+        }),
+        observer_poles,
+    }
+}
+
+impl ProgramLoopReport {
+    pub fn render_text(&self) -> String {
+        let mut s = String::new();
+        let delay = match self.command_deadline_us {
+            Some(us) => format!("each command applied on arrival, {us} us after its tick"),
+            None => format!("{} sample(s) of loop delay", self.loop_delay_samples),
+        };
+        let _ = writeln!(
+            s,
+            "Loop of `{}` ({}): {} Hz, {delay}",
+            self.scenario, self.model, self.rate_hz
+        );
+        let _ = writeln!(
+            s,
+            "  outputs [{}]: {}; {} input{} [{}]",
+            self.output_unit,
+            self.outputs.join(", "),
+            self.inputs,
+            if self.inputs == 1 { "" } else { "s" },
+            self.input_unit
+        );
+        let _ = writeln!(
+            s,
+            "  served by a program of one's own: the {}",
+            self.program_roles.join(" and the ")
+        );
+        match &self.observer {
+            Some(o) => {
+                let _ = writeln!(s, "  observer (built-in): {o}");
+            }
+            None => {
+                let _ = writeln!(s, "  observer: the program's");
+            }
+        }
+        let _ = writeln!(
+            s,
+            "  closed loop: NOT ANALYSED. Its stability, the 6 dB rule and the largest f_bw \
+             need the program's law, which flexloop does not have. Checked before start: the \
+             plant model, the built-in observer's design, the loop's message limits and the \
+             program's launch (docs/components.md#what-flexloop-checks)."
+        );
+        if !self.flexible_modes.is_empty() {
+            let _ = writeln!(s, "\nFlexible modes of the plant (open loop)");
+            let _ = writeln!(s, "  {:>10} {:>10}", "f [Hz]", "ζ");
+            for (f, z) in &self.flexible_modes {
+                let _ = writeln!(s, "  {f:>10.2} {z:>10.4}");
+            }
+        }
+        if !self.observer_poles.is_empty() {
+            let _ = writeln!(s, "\nObserver error poles (built-in observer)");
+            for (f, z) in &self.observer_poles {
+                let _ = writeln!(s, "  {f:>10.2} Hz, ζ {z:.4}");
+            }
+        }
+        s
     }
 }

@@ -39,7 +39,11 @@ pub fn modal_damping(
     from_s: f64,
     to_s: f64,
 ) -> Vec<ModeDamping> {
-    let closed = closed_loop_modes(&design.closed_loop).unwrap_or_default();
+    let closed = design
+        .closed_loop
+        .as_ref()
+        .and_then(|cl| closed_loop_modes(cl).ok())
+        .unwrap_or_default();
     let frequencies: Vec<f64> = design.flexible_modes.iter().map(|(f, _)| *f).collect();
     let closed_loop = least_damped_near(&closed, &frequencies, &design.observer_modes);
     design

@@ -3,8 +3,10 @@
 //! (docs/components.md).
 
 use flexloop_design::LoopDesign;
+use flexloop_design::reference::Derivatives;
 use flexloop_protocol::{Handover, MAX_HANDOVER_STATES};
 use flexloop_scenario::{ProgramRole, Scenario};
+use std::cell::RefCell;
 use std::fmt;
 use std::path::PathBuf;
 
@@ -18,6 +20,34 @@ pub struct LawSetup<'a> {
     pub generation: u32,
     /// Whose law it is: which `params` table it reads.
     pub role: ProgramRole,
+    /// The parameters as [`LawSetup::params`] last read them, defaults
+    /// included ([`LawSetup::params_read`]).
+    read: RefCell<Option<ParamsRead>>,
+}
+
+/// What a law read of its `params` table: every value it uses, and which
+/// of them the scenario did not give (the law's defaults).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParamsRead {
+    pub values: serde_json::Map<String, serde_json::Value>,
+    pub defaulted: Vec<String>,
+}
+
+impl<'a> LawSetup<'a> {
+    pub fn new(
+        scenario: &'a Scenario,
+        design: &'a LoopDesign,
+        generation: u32,
+        role: ProgramRole,
+    ) -> Self {
+        Self {
+            scenario,
+            design,
+            generation,
+            role,
+            read: RefCell::new(None),
+        }
+    }
 }
 
 impl LawSetup<'_> {
@@ -34,10 +64,50 @@ impl LawSetup<'_> {
         self.design.n_outputs
     }
 
-    /// The set-point the scenario's `[reference]` gives (its value and four
-    /// derivatives at a time in seconds: `reference().sample(seq as f64 * ts)`).
+    /// The set-point the scenario's `[reference]` gives, every shape (its
+    /// value and four derivatives, r, ṙ, r̈, r⃛ and the snap, at a time in
+    /// seconds: `reference().sample(t)`). With a command deadline the
+    /// profile starts τ_d later, as the built-in controller's does
+    /// (docs/deadline.md): sample it at [`LawSetup::actuation_time`].
     pub fn reference(&self) -> flexloop_design::reference::Reference {
         self.design.reference.clone()
+    }
+
+    /// `reference.direction`: output i follows `direction[i] · r(t)`.
+    pub fn reference_direction(&self) -> &[f64] {
+        &self.design.reference_direction
+    }
+
+    /// τ_d [s] when each command acts on arrival (`loop.command_deadline_us`):
+    /// the command for sample k acts from t_k + τ_d and must be published
+    /// by then (a later one is a miss, held). None: one sample of delay.
+    pub fn command_deadline_s(&self) -> Option<f64> {
+        self.design.command_deadline_s
+    }
+
+    /// Samples from y(k) to the tick its command is applied at (1, or 2
+    /// with `controller.extra_delay_samples = 1`).
+    pub fn loop_delay_samples(&self) -> u32 {
+        self.design.loop_delay_samples
+    }
+
+    /// When the command computed from sample `seq` starts to act [s]:
+    /// t_seq + τ_d with a command deadline, else the tick it is applied at,
+    /// t_{seq + delay}. The built-in controller's feedforward is the
+    /// reference's derivatives there.
+    pub fn actuation_time(&self, seq: u64) -> f64 {
+        match self.design.command_deadline_s {
+            Some(tau) => seq as f64 * self.design.ts + tau,
+            None => (seq + u64::from(self.design.loop_delay_samples)) as f64 * self.design.ts,
+        }
+    }
+
+    /// The model's feedforward gains per input, on (r, ṙ, r̈, r⃛, snap):
+    /// the rigid-body mass on the acceleration, as the built-in controller
+    /// has them without `controller.feedforward` (u_ff,i = gains_i ·
+    /// derivatives at [`LawSetup::actuation_time`]).
+    pub fn feedforward_gains(&self) -> &[Derivatives] {
+        &self.design.feedforward
     }
 
     /// The actuator's limit (the scenario's `plant.input_limit`).
@@ -49,18 +119,58 @@ impl LawSetup<'_> {
     /// read into `T` (serde); an error names the scenario file and the
     /// field. Without the table, `T` is read from an empty one (its
     /// defaults, or an error naming the first field it needs).
-    pub fn params<T: serde::de::DeserializeOwned>(&self) -> Result<T, SetupError> {
-        let table = match self.role {
-            ProgramRole::Controller => &self.scenario.controller.params,
-            ProgramRole::Observer => &self.scenario.observer.params,
+    ///
+    /// `T` also serialises: what it read, its defaults included, is what
+    /// the program reports it runs with (`params/<role>.json` in the run
+    /// directory, `flexloop get`).
+    pub fn params<T: serde::de::DeserializeOwned + serde::Serialize>(
+        &self,
+    ) -> Result<T, SetupError> {
+        let given = self.given_params().cloned().unwrap_or_default();
+        let params: T =
+            toml::Value::Table(given.clone())
+                .try_into()
+                .map_err(|e: toml::de::Error| SetupError::Params {
+                    file: self.scenario.source.clone(),
+                    section: self.role.section(),
+                    reason: e.message().to_string(),
+                })?;
+        let values = match serde_json::to_value(&params) {
+            Ok(serde_json::Value::Object(values)) => values,
+            Ok(other) => {
+                return Err(SetupError::Unsupported(format!(
+                    "{}.params: the law's parameters serialise as {other}, not as a table",
+                    self.role.section()
+                )));
+            }
+            Err(e) => {
+                return Err(SetupError::Unsupported(format!(
+                    "{}.params: the law's parameters do not serialise: {e}",
+                    self.role.section()
+                )));
+            }
         };
-        toml::Value::Table(table.clone().unwrap_or_default())
-            .try_into()
-            .map_err(|e: toml::de::Error| SetupError::Params {
-                file: self.scenario.source.clone(),
-                section: self.role.section(),
-                reason: e.message().to_string(),
-            })
+        let defaulted = values
+            .keys()
+            .filter(|k| !given.contains_key(*k))
+            .cloned()
+            .collect();
+        *self.read.borrow_mut() = Some(ParamsRead { values, defaulted });
+        Ok(params)
+    }
+
+    /// The scenario's own `params` table for this role, as written.
+    fn given_params(&self) -> Option<&toml::Table> {
+        match self.role {
+            ProgramRole::Controller => self.scenario.controller.params.as_ref(),
+            ProgramRole::Observer => self.scenario.observer.params.as_ref(),
+        }
+    }
+
+    /// What [`LawSetup::params`] last read (None: the law read no
+    /// parameters).
+    pub fn params_read(&self) -> Option<ParamsRead> {
+        self.read.borrow().clone()
     }
 }
 

@@ -15,6 +15,8 @@ pub enum FitError {
     NonFinite,
     /// A regressor column is identically zero or the columns are dependent.
     RankDeficient,
+    /// There is no closed-loop model to fit through.
+    NoClosedLoop,
 }
 
 impl fmt::Display for FitError {
@@ -28,6 +30,7 @@ impl fmt::Display for FitError {
             }
             Self::NonFinite => write!(f, "fit data hold a non-finite number"),
             Self::RankDeficient => write!(f, "fit regressors are rank deficient"),
+            Self::NoClosedLoop => write!(f, "no closed-loop model to fit the gains through"),
         }
     }
 }

@@ -75,7 +75,11 @@ pub struct LoopDesign {
     pub plant_g_new: Option<DMatrix<f64>>,
     /// The loop as the design sees it (closed_loop module of flexloop-control):
     /// inputs `[r; n; u_ff; w]`, outputs `[e_meas; y_meas; e_true; u_c]`.
-    pub closed_loop: DiscreteStateSpace,
+    /// None when a program of one's own serves the controller or the
+    /// observer (`exec`): its law is the program's, which flexloop does not
+    /// have, so neither the loop nor its stability is claimed
+    /// ([`unanalysed_roles`], docs/components.md).
+    pub closed_loop: Option<DiscreteStateSpace>,
     /// Open-loop flexible modes of the plant: (frequency Hz, damping).
     pub flexible_modes: Vec<(f64, f64)>,
     /// Poles of the observer's error dynamics, (frequency Hz, damping), so
@@ -108,15 +112,27 @@ impl LoopDesign {
         let zero_controller = DiscreteStateSpace::gain(DMatrix::zeros(n_inputs, n_outputs), ts)
             .map_err(|e| ScenarioError::new(&s.source, Some("controller"), e.to_string()))?;
         let controller = feedback.as_ref().unwrap_or(&zero_controller);
-        let closed_loop = stable_closed_loop(
-            s,
-            &parts,
-            controller,
-            feedback.is_some(),
-            loop_delay_samples,
-        )?;
-        check_actuator_limit(s, &reference, &feedforward, loop_delay_samples, ts)?;
-        let sensor_scan = design_sensor_scan(s, ts, extra_delay, &reference, controller)?;
+        // What runs is checked: the plant, a built-in observer's design, the
+        // messages' limits. The closed loop is a claim about both laws, and
+        // a program's law is not flexloop's to analyse.
+        let analysed = unanalysed_roles(s).is_empty();
+        let closed_loop = if analysed {
+            Some(stable_closed_loop(
+                s,
+                &parts,
+                controller,
+                feedback.is_some(),
+                loop_delay_samples,
+            )?)
+        } else {
+            None
+        };
+        if s.controller.exec.is_none() {
+            // A program computes its own feedforward, from the reference it is given.
+            check_actuator_limit(s, &reference, &feedforward, loop_delay_samples, ts)?;
+        }
+        let stability = analysed.then_some(controller);
+        let sensor_scan = design_sensor_scan(s, ts, extra_delay, &reference, stability)?;
         let modified_feedforward =
             feedforward_form(s, &parts.observer, controller, loop_delay_samples)?;
         let plant = with_input_disturbance(s, &parts, ts)?;
@@ -157,6 +173,19 @@ impl LoopDesign {
             sensor_scan,
         })
     }
+}
+
+/// The roles a program of one's own serves (`controller`, `observer`):
+/// with any, the closed loop is not analysed ([`LoopDesign::closed_loop`]).
+pub fn unanalysed_roles(s: &Scenario) -> Vec<&'static str> {
+    let mut roles = Vec::new();
+    if s.controller.exec.is_some() {
+        roles.push("controller");
+    }
+    if s.observer.exec.is_some() {
+        roles.push("observer");
+    }
+    roles
 }
 
 /// `reference.direction`, one entry per output; by default the first output.

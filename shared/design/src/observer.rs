@@ -61,7 +61,14 @@ pub fn modal_observer(
 ) -> Result<ObserverParts, ScenarioError> {
     let err = |field: &str, reason: String| ScenarioError::new(&s.source, Some(field), reason);
     let o = &s.observer;
-    match o.design.as_str() {
+    // A program serving an `io` observer has its own correction: the
+    // estimate's layout is the reduced model's states, the Kalman
+    // observer's (the `io` observer with the observer-based K is that one).
+    let design = match o.design.as_str() {
+        "io" if o.exec.is_some() => "kalman",
+        other => other,
+    };
+    match design {
         "kalman" => {
             let (reduced, model_weights) = reduced()?;
             let weights =

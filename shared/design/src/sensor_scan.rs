@@ -76,7 +76,7 @@ pub fn design_sensor_scan(
     ts: f64,
     extra_delay: usize,
     reference: &Reference,
-    feedback: &DiscreteStateSpace,
+    feedback: Option<&DiscreteStateSpace>,
 ) -> Result<Option<SensorScan>, ScenarioError> {
     let Some([from, to]) = s.plant.sensor_scan else {
         return Ok(None);
@@ -128,7 +128,11 @@ pub fn design_sensor_scan(
         node_rows,
         observer,
     };
-    // Frozen at every grid point and halfway between: a stable loop.
+    // Frozen at every grid point and halfway between: a stable loop (with
+    // both laws built-in; a program's is not flexloop's to analyse).
+    let Some(feedback) = feedback else {
+        return Ok(Some(scan));
+    };
     let zero_observer = empty_observer(ts, 1, 1, extra_delay).map_err(|e| err(e.to_string()))?;
     for i in 0..2 * points - 1 {
         // Clamped: rounding may carry the last point past the scan's end.

@@ -109,15 +109,12 @@ impl<L: ControlLaw> Component for Controller<L> {
     fn design(
         design: &LoopDesign,
         scenario: &Scenario,
-        generation: u32,
+        args: &ServiceArgs,
     ) -> Result<Self, NodeError> {
-        let core = L::new(&ControllerSetup {
-            scenario,
-            design,
-            generation,
-            role: ProgramRole::Controller,
-        })
-        .map_err(|e| NodeError::Law(e.to_string()))?;
+        let setup =
+            ControllerSetup::new(scenario, design, args.generation, ProgramRole::Controller);
+        let core = L::new(&setup).map_err(|e| NodeError::Law(e.to_string()))?;
+        crate::program_params::record(&setup, args)?;
         Ok(Self {
             core,
             n_inputs: design.n_inputs,

@@ -46,9 +46,14 @@ pub(crate) trait Component: Sized {
         activation: &mut ActivationView,
     ) -> Result<Option<Self::Own>, NodeError>;
 
-    /// The role's core for `design`, serving as `generation`.
-    fn design(design: &LoopDesign, scenario: &Scenario, generation: u32)
-    -> Result<Self, NodeError>;
+    /// The role's core for `design`, serving as the generation `args`
+    /// names (a program's law reports its parameters into `args`' run
+    /// directory).
+    fn design(
+        design: &LoopDesign,
+        scenario: &Scenario,
+        args: &ServiceArgs,
+    ) -> Result<Self, NodeError>;
 
     /// The generation whose output from measurement `seq` counts.
     fn owner(activation: &Activation, seq: u64) -> u32;
@@ -236,7 +241,7 @@ fn serve<C: Component>(
     clock: &StartupClock,
 ) -> Result<Served, NodeError> {
     let mut instance = Instance::new(C::ROLE, args, scenario);
-    let mut core = C::design(design, scenario, args.generation)?;
+    let mut core = C::design(design, scenario, args)?;
     if args.joining.is_late() {
         ports.drop_stale(args.joining)?;
         C::drop_stale(&mut ports.own)?;

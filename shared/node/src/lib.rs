@@ -14,6 +14,7 @@ pub mod observer;
 pub mod overrides;
 pub mod plant;
 pub mod prepared;
+pub mod program_params;
 pub mod recording;
 pub mod replay;
 pub mod run_metadata;

@@ -97,15 +97,11 @@ impl<L: EstimationLaw> Component for Observer<L> {
     fn design(
         design: &LoopDesign,
         scenario: &Scenario,
-        generation: u32,
+        args: &ServiceArgs,
     ) -> Result<Self, NodeError> {
-        let law = L::new(&ObserverSetup {
-            scenario,
-            design,
-            generation,
-            role: ProgramRole::Observer,
-        })
-        .map_err(|e| NodeError::Law(format!("observer: {e}")))?;
+        let setup = ObserverSetup::new(scenario, design, args.generation, ProgramRole::Observer);
+        let law = L::new(&setup).map_err(|e| NodeError::Law(format!("observer: {e}")))?;
+        crate::program_params::record(&setup, args)?;
         Ok(Self {
             core: Stamped {
                 law,

@@ -11,6 +11,8 @@
 //! - [`metrics`]: `metrics.json` (`flexloop run`).
 //! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
 //! - [`chaos`]: `chaos.json`, what `flexloop chaos` did and what it cost.
+//! - [`program`]: `params/<role>.g<N>.json`, the parameters a program of
+//!   one's own runs with.
 //! - [`live`]: `live.json` and `live_summary.json`, where a loop's live server
 //!   listens and what it did.
 
@@ -20,11 +22,13 @@ pub mod json;
 pub mod latency;
 pub mod live;
 pub mod metrics;
+pub mod program;
 pub mod run_dir;
 pub mod summary;
 pub mod supervision;
 
 pub use json::FileError;
 pub use latency::{Histogram, Percentiles};
+pub use program::ProgramParams;
 pub use run_dir::RunDir;
 pub use summary::{PlantLatency, RunSummary, SpinReport, TickWaitReport};

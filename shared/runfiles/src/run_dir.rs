@@ -35,6 +35,9 @@ impl RunDir {
     pub const LIVE: &str = "live.json";
     /// What the live server did, written when it stops.
     pub const LIVE_SUMMARY: &str = "live_summary.json";
+    /// The parameters each program of one's own runs with
+    /// ([`crate::ProgramParams`]), one file per instance.
+    pub const PARAMS: &str = "params";
     /// `flexloop run`'s control metrics.
     pub const METRICS: &str = "metrics.json";
     /// `flexloop bench`'s results.
@@ -110,6 +113,13 @@ impl RunDir {
 
     pub fn requests(&self) -> PathBuf {
         self.join(Self::REQUESTS)
+    }
+
+    /// `params/<role>.json` for the first instance, `params/<role>.g<N>.json`
+    /// for generation N (as the stderr files are named).
+    pub fn program_params(&self, role: &str, generation: u32) -> PathBuf {
+        self.join(Self::PARAMS)
+            .join(generation_file(&format!("{role}.json"), generation))
     }
 
     pub fn metrics(&self) -> PathBuf {

@@ -167,6 +167,58 @@ impl Scenario {
     }
 }
 
+/// `table` (a scenario as TOML) with `role` served by the program `exec`
+/// (its program, then its own arguments) run in `workdir`, its own
+/// parameters `params` (None: the table's own `[<role>.params]`, if any):
+/// the built-in law's fields, which do not apply to a program and are
+/// refused with it, are taken out. What `flexloop swap --exec` writes, and
+/// the one way every test makes a program's scenario from a built-in one.
+pub fn served_by_program(
+    table: &mut toml::Table,
+    role: ProgramRole,
+    exec: &[String],
+    workdir: Option<&Path>,
+    params: Option<toml::Table>,
+) {
+    for field in role.built_in_only() {
+        let (section, key) = field.split_once('.').expect("a dotted field");
+        if let Some(toml::Value::Table(section)) = table.get_mut(section) {
+            section.remove(key);
+            if section.is_empty() && section_is_optional(field) {
+                table.remove(field.split_once('.').expect("dotted").0);
+            }
+        }
+    }
+    let section = table
+        .entry(role.section())
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if !section.is_table() {
+        *section = toml::Value::Table(toml::Table::new());
+    }
+    let toml::Value::Table(section) = section else {
+        unreachable!("made a table above")
+    };
+    section.insert(
+        "exec".into(),
+        toml::Value::Array(exec.iter().cloned().map(toml::Value::String).collect()),
+    );
+    if let Some(dir) = workdir {
+        section.insert(
+            "workdir".into(),
+            toml::Value::String(dir.display().to_string()),
+        );
+    }
+    if let Some(params) = params {
+        section.insert("params".into(), toml::Value::Table(params));
+    }
+}
+
+/// A section a program's scenario may drop once the built-in fields are
+/// out of it (`[supervision]` holds only defaults then).
+fn section_is_optional(field: &str) -> bool {
+    field.starts_with("supervision.")
+}
+
 /// The built-in controller's own tuning (and its law's watchdog: a program
 /// sees each estimate's sequence number and decides itself what a stale
 /// one means).

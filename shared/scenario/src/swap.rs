@@ -52,7 +52,11 @@ pub fn swap_conflicts(running: &Scenario, new: &Scenario, swapped: Swapped) -> V
         "controller.extra_delay_samples",
         running.controller.extra_delay_samples != new.controller.extra_delay_samples,
     );
-    if swapped == Swapped::Controller && new.controller.feedback == "none" {
+    // A program's law is its own: what it continues from is its business
+    // (its `load` or `shift_output`), and the built-in fields below do not
+    // describe it. Between built-in designs:
+    let programs = running.controller.exec.is_some() || new.controller.exec.is_some();
+    if swapped == Swapped::Controller && new.controller.feedback == "none" && !programs {
         // No integrator to shift: the new command is the feedforward plus
         // the observer's part, whatever the old one was.
         let (a, b) = (&running.controller, &new.controller);

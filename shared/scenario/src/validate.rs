@@ -33,19 +33,6 @@ impl Scenario {
                  remove controller.extra_delay_samples or the deadline",
             ));
         }
-        for (role, exec) in [
-            ("controller", &self.controller.exec),
-            ("observer", &self.observer.exec),
-        ] {
-            if exec.is_some() {
-                return Err(self.err(
-                    field,
-                    format!(
-                        "{role}.exec runs a program of one's own, written for one sample of delay"
-                    ),
-                ));
-            }
-        }
         Ok(())
     }
 
@@ -56,8 +43,6 @@ impl Scenario {
     /// Checks ranges and consistency; the design step checks the maths.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         self.validate_name()?;
-        // Before the programs are looked for: a program is refused with a
-        // deadline whether it exists or not.
         self.validate_command_deadline()?;
         self.validate_program()?;
         let (rate_min, rate_max) = limits::RATE_HZ;
@@ -700,6 +685,8 @@ impl Scenario {
             .collect();
         match given.as_slice() {
             [_] => {}
+            // A program of one's own is the observer, correction included.
+            [] if o.exec.is_some() => {}
             [] => {
                 return Err(self.err(
                     "observer.correction",

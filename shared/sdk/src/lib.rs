@@ -13,7 +13,7 @@
 //!
 //! impl ControlLaw for Proportional {
 //!     fn new(setup: &ControllerSetup<'_>) -> Result<Self, SetupError> {
-//!         #[derive(serde::Deserialize)]
+//!         #[derive(serde::Deserialize, serde::Serialize)]
 //!         struct Params { kp: f64 }
 //!         let Params { kp } = setup.params()?;
 //!         Ok(Self { kp })
