@@ -8,10 +8,12 @@
 use crate::live::PrefixArg;
 use crate::registry;
 use anyhow::{Context, bail};
-use flexloop_runfiles::RunDir;
+use flexloop_runfiles::json::read_json;
+use flexloop_runfiles::supervision::Processes;
 use flexloop_runfiles::supervision::{FieldValue, SetOutcome, SetRequest};
-use flexloop_scenario::Scenario;
+use flexloop_runfiles::{ProgramParams, RunDir};
 use flexloop_scenario::tune::{self, Change, TUNABLES};
+use flexloop_scenario::{ProgramRole, Scenario};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -106,49 +108,174 @@ pub fn current(prefix: Option<&str>) -> Result<(PathBuf, String), Refused> {
 }
 
 /// Every tunable of the loop `prefix` names and its value (`None`: unset):
-/// a program's own `controller.params.*` first (the built-in controller's
-/// fields do not act on it), then the built-in ones.
+/// for a role a program serves, the parameters its law runs with
+/// ([`program_parameters`]) and not the built-in law's fields (they do not
+/// act on it); for a built-in role, its fields.
 pub fn values(prefix: Option<&str>) -> Result<Vec<(String, Option<toml::Value>)>, Refused> {
+    Ok(described_values(prefix)?
+        .into_iter()
+        .map(|v| (v.field, v.value))
+        .collect())
+}
+
+/// One tunable as `get` shows it.
+pub struct TunableValue {
+    pub field: String,
+    pub value: Option<toml::Value>,
+    /// The program's law uses its own default (the scenario gives none).
+    pub defaulted: bool,
+}
+
+fn described_values(prefix: Option<&str>) -> Result<Vec<TunableValue>, Refused> {
+    let entry = running_loop(prefix)?;
     let (path, text) = current(prefix)?;
     let scenario = Scenario::parse(&path, &text).map_err(refused)?;
     let table: toml::Table = toml::from_str(&text).map_err(refused)?;
+    let run_dir = RunDir::new(&entry.run_dir);
     let mut out = Vec::new();
-    if let Some(toml::Value::Table(params)) = tune::value_at(&table, "controller.params") {
-        flatten("controller.params", &params, &mut out);
+    let mut programs = Vec::new();
+    for role in ProgramRole::ALL {
+        if scenario.program(role).ok().flatten().is_none() {
+            continue;
+        }
+        programs.push(role);
+        out.extend(program_parameters(&run_dir, &table, role));
     }
-    let mut values: Vec<(String, Option<toml::Value>)> =
-        out.into_iter().map(|(f, v)| (f, Some(v))).collect();
-    values.extend(
+    out.extend(
         TUNABLES
             .iter()
-            .map(|t| (t.field.to_string(), (t.value)(&scenario))),
+            .filter(|t| !programs.iter().any(|r| t.field.starts_with(r.section())))
+            .filter(|t| {
+                // The estimate watchdog is the built-in controller's law's.
+                !(programs.contains(&ProgramRole::Controller)
+                    && ProgramRole::Controller.built_in_only().contains(&t.field))
+            })
+            .map(|t| TunableValue {
+                field: t.field.to_string(),
+                value: (t.value)(&scenario),
+                defaulted: false,
+            }),
     );
-    Ok(values)
+    Ok(out)
+}
+
+/// The parameters the program serving `role` runs with: what its active
+/// instance's law read, defaults included (`params/<role>.gN.json`, written
+/// by the program: flexloop-runfiles' `ProgramParams`), else, before it
+/// wrote it, the scenario's `[<role>.params]` as written.
+fn program_parameters(
+    run_dir: &RunDir,
+    table: &toml::Table,
+    role: ProgramRole,
+) -> Vec<TunableValue> {
+    let section = role.section();
+    let prefix = format!("{section}.params");
+    let active = read_json::<Processes>(&run_dir.processes())
+        .ok()
+        .and_then(|p| {
+            p.processes
+                .into_iter()
+                .find(|e| e.role == section && e.duty == "active")
+        })
+        .map(|e| e.generation.unwrap_or(0));
+    let record = active.and_then(|generation| {
+        read_json::<ProgramParams>(&run_dir.program_params(section, generation)).ok()
+    });
+    let mut out = Vec::new();
+    match record {
+        Some(record) => {
+            for (key, value) in &record.params {
+                let mut leaves = Vec::new();
+                match json_to_toml(value) {
+                    Some(toml::Value::Table(inner)) => {
+                        flatten(&format!("{prefix}.{key}"), &inner, &mut leaves)
+                    }
+                    Some(v) => leaves.push((format!("{prefix}.{key}"), v)),
+                    None => continue,
+                }
+                let defaulted = record.defaulted.contains(key);
+                out.extend(leaves.into_iter().map(|(field, v)| TunableValue {
+                    field,
+                    value: Some(v),
+                    defaulted,
+                }));
+            }
+        }
+        None => {
+            if let Some(toml::Value::Table(params)) = tune::value_at(table, &prefix) {
+                let mut leaves = Vec::new();
+                flatten(&prefix, &params, &mut leaves);
+                out.extend(leaves.into_iter().map(|(field, v)| TunableValue {
+                    field,
+                    value: Some(v),
+                    defaulted: false,
+                }));
+            }
+        }
+    }
+    out
+}
+
+/// A JSON value as TOML (None for a null, which TOML has not).
+fn json_to_toml(value: &serde_json::Value) -> Option<toml::Value> {
+    Some(match value {
+        serde_json::Value::Null => return None,
+        serde_json::Value::Bool(b) => toml::Value::Boolean(*b),
+        serde_json::Value::Number(n) => match n.as_i64() {
+            Some(i) => toml::Value::Integer(i),
+            None => toml::Value::Float(n.as_f64()?),
+        },
+        serde_json::Value::String(s) => toml::Value::String(s.clone()),
+        serde_json::Value::Array(items) => {
+            toml::Value::Array(items.iter().filter_map(json_to_toml).collect())
+        }
+        serde_json::Value::Object(map) => toml::Value::Table(
+            map.iter()
+                .filter_map(|(k, v)| Some((k.clone(), json_to_toml(v)?)))
+                .collect(),
+        ),
+    })
 }
 
 pub fn get(args: GetArgs) -> anyhow::Result<i32> {
     let prefix = args.which.prefix.as_deref();
+    let values = described_values(prefix)?;
     let Some(field) = args.field else {
-        for (field, value) in values(prefix)? {
-            match value {
-                Some(v) => println!("{field} = {v}"),
-                None => println!("# {field} unset"),
+        for v in values {
+            match (v.value, v.defaulted) {
+                (Some(value), false) => println!("{} = {value}", v.field),
+                (Some(value), true) => println!("{} = {value}  # the law's default", v.field),
+                (None, _) => println!("# {} unset", v.field),
             }
         }
         return Ok(0);
     };
-    let (path, text) = current(prefix)?;
-    let table: toml::Table = toml::from_str(&text)?;
-    if tune::program_param(&field) {
-        println!("{}", tune::shown(tune::value_at(&table, &field).as_ref()));
-    } else {
-        let Some(t) = tune::tunable(&field) else {
-            bail!(tune::refusal(&field, tune::known_field(&table, &field)));
-        };
-        let scenario = Scenario::parse(&path, &text)?;
-        println!("{}", tune::shown((t.value)(&scenario).as_ref()));
+    if let Some(v) = values.iter().find(|v| v.field == field) {
+        println!("{}", tune::shown(v.value.as_ref()));
+        return Ok(0);
     }
-    Ok(0)
+    let (_, text) = current(prefix)?;
+    let table: toml::Table = toml::from_str(&text)?;
+    if tune::program_param(&field).is_some() {
+        // Not read by the running law (nor written in its scenario).
+        println!("{}", tune::shown(tune::value_at(&table, &field).as_ref()));
+        return Ok(0);
+    }
+    // A built-in law's field of a role a program serves, or no tunable.
+    let (path, _) = current(prefix)?;
+    let scenario = Scenario::parse(&path, &text)?;
+    let programs: Vec<ProgramRole> = ProgramRole::ALL
+        .into_iter()
+        .filter(|r| scenario.program(*r).ok().flatten().is_some())
+        .collect();
+    let probe = Change {
+        field: field.clone(),
+        value: toml::Value::Boolean(false),
+    };
+    match tune::check_changes(&[probe], |f| tune::known_field(&table, f), &programs) {
+        Err(e) => bail!(e),
+        Ok(_) => bail!(tune::refusal(&field, tune::known_field(&table, &field))),
+    }
 }
 
 /// What a set did, a line each: the fields' old and new values, each

@@ -14,7 +14,7 @@ use flexloop_runfiles::RunDir;
 use flexloop_runfiles::supervision::{FieldChange, SetRequest};
 use flexloop_scenario::schema::SafeAction;
 use flexloop_scenario::tune::{self, Change, TunedRole};
-use flexloop_scenario::{Overrides, Scenario};
+use flexloop_scenario::{Overrides, ProgramRole, Scenario};
 use std::path::{Path, PathBuf};
 
 const NOT_VALID: &str = "the changed scenario is not valid (nothing written, the loop untouched)";
@@ -96,9 +96,14 @@ impl Tuning {
         }
         let now = self.now(run_dir, running)?.clone();
         let now_path = run_dir.scenario_now();
-        let program = now.get("controller").and_then(|c| c.get("exec")).is_some();
+        let programs: Vec<ProgramRole> = ProgramRole::ALL
+            .into_iter()
+            .filter(|r| now.get(r.section()).and_then(|c| c.get("exec")).is_some())
+            .collect();
+        let program = !programs.is_empty();
         let role =
-            match tune::check_changes(&changes, |field| tune::known_field(&now, field), program)? {
+            match tune::check_changes(&changes, |field| tune::known_field(&now, field), &programs)?
+            {
                 TunedRole::Controller => Role::Controller,
                 TunedRole::Observer => Role::Observer,
                 TunedRole::Plant => Role::Plant,
@@ -115,7 +120,7 @@ impl Tuning {
         let fields: Vec<FieldChange> = changes
             .iter()
             .filter_map(|change| {
-                let (before, after) = if tune::program_param(&change.field) {
+                let (before, after) = if tune::program_param(&change.field).is_some() {
                     (
                         tune::value_at(&now, &change.field),
                         tune::value_at(&table, &change.field),
@@ -145,6 +150,12 @@ impl Tuning {
         )
         .context(NOT_VALID)?;
         let (roles, plant) = match role {
+            // A program's new process continues its predecessor as its law
+            // decides (`load`); the built-in controller's design does not
+            // follow a program's parameters.
+            Role::Observer if programs.contains(&ProgramRole::Observer) => {
+                (vec![Role::Observer], None)
+            }
             Role::Observer => (observer_roles(&old, &design)?, None),
             Role::Plant => (Vec::new(), Some(plant_settings(&old, &new)?)),
             _ => (vec![role], None),

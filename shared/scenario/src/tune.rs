@@ -22,6 +22,7 @@
 //! refused by the supervisor, which designs both (a set names the
 //! controller's or the observer's fields, not both: each is one hand-over).
 
+use crate::ProgramRole;
 use crate::schema::{PidBandwidth, SafeAction, Scenario};
 use std::fmt;
 
@@ -234,8 +235,12 @@ pub enum TuneError {
     TwoRoles { first: String, second: String },
     /// The same field twice in one change.
     Repeated(String),
-    /// A built-in controller's field while a program of one's own serves.
-    BuiltInOnProgram(String),
+    /// A built-in law's field while a program of one's own serves its
+    /// role (`section`).
+    BuiltInOnProgram {
+        field: String,
+        section: &'static str,
+    },
 }
 
 impl fmt::Display for TuneError {
@@ -276,10 +281,10 @@ impl fmt::Display for TuneError {
                  are handed over apart; set them in two sets"
             ),
             TuneError::Repeated(field) => write!(f, "{field}: given twice"),
-            TuneError::BuiltInOnProgram(field) => write!(
+            TuneError::BuiltInOnProgram { field, section } => write!(
                 f,
-                "{field}: the controller is a program of one's own (controller.exec), which the \
-                 built-in controller's fields do not tune; its tunables are controller.params.* \
+                "{field}: the {section} is a program of one's own ({section}.exec), which the \
+                 built-in {section}'s fields do not tune; its tunables are {section}.params.* \
                  (docs/components.md)"
             ),
         }
@@ -364,24 +369,27 @@ pub fn known_field(table: &toml::Table, field: &str) -> bool {
     }
 }
 
-/// Whether `field` is one of a controller program's own tunables
-/// (`controller.params.KEY`, docs/components.md): its law reads them, and a
+/// The program role whose own tunable `field` is (`controller.params.KEY`
+/// or `observer.params.KEY`, docs/components.md): its law reads them, and a
 /// swap to the changed file hands the loop over to a new process of it.
-pub fn program_param(field: &str) -> bool {
-    field
-        .strip_prefix("controller.params.")
-        .is_some_and(|key| !key.is_empty() && key.split('.').all(|k| !k.is_empty()))
+pub fn program_param(field: &str) -> Option<ProgramRole> {
+    ProgramRole::ALL.into_iter().find(|role| {
+        field
+            .strip_prefix(role.section())
+            .and_then(|rest| rest.strip_prefix(".params."))
+            .is_some_and(|key| !key.is_empty() && key.split('.').all(|k| !k.is_empty()))
+    })
 }
 
 /// Refuses a change of anything but tunables, a field given twice and
 /// the two roles' fields together; the role the change hands over.
-/// `known(field)` says whether the scenario format has the field. With a
-/// controller `program` of one's own, its `controller.params.*` are its
-/// tunables and the built-in controller's are refused.
+/// `known(field)` says whether the scenario format has the field. For a
+/// role a program serves (`programs`), its `<role>.params.*` are its
+/// tunables and the built-in law's fields are refused.
 pub fn check_changes(
     changes: &[Change],
     known: impl Fn(&str) -> bool,
-    program: bool,
+    programs: &[ProgramRole],
 ) -> Result<TunedRole, TuneError> {
     // The first field of each role the change names.
     let mut roles: Vec<(TunedRole, &str)> = Vec::new();
@@ -389,14 +397,20 @@ pub fn check_changes(
         if changes[..i].iter().any(|c| c.field == change.field) {
             return Err(TuneError::Repeated(change.field.clone()));
         }
-        let role = if program_param(&change.field) {
-            if !program {
+        let role = if let Some(role) = program_param(&change.field) {
+            if !programs.contains(&role) {
                 return Err(TuneError::NotTunable(change.field.clone()));
             }
-            TunedRole::Controller
+            tuned_role(role)
         } else {
-            if program && change.field.starts_with("controller.") {
-                return Err(TuneError::BuiltInOnProgram(change.field.clone()));
+            if let Some(role) = programs
+                .iter()
+                .find(|r| r.built_in_only().iter().any(|f| is_under(&change.field, f)))
+            {
+                return Err(TuneError::BuiltInOnProgram {
+                    field: change.field.clone(),
+                    section: role.section(),
+                });
             }
             match tunable(&change.field) {
                 None => return Err(refusal(&change.field, known(&change.field))),
@@ -414,6 +428,20 @@ pub fn check_changes(
             first: first.to_string(),
             second: second.to_string(),
         }),
+    }
+}
+
+/// `field` is `parent` or one of its sub-fields.
+fn is_under(field: &str, parent: &str) -> bool {
+    field
+        .strip_prefix(parent)
+        .is_some_and(|rest| rest.is_empty() || rest.starts_with('.'))
+}
+
+fn tuned_role(role: ProgramRole) -> TunedRole {
+    match role {
+        ProgramRole::Controller => TunedRole::Controller,
+        ProgramRole::Observer => TunedRole::Observer,
     }
 }
 
@@ -454,18 +482,50 @@ mod tests {
             value: toml::Value::Float(1.0),
         };
         let known = |_: &str| true;
-        assert!(check_changes(&[change("controller.params.kp")], known, true).is_ok());
-        assert!(check_changes(&[change("controller.params.gains.kd")], known, true).is_ok());
+        let controller = &[ProgramRole::Controller][..];
+        let observer = &[ProgramRole::Observer][..];
+        assert!(check_changes(&[change("controller.params.kp")], known, controller).is_ok());
+        assert!(check_changes(&[change("controller.params.gains.kd")], known, controller).is_ok());
         assert!(matches!(
-            check_changes(&[change("controller.bandwidth_hz")], known, true),
-            Err(TuneError::BuiltInOnProgram(_))
+            check_changes(&[change("controller.bandwidth_hz")], known, controller),
+            Err(TuneError::BuiltInOnProgram {
+                section: "controller",
+                ..
+            })
         ));
         assert!(matches!(
-            check_changes(&[change("controller.params.kp")], known, false),
+            check_changes(&[change("controller.feedforward.acc")], known, controller),
+            Err(TuneError::BuiltInOnProgram { .. })
+        ));
+        assert!(matches!(
+            check_changes(&[change("controller.params.kp")], known, &[]),
             Err(TuneError::NotTunable(_))
         ));
-        assert!(!program_param("controller.params."));
-        assert!(!program_param("controller.params..kp"));
+        // An observer program: its params hand over the observer, the
+        // built-in observer's fields are refused, the controller's tune on.
+        assert_eq!(
+            check_changes(&[change("observer.params.bandwidth_hz")], known, observer).unwrap(),
+            TunedRole::Observer
+        );
+        assert!(matches!(
+            check_changes(&[change("observer.q_nu")], known, observer),
+            Err(TuneError::BuiltInOnProgram {
+                section: "observer",
+                ..
+            })
+        ));
+        assert!(check_changes(&[change("controller.bandwidth_hz")], known, observer).is_ok());
+        assert!(matches!(
+            check_changes(&[change("observer.params.bandwidth_hz")], known, controller),
+            Err(TuneError::NotTunable(_))
+        ));
+        assert_eq!(
+            program_param("observer.params.l1"),
+            Some(ProgramRole::Observer)
+        );
+        assert_eq!(program_param("controller.params."), None);
+        assert_eq!(program_param("controller.params..kp"), None);
+        assert_eq!(program_param("controller.bandwidth_hz"), None);
     }
 
     #[test]
@@ -482,7 +542,7 @@ mod tests {
                     value: toml::Value::Integer(1),
                 }],
                 known,
-                false,
+                &[],
             )
         };
         assert!(one("controller.bandwidth_hz").is_ok());
@@ -494,7 +554,7 @@ mod tests {
                 change_of("observer.bandpass_q"),
             ],
             known,
-            false,
+            &[],
         );
         assert!(matches!(both, Err(TuneError::TwoRoles { .. })), "{both:?}");
         assert_eq!(one("supervision.safe_action"), Ok(TunedRole::Plant));
@@ -523,7 +583,7 @@ mod tests {
         assert!(e.to_string().contains("controller.bogus"), "{e}");
         let twice = Change::parse("controller.notches_hz=[]").unwrap();
         assert!(matches!(
-            check_changes(&[twice.clone(), twice], known, false),
+            check_changes(&[twice.clone(), twice], known, &[]),
             Err(TuneError::Repeated(_))
         ));
     }
