@@ -54,6 +54,9 @@ pub struct ChildProcess {
     pub settled: bool,
     /// Its stderr file, in the run directory.
     pub stderr_file: String,
+    /// A program of one's own (`controller.exec`, `observer.exec`), not
+    /// the built-in process.
+    pub program: bool,
 }
 
 /// How a child ended and what CPU it used.
@@ -218,7 +221,8 @@ fn spawn(
     generation: u32,
     joining: Joining,
     stderr_file: &str,
-) -> Result<i32> {
+) -> Result<(i32, bool)> {
+    let own = joining != Joining::Spare && own_program(role, scenario)?.is_some();
     let program = program_for(role, scenario, joining)?;
     let stderr_path = plan.run_dir.join(stderr_file);
     let stderr = std::fs::File::create(&stderr_path)
@@ -247,7 +251,7 @@ fn spawn(
         .spawn()
         .with_context(|| format!("cannot start {}", program.program.display()))?;
     // Reaped by pid with wait4 (for its CPU time), not through `Child`.
-    Ok(child.id() as i32)
+    Ok((child.id() as i32, own))
 }
 
 impl RunningLoop {
@@ -304,7 +308,7 @@ impl RunningLoop {
         } else {
             stderr_name(role, generation)
         };
-        let pid = spawn(
+        let (pid, program) = spawn(
             &self.plan,
             role,
             scenario,
@@ -323,6 +327,7 @@ impl RunningLoop {
             // An idle spare's exit is never the run's failure.
             settled: joining == Joining::Spare,
             stderr_file,
+            program,
         });
         if let Some(fd) = open_pidfd(pid) {
             self.exits.push((pid, fd));
@@ -558,6 +563,7 @@ mod tests {
             scenario: PathBuf::from("s.toml"),
             settled,
             stderr_file: String::new(),
+            program: false,
         }
     }
 

@@ -131,8 +131,10 @@ impl Core {
                 generation,
                 joining,
                 scenario,
+                program,
             } => {
-                self.roster.add(pid, role, generation, joining, scenario);
+                self.roster
+                    .add(pid, role, generation, joining, scenario, program);
                 Vec::new()
             }
             Event::Exited { pid, code, now } => {
@@ -170,6 +172,13 @@ impl Core {
                 Vec::new()
             }
             Event::State { role, state } => {
+                if let Some(m) = self
+                    .roster
+                    .iter_mut()
+                    .find(|m| m.role == role && m.generation == Some(state.generation) && m.alive())
+                {
+                    m.followed = true;
+                }
                 if state.shadow != ACTIVE {
                     if !self.shadows_seen.contains(&(role, state.generation)) {
                         self.shadows_seen.push((role, state.generation));
@@ -282,6 +291,15 @@ impl Core {
             }
             let fatal = if !matches!(role, Role::Observer | Role::Controller | Role::Logger) {
                 Some("the plant owns the clock: the run ends with it".to_string())
+            } else if m.program && !m.followed {
+                // It failed before its law ever ran on the loop (its
+                // parameters, its setup, its start): another start would
+                // fail the same way, so it is reported once, not restarted.
+                Some(
+                    "the program exited before it ever followed the loop: not restarted \
+                     (its stderr says why)"
+                        .to_string(),
+                )
             } else if self.policy.restart == RestartPolicy::Never {
                 Some("restart = \"never\"".to_string())
             } else if *self.restarts.get(role) >= self.policy.max_restarts {

@@ -54,6 +54,11 @@ pub struct Member {
     pub settled: bool,
     /// Its crash is in the events as the run's end (not restarted).
     pub fatal_recorded: bool,
+    /// A program of one's own (`exec`), not the built-in process.
+    pub program: bool,
+    /// It published a state (following in shadow, or serving): it has
+    /// followed the loop at least once.
+    pub followed: bool,
 }
 
 impl Member {
@@ -93,6 +98,7 @@ impl Roster {
         generation: u32,
         joining: Joining,
         scenario: PathBuf,
+        program: bool,
     ) {
         self.members.push(Member {
             pid,
@@ -103,6 +109,8 @@ impl Roster {
             exit: None,
             settled: false,
             fatal_recorded: false,
+            program,
+            followed: false,
         });
     }
 

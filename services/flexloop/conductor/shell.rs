@@ -117,6 +117,7 @@ impl Conductor {
                     generation: c.generation,
                     joining: c.joining,
                     scenario: c.scenario.clone(),
+                    program: c.program,
                 });
             }
             if let Some(exit) = c.exit

@@ -20,6 +20,8 @@ pub enum Event<'a> {
         generation: u32,
         joining: Joining,
         scenario: PathBuf,
+        /// A program of one's own, not the built-in process.
+        program: bool,
     },
     /// A process ended with `code` (`128 + signal` if killed).
     Exited { pid: i32, code: i32, now: Instant },

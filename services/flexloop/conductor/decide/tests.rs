@@ -66,12 +66,30 @@ impl Fixture {
         joining: Joining,
         scenario: PathBuf,
     ) {
+        self.launch_as(pid, role, generation, joining, scenario, false);
+    }
+
+    /// A program of one's own (`exec`) started for `role`.
+    fn launch_program(&mut self, pid: i32, role: Role, generation: u32, joining: Joining) {
+        self.launch_as(pid, role, generation, joining, "own.toml".into(), true);
+    }
+
+    fn launch_as(
+        &mut self,
+        pid: i32,
+        role: Role,
+        generation: u32,
+        joining: Joining,
+        scenario: PathBuf,
+        program: bool,
+    ) {
         let actions = self.core.handle(Event::Launched {
             pid,
             role,
             generation,
             joining,
             scenario,
+            program,
         });
         assert!(actions.is_empty());
     }
@@ -201,6 +219,48 @@ fn past_its_restart_budget_a_crash_is_recorded_fatal_and_left_to_the_supervisor(
     // Recorded once, whatever else happens before the run ends.
     assert!(f.exit(CONTROLLER, 0, 600).is_empty());
     assert!(f.core.end_operation(f.at(700)).is_empty());
+}
+
+/// A program that fails before its law ever runs on the loop (its
+/// parameters, its set-up) would fail the same way again: reported once,
+/// not restarted in a loop. One that followed the loop is restarted.
+#[test]
+fn a_program_that_dies_before_it_ever_followed_the_loop_is_not_restarted() {
+    for role in [Role::Controller, Role::Observer] {
+        let mut f = Fixture::new(policy());
+        f.launch_program(50, role, 1, Joining::Restart);
+        let actions = f.exit(50, 1, 0);
+        let crash = record(&actions, "crash");
+        assert!(
+            crash.detail["fatal"]
+                .as_str()
+                .unwrap()
+                .contains("before it ever followed the loop"),
+            "{role:?}: {crash:?}"
+        );
+        assert!(!f.member(50).exit_expected(), "the supervisor ends the run");
+        assert!(f.tick(10_000).is_empty(), "{role:?}: restarted");
+        // Recorded once.
+        assert!(f.core.end_operation(f.at(20_000)).is_empty());
+
+        // Once it followed (its state, in shadow or serving), a crash is an
+        // ordinary one: restarted (rolled back, where a built-in served).
+        let mut g = Fixture::new(policy());
+        g.launch_program(51, role, 1, Joining::Restart);
+        g.state(role, 1, 5, FOLLOWING);
+        let crash = g.exit(51, 137, 0);
+        assert!(record(&crash, "crash").detail.get("fatal").is_none());
+        assert_eq!(g.tick(0), [Action::Restart(role)]);
+        // A built-in process is restarted whether or not it followed.
+        let mut h = Fixture::new(policy());
+        h.launch(52, role, 1, Joining::Restart);
+        assert!(
+            record(&h.exit(52, 1, 0), "crash")
+                .detail
+                .get("fatal")
+                .is_none()
+        );
+    }
 }
 
 #[test]
