@@ -1,29 +1,44 @@
-"""What the supervisor hands a controller process: its command line and the
-parts of the scenario a controller in Python needs.
+"""What the supervisor hands a controller or observer process: its command
+line and the parts of the scenario a law in Python is made from.
 
 The command line is the one every loop process shares (shared/node args.rs
 and overrides.rs): ``[--generation N] [--join|--restart|--standby]
 --scenario FILE --prefix P --run-dir DIR [--rate HZ] [--duration S]
 [--mode realtime|lockstep] [--no-realtime] [--tick WAIT]``. The scenario was
 validated by the supervisor before it started this process; what is read
-here is checked again, with errors naming the file and the field.
+here is checked again as shared/scenario checks it, with errors naming the
+file and the field (``scenario FILE: field `FIELD`: REASON``).
 """
 
 import argparse
+import json
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
+
+from .errors import ScenarioError, display, number
+from .reference import Reference
+
+__all__ = [
+    "AT_START",
+    "REPLACEMENT",
+    "RESTART",
+    "STANDBY",
+    "Args",
+    "Params",
+    "Reference",
+    "ScenarioError",
+    "Settings",
+    "Setup",
+    "UsageError",
+    "load_settings",
+    "parse_args",
+]
 
 
 class UsageError(Exception):
     """A command line this process cannot serve."""
-
-
-class ScenarioError(Exception):
-    """A scenario field this process cannot use: names the file and the field."""
-
-    def __init__(self, path, field_name, reason):
-        super().__init__(f"{path}: {field_name}: {reason}")
 
 
 #: How a process enters the loop (shared/protocol joining.rs).
@@ -32,14 +47,22 @@ REPLACEMENT = "replacement"
 RESTART = "restart"
 STANDBY = "standby"
 
+#: The roles a program of one's own serves.
+CONTROLLER = "controller"
+OBSERVER = "observer"
+ROLES = (CONTROLLER, OBSERVER)
+
+#: shared/scenario limits.rs.
+RATE_HZ = (1.0, 100_000.0)
+
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
         raise UsageError(message)
 
 
-def _parser():
-    p = _Parser(prog="flexloop-controller", add_help=False, allow_abbrev=False)
+def _parser(role):
+    p = _Parser(prog=f"flexloop-{role}", add_help=False, allow_abbrev=False)
     p.add_argument("--scenario", required=True)
     p.add_argument("--prefix", required=True)
     p.add_argument("--run-dir", required=True)
@@ -70,6 +93,12 @@ class Args:
     duration_s: float | None
     mode: str | None
     no_realtime: bool
+    role: str = CONTROLLER
+
+    @property
+    def late(self):
+        """Joins a running loop (a replacement, a restart, a standby)."""
+        return self.joining != AT_START
 
 
 def split_args(argv):
@@ -83,12 +112,14 @@ def split_args(argv):
     return argv[:at], argv[at + 1 :]
 
 
-def parse_args(argv):
+def parse_args(argv, role=CONTROLLER):
     """flexloop's part of the command line (without the program name)."""
     own, argv = split_args(argv)
-    a = _parser().parse_args(argv)
+    a = _parser(role).parse_args(argv)
     if a.spare:
-        raise UsageError("--spare: a controller started from `exec` is never a warm spare")
+        raise UsageError(f"--spare: a {role} program serves its own law only and is never a spare")
+    if a.standby and role != CONTROLLER:
+        raise UsageError(f"--standby: only a controller stands by, not the {role}")
     if a.generation < 0 or a.generation >= 2**32:
         raise UsageError(f"--generation {a.generation}: not a generation (0 to 2^32-1)")
     if a.rate is not None and not (math.isfinite(a.rate) and a.rate > 0):
@@ -107,12 +138,13 @@ def parse_args(argv):
         duration_s=a.duration,
         mode=a.mode,
         no_realtime=a.no_realtime,
+        role=role,
     )
 
 
 @dataclass
 class Realtime:
-    """The controller's real-time set-up (shared/node args.rs realtime_settings)."""
+    """A loop process's real-time set-up (shared/node args.rs realtime_settings)."""
 
     priority: int | None = None
     cpu: int | None = None
@@ -124,17 +156,34 @@ class Realtime:
 
 @dataclass
 class Settings:
-    """What a Python controller needs of its scenario, overrides applied."""
+    """What a law in Python and its process need of the scenario, overrides
+    applied."""
 
     path: str
     rate_hz: float
     mode: str
+    #: The role's ``[<role>.params]``.
     params: dict = field(default_factory=dict)
     realtime: Realtime = field(default_factory=Realtime)
     #: The plant's |u| limit (``plant.input_limit``).
     input_limit: float = 1000.0
     #: The scenario's ``[reference]`` table as written.
     reference: dict = field(default_factory=dict)
+    #: ``loop.command_deadline_us`` (None: one whole sample of delay).
+    command_deadline_us: float | None = None
+    #: ``controller.extra_delay_samples``.
+    extra_delay_samples: int = 0
+    role: str = CONTROLLER
+    #: ``plant.model``, and its inputs and outputs where the scenario alone
+    #: says how many (None for a model from a file).
+    model: str = "double-integrator"
+    n_inputs: int | None = None
+    n_outputs: int | None = None
+    #: ``supervision.warm_spares``, ``logger.enabled``.
+    warm_spares: bool = True
+    logger: bool = True
+    #: The whole file as parsed (TOML tables as dicts).
+    document: dict = field(default_factory=dict)
 
     @property
     def period_ns(self):
@@ -157,57 +206,133 @@ def _process_realtime(path, table, role):
     if not isinstance(value, dict):
         raise ScenarioError(path, f"realtime.{role}", "must be a table")
     priority = value.get("priority")
-    if priority is not None and not (isinstance(priority, int) and 1 <= priority <= 99):
-        raise ScenarioError(path, f"realtime.{role}.priority", "must be an integer 1 to 99")
+    if priority is not None and not (
+        isinstance(priority, int) and not isinstance(priority, bool) and 1 <= priority <= 99
+    ):
+        raise ScenarioError(
+            path, f"realtime.{role}.priority", f"SCHED_FIFO priority must be 1..=99, got {priority}"
+        )
     cpu = value.get("cpu")
-    if cpu is not None and not (isinstance(cpu, int) and cpu >= 0):
+    if cpu is not None and not (isinstance(cpu, int) and not isinstance(cpu, bool) and cpu >= 0):
         raise ScenarioError(path, f"realtime.{role}.cpu", "must be a CPU number")
     return priority, cpu
 
 
-def load_settings(args):
-    """Reads the scenario ``args.scenario`` and applies the overrides."""
-    path = args.scenario
+def _real(path, name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(path, name, f"invalid type: {value!r}, expected f64")
+    return float(value)
+
+
+def _io_counts(path, plant):
+    """(model, n_inputs, n_outputs) of ``[plant]``: the counts where the
+    scenario alone gives them (shared/design's models), None for a model
+    read from a file."""
+    model = plant.get("model", "double-integrator")
+    if model in ("double-integrator", "thesis-chain", "two-inertia", "uniform-chain"):
+        return model, 1, 1
+    if model == "mimo-example":
+        return model, 2, 2
+    if model == "oat-like":
+        return model, 3, 3
+    if model == "lumped":
+        forces, positions = plant.get("forces", []), plant.get("positions", [])
+        if isinstance(forces, list) and isinstance(positions, list):
+            return model, len(forces), len(positions)
+    return model, None, None
+
+
+def _read(path):
     try:
         with open(path, "rb") as f:
-            doc = tomllib.load(f)
+            return tomllib.load(f)
     except OSError as e:
-        raise ScenarioError(path, "(file)", e.strerror or str(e)) from e
+        raise ScenarioError(path, None, f"cannot read: {e.strerror or e}") from None
     except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(path, "(syntax)", str(e)) from e
+        raise ScenarioError(path, None, f"cannot parse: {e}") from None
+
+
+def load_settings(args, role=None):
+    """Reads the scenario ``args.scenario`` for ``role`` (the command
+    line's by default) and applies the overrides."""
+    role = role or args.role
+    path = args.scenario
+    doc = _read(path)
     loop = _table(path, doc, "loop")
-    rate = loop.get("rate_hz", 10_000.0)
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
-        math.isfinite(rate) and rate > 0
-    ):
-        raise ScenarioError(path, "loop.rate_hz", "must be a positive number of Hz")
+    rate = args.rate_hz if args.rate_hz is not None else loop.get("rate_hz", 10_000.0)
+    rate = _real(path, "loop.rate_hz", rate)
+    lo, hi = RATE_HZ
+    if not (math.isfinite(rate) and lo <= rate <= hi):
+        raise ScenarioError(
+            path, "loop.rate_hz", f"must lie in [{number(lo)}, {number(hi)}] Hz, got {number(rate)}"
+        )
     mode = loop.get("mode", "realtime")
     if mode not in ("realtime", "lockstep"):
-        raise ScenarioError(path, "loop.mode", "must be \"realtime\" or \"lockstep\"")
+        raise ScenarioError(
+            path, "loop.mode", f"unknown variant `{mode}`, expected `realtime` or `lockstep`"
+        )
+    deadline = loop.get("command_deadline_us")
+    if deadline is not None:
+        deadline = _real(path, "loop.command_deadline_us", deadline)
+        period_us = 1e6 / rate
+        if not (math.isfinite(deadline) and 0.0 < deadline < period_us):
+            raise ScenarioError(
+                path,
+                "loop.command_deadline_us",
+                f"must lie strictly between 0 and the sample period {number(period_us)} µs, "
+                f"got {number(deadline)}",
+            )
     controller = _table(path, doc, "controller")
-    params = controller.get("params", {})
+    extra = controller.get("extra_delay_samples", 0)
+    if isinstance(extra, bool) or not isinstance(extra, int) or extra < 0:
+        raise ScenarioError(
+            path, "controller.extra_delay_samples", f"invalid value: {extra!r}, expected u32"
+        )
+    if extra > 1:
+        raise ScenarioError(path, "controller.extra_delay_samples", "must be 0 or 1")
+    if deadline is not None and extra > 0:
+        raise ScenarioError(
+            path,
+            "loop.command_deadline_us",
+            "a command applied on arrival cannot also wait an extra sample: "
+            "remove controller.extra_delay_samples or the deadline",
+        )
+    section = _table(path, doc, role)
+    params = section.get("params", {})
     if not isinstance(params, dict):
-        raise ScenarioError(path, "controller.params", "must be a table")
+        raise ScenarioError(path, f"{role}.params", "must be a table")
     rt_table = _table(path, doc, "realtime")
-    priority, cpu = _process_realtime(path, rt_table, "controller")
+    priority, cpu = _process_realtime(path, rt_table, role)
     _, plant_cpu = _process_realtime(path, rt_table, "plant")
     lock_memory = rt_table.get("lock_memory", True)
     slack = rt_table.get("timer_slack_ns", 1)
     if not isinstance(slack, int) or isinstance(slack, bool) or slack < 1:
         raise ScenarioError(path, "realtime.timer_slack_ns", "must be a positive integer")
     plant = _table(path, doc, "plant")
-    input_limit = plant.get("input_limit", 1000.0)
-    if isinstance(input_limit, bool) or not isinstance(input_limit, (int, float)) or not (
-        math.isfinite(input_limit) and input_limit > 0
-    ):
-        raise ScenarioError(path, "plant.input_limit", "must be a positive number of N")
+    input_limit = _real(path, "plant.input_limit", plant.get("input_limit", 1000.0))
+    if not (math.isfinite(input_limit) and input_limit > 0):
+        raise ScenarioError(
+            path, "plant.input_limit", f"must be a positive finite number, got {number(input_limit)}"
+        )
+    model, n_inputs, n_outputs = _io_counts(path, plant)
+    supervision = _table(path, doc, "supervision")
+    logger = _table(path, doc, "logger")
     settings = Settings(
         path=path,
-        rate_hz=float(args.rate_hz if args.rate_hz is not None else rate),
+        rate_hz=rate,
         mode=args.mode or mode,
         params=params,
-        input_limit=float(input_limit),
+        input_limit=input_limit,
         reference=_table(path, doc, "reference"),
+        command_deadline_us=deadline,
+        extra_delay_samples=extra,
+        role=role,
+        model=model,
+        n_inputs=n_inputs,
+        n_outputs=n_outputs,
+        warm_spares=bool(supervision.get("warm_spares", True)),
+        logger=bool(logger.get("enabled", True)),
+        document=doc,
     )
     settings.realtime = Realtime(
         # Lockstep runs flat out: under SCHED_FIFO it would starve its CPU.
@@ -217,120 +342,263 @@ def load_settings(args):
         timer_slack_ns=slack,
         avoid_cpu=plant_cpu,
     )
+    # Every process checks the reference, as every Rust process's design does.
+    outputs = None if n_outputs is None else (model, n_outputs)
+    Reference.from_scenario(path, settings.reference, rate, deadline, outputs)
     return settings
 
 
-class Params:
-    """A controller's ``[controller.params]``: read with :meth:`number`;
-    a field the controller never read is an error (:meth:`check_all_read`)."""
+_MISSING = object()
 
-    def __init__(self, path, table):
+
+class Params:
+    """A law's ``[controller.params]`` (or ``[observer.params]``), read
+    with :meth:`number`, :meth:`integer`, :meth:`flag`, :meth:`text` and
+    :meth:`numbers`; a parameter the law never read is an error
+    (:meth:`check_all_read`). What the law read, with the value it uses
+    (the scenario's, or its default), is the run's params record
+    (:meth:`record`)."""
+
+    def __init__(self, path, table, role=CONTROLLER):
         self.path = path
+        self.role = role
         self._table = table
-        self._read = set()
+        #: name -> the value the law uses, in the order it read them.
+        self._used = {}
+        self._defaulted = set()
 
     def _name(self, name):
-        return f"controller.params.{name}"
+        return f"{self.role}.params.{name}"
 
-    def number(self, name, default=None, minimum=None, positive=False):
-        """The finite number ``name`` (or ``default`` when absent and given)."""
-        self._read.add(name)
-        if name not in self._table:
-            if default is None:
-                raise ScenarioError(self.path, self._name(name), "missing (a number)")
-            return float(default)
-        value = self._table[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ScenarioError(self.path, self._name(name), f"must be a number, not {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise ScenarioError(self.path, self._name(name), "must be finite")
-        if positive and value <= 0:
-            raise ScenarioError(self.path, self._name(name), f"must be positive, not {value}")
-        if minimum is not None and value < minimum:
-            raise ScenarioError(
-                self.path, self._name(name), f"must be at least {minimum}, not {value}"
-            )
+    def _error(self, name, reason):
+        return ScenarioError(self.path, self._name(name), reason)
+
+    def _lookup(self, name, default, what):
+        """The scenario's value, or ``_MISSING`` with the default to use."""
+        if not isinstance(name, str):
+            raise TypeError(f"a parameter's name is a string, not {name!r}")
+        if name in self._table:
+            return self._table[name]
+        if default is None:
+            raise self._error(name, f"missing ({what})")
+        return _MISSING
+
+    def _use(self, name, value, defaulted):
+        self._used[name] = value
+        if defaulted:
+            self._defaulted.add(name)
+        else:
+            self._defaulted.discard(name)
         return value
 
+    def _check_number(self, name, value, minimum, positive, maximum=None):
+        if not math.isfinite(value):
+            raise self._error(name, "must be finite")
+        if positive and value <= 0:
+            raise self._error(name, f"must be positive, not {display(value)}")
+        if minimum is not None and value < minimum:
+            raise self._error(name, f"must be at least {display(minimum)}, not {display(value)}")
+        if maximum is not None and value > maximum:
+            raise self._error(name, f"must be at most {display(maximum)}, not {display(value)}")
+
+    def number(self, name, default=None, minimum=None, positive=False, maximum=None):
+        """The finite number ``name`` (or ``default`` when absent and given)."""
+        value = self._lookup(name, default, "a number")
+        defaulted = value is _MISSING
+        if defaulted:
+            value = default
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self._error(name, f"must be a number, not {value!r}")
+        value = float(value)
+        self._check_number(name, value, minimum, positive, maximum)
+        return self._use(name, value, defaulted)
+
+    def integer(self, name, default=None, minimum=None, maximum=None):
+        """The integer ``name`` (or ``default``)."""
+        value = self._lookup(name, default, "an integer")
+        defaulted = value is _MISSING
+        if defaulted:
+            value = default
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self._error(name, f"must be an integer, not {value!r}")
+        self._check_number(name, value, minimum, False, maximum)
+        return self._use(name, value, defaulted)
+
+    def flag(self, name, default=None):
+        """The boolean ``name`` (or ``default``)."""
+        value = self._lookup(name, default, "true or false")
+        defaulted = value is _MISSING
+        if defaulted:
+            value = default
+        if not isinstance(value, bool):
+            raise self._error(name, f"must be true or false, not {value!r}")
+        return self._use(name, value, defaulted)
+
+    def text(self, name, default=None, choices=None):
+        """The string ``name`` (or ``default``), one of ``choices`` if given."""
+        value = self._lookup(name, default, "a string")
+        defaulted = value is _MISSING
+        if defaulted:
+            value = default
+        if not isinstance(value, str):
+            raise self._error(name, f"must be a string, not {value!r}")
+        if choices is not None and value not in choices:
+            raise self._error(
+                name, f"unknown `{value}` (expected one of {', '.join(map(str, choices))})"
+            )
+        return self._use(name, value, defaulted)
+
+    def numbers(self, name, default=None, length=None):
+        """The list of finite numbers ``name`` (or ``default``), of
+        ``length`` entries if given; a tuple of floats."""
+        value = self._lookup(name, default, "a list of numbers")
+        defaulted = value is _MISSING
+        if defaulted:
+            value = default
+        if not isinstance(value, (list, tuple)) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value
+        ):
+            raise self._error(name, f"must be a list of numbers, not {value!r}")
+        value = tuple(float(v) for v in value)
+        if not all(math.isfinite(v) for v in value):
+            raise self._error(name, "must be finite")
+        if length is not None and len(value) != length:
+            raise self._error(name, f"must have {length} entries, not {len(value)}")
+        return self._use(name, value, defaulted)
+
     def check_all_read(self):
-        unknown = sorted(set(self._table) - self._read)
+        unknown = sorted(set(self._table) - set(self._used))
         if unknown:
             raise ScenarioError(
                 self.path,
                 self._name(unknown[0]),
-                "unknown parameter (the controller reads "
-                + (", ".join(sorted(self._read)) or "none")
+                f"unknown parameter (the {self.role} reads "
+                + (", ".join(sorted(self._used)) or "none")
                 + ")",
             )
+
+    def used(self):
+        """Every parameter the law read: name -> the value it uses."""
+        return dict(self._used)
+
+    def defaulted(self):
+        """The names among :meth:`used` the scenario did not give."""
+        return sorted(self._defaulted)
+
+    def record(self, generation):
+        """The run's params record of this law (shared/runfiles
+        ``ProgramParams``): role, generation, params, defaulted."""
+        return {
+            "role": self.role,
+            "generation": generation,
+            "params": {k: _json_value(v) for k, v in sorted(self._used.items())},
+            "defaulted": self.defaulted(),
+        }
 
     def canonical(self):
         """The parameters as a stable text, for the design's fingerprint."""
         return repr(sorted((k, repr(v)) for k, v in self._table.items()))
 
 
-class Reference:
-    """The scenario's set-point r(t) as flexloop's controller samples it
-    (shared/design reference.rs), for the shapes that are closed-form here:
-    ``hold``, ``step`` and ``sine``. ``sample(t)`` is r at time t in s."""
+def _json_value(v):
+    return list(v) if isinstance(v, tuple) else v
 
-    def __init__(self, path, table):
-        shape = table.get("shape", "hold")
 
-        def number(name, default):
-            value = table.get(name, default)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ScenarioError(path, f"reference.{name}", f"must be a number, not {value!r}")
-            return float(value)
+def params_record_path(run_dir, role, generation):
+    """``<run-dir>/params/<role>.json`` (generation 0) or
+    ``<run-dir>/params/<role>.g<N>.json`` (shared/runfiles ``RunDir::program_params``)."""
+    name = f"{role}.json" if generation == 0 else f"{role}.g{generation}.json"
+    return os.path.join(run_dir, "params", name)
 
-        self.amplitude = number("amplitude", 0.0)
-        self.start_s = number("start_s", 0.0)
-        if shape == "hold":
-            self.sample = self._hold
-        elif shape == "step":
-            self.sample = self._step
-        elif shape == "sine":
-            self.omega = 2.0 * math.pi * number("frequency_hz", 1.0)
-            self.sample = self._sine
-        else:
-            raise ScenarioError(
-                path,
-                "reference.shape",
-                f"`{shape}`: a Python controller has only hold, step and sine",
-            )
-        if table.get("direction") is not None and shape != "hold":
-            raise ScenarioError(
-                path, "reference.direction", "a Python controller drives the first output only"
-            )
 
-    def _hold(self, t):
-        return 0.0
-
-    def _step(self, t):
-        return self.amplitude if t >= self.start_s else 0.0
-
-    def _sine(self, t):
-        if t < self.start_s:
-            return 0.0
-        return self.amplitude * math.sin(self.omega * (t - self.start_s))
+def write_params_record(run_dir, params, generation):
+    """Writes ``params``' record atomically (a temporary file in params/,
+    then renamed over the record); returns its path."""
+    path = params_record_path(run_dir, params.role, generation)
+    directory = os.path.dirname(path)
+    os.makedirs(directory, exist_ok=True)
+    text = json.dumps(params.record(generation), indent=2, allow_nan=False) + "\n"
+    temporary = os.path.join(directory, f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    try:
+        with open(temporary, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        try:
+            os.unlink(temporary)
+        except OSError:
+            pass
+        raise
+    return path
 
 
 class Setup:
-    """What a controller is made from: its parameters and the loop's facts."""
+    """What a law is made from: its parameters and the loop's facts (the
+    Rust SDK's ``ControllerSetup`` / ``ObserverSetup``)."""
 
-    def __init__(self, settings, own_args=()):
+    def __init__(self, settings, own_args=(), generation=0):
         self._settings = settings
         #: The program's own arguments: ``exec``'s after the program.
         self.own_args = list(own_args)
-        #: ``[controller.params]``.
-        self.params = Params(settings.path, settings.params)
+        #: ``controller`` or ``observer``: whose law this is.
+        self.role = settings.role
+        #: The generation this instance serves as.
+        self.generation = generation
+        #: ``[controller.params]`` (or ``[observer.params]``).
+        self.params = Params(settings.path, settings.params, settings.role)
         self.rate_hz = settings.rate_hz
         #: The sample time 1 / rate_hz in s.
         self.ts = 1.0 / settings.rate_hz
-        #: The plant's |u| limit in N (``plant.input_limit``).
+        #: The plant's |u| limit (``plant.input_limit``).
         self.input_limit = settings.input_limit
+        #: ``plant.model``.
+        self.model = settings.model
+        #: The plant's inputs and outputs where the scenario alone says how
+        #: many (every built-in model, a lumped network); None for a model
+        #: from a file: each measurement carries them (``m.n_inputs``,
+        #: ``m.n_outputs``).
+        self.n_inputs = settings.n_inputs
+        self.n_outputs = settings.n_outputs
+        #: τ_d in s (``loop.command_deadline_us``), or None. With a
+        #: deadline the command for tick k acts from t_k + τ_d, not from
+        #: t_{k+1}, and must be published by then (a later one is a miss
+        #: and the plant holds the input); the reference is shifted by τ_d
+        #: to match (:meth:`reference`).
+        self.command_deadline_s = (
+            None if settings.command_deadline_us is None else settings.command_deadline_us / 1e6
+        )
+        #: Samples between y(k) and the tick its command is applied at:
+        #: 1 + ``controller.extra_delay_samples``.
+        self.loop_delay_samples = 1 + settings.extra_delay_samples
+        direction = settings.reference.get("direction")
+        #: ``reference.direction``: output i follows direction[i] · r(t);
+        #: None: the profile drives the first output only.
+        self.reference_direction = (
+            None if direction is None else tuple(float(v) for v in direction)
+        )
+        #: The scenario as parsed (TOML tables as dicts), for what the
+        #: setup does not name.
+        self.scenario = settings.document
+        #: The scenario file.
+        self.scenario_path = settings.path
+
+    def actuation_time(self, seq):
+        """When the command computed from sample ``seq`` starts to act, in
+        s: t_seq + τ_d with a command deadline, else the tick it is applied
+        at, t_{seq + loop_delay_samples} (where the built-in controller
+        evaluates its feedforward: ``reference().derivatives(t)``)."""
+        if self.command_deadline_s is not None:
+            return seq * self.ts + self.command_deadline_s
+        return (seq + self.loop_delay_samples) * self.ts
 
     def reference(self):
-        """The scenario's set-point (a :class:`Reference`); an error naming
-        the field for a shape it cannot reproduce."""
-        return Reference(self._settings.path, self._settings.reference)
+        """The scenario's set-point (a :class:`flexloop.Reference`), every
+        shape, as flexloop's controller computes it: ``.sample(t)`` r at t
+        in s, ``.derivatives(t)`` (r, ṙ, r̈, r⃛, snap)."""
+        s = self._settings
+        outputs = None if s.n_outputs is None else (s.model, s.n_outputs)
+        return Reference.from_scenario(
+            s.path, s.reference, s.rate_hz, s.command_deadline_us, outputs
+        )

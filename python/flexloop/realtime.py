@@ -12,11 +12,14 @@ _MCL_CURRENT = 1
 _MCL_FUTURE = 2
 _PR_SET_TIMERSLACK = 29
 
+#: The process's name on its stderr lines (set by the runner for its role).
+PROGRAM = "flexloop-controller"
+
 _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
 
 
 def _say(what):
-    print(f"flexloop-controller: {what}; running on", file=sys.stderr, flush=True)
+    print(f"{PROGRAM}: {what}; running on", file=sys.stderr, flush=True)
 
 
 def lock_memory(rt):
@@ -44,7 +47,7 @@ def avoid_loop_cpu(rt):
 
 
 def raise_priority(rt, cpu=True):
-    """Onto the loop's CPU at the controller's priority (when named for a
+    """Onto the loop's CPU at the role's priority (when named for a
     boundary, or at once at the start); the priority alone without ``cpu``
     (a standby, off the loop's CPU)."""
     if cpu and rt.cpu is not None:

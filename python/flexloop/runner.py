@@ -20,67 +20,45 @@ modules live it, around a user's :class:`flexloop.Controller`.
   SIGINT.
 """
 
-import ctypes
 import gc
-import hashlib
-import inspect
-import os
-import signal
+import math
 import sys
 import time
-import traceback
 
 from . import messages as msg
 from . import realtime, transport
-from .launch import (
-    AT_START,
-    RESTART,
-    STANDBY,
-    ScenarioError,
-    Setup,
-    UsageError,
-    load_settings,
-    parse_args,
+from .controller import Output
+from .launch import RESTART, STANDBY
+from .process import (
+    WAKEUP_TIMEOUT_S,
+    ActivationView,
+    HandoverRing,
+    LawError,
+    PeerError,
+    Standing,
+    StateOut,
+    await_peers,
+    fingerprint,
+    main_for,
+    make_law,
+    saved_state,
+    stop_requested,
 )
 
-PROGRAM = "flexloop-controller"
-#: How long start-up waits for the plant and the observer (shared/node lib.rs).
-PEER_TIMEOUT_S = 20.0
 #: Lockstep: how long a new instance waits for its predecessor's last state.
 HANDOVER_WAIT_LOCKSTEP_NS = 2_000_000_000
 #: Lockstep: how long to wait for the observer's estimate of a sample.
 LOCKSTEP_ESTIMATE_WAIT_NS = 5_000_000_000
-#: How long one wait for a measurement lasts before the loop looks at the
-#: shutdown flag again.
-WAKEUP_TIMEOUT_S = 0.1
 
 _MEASUREMENT = transport.channel("flexloop/measurement")
 _ESTIMATE = transport.channel("flexloop/estimate")
 _COMMAND = transport.channel("flexloop/command")
 _STATE = transport.channel("flexloop/controller-state")
-_ACTIVATION = transport.channel("flexloop/activation")
 #: A shadow may fall this many samples behind and still step through all.
 FOLLOW_DEPTH = _MEASUREMENT["subscriber_max_buffer_size"]
 
-
-class PeerError(Exception):
-    """Another process did not show up, or went silent."""
-
-
-class LawError(Exception):
-    """The user's controller raised, or returned what is no command."""
-
-
-_stop = False
-
-
-def _request_stop(_signum, _frame):
-    global _stop
-    _stop = True
-
-
-def _eprint(text):
-    print(f"{PROGRAM}: {text}", file=sys.stderr, flush=True)
+# The duty bookkeeping's old name (python/tests).
+_Standing = Standing
 
 
 def run(controller_class, argv=None):
@@ -92,74 +70,7 @@ def run(controller_class, argv=None):
 
 def main(controller_class, argv):
     """:func:`run` without the exit: the exit code."""
-    try:
-        args = parse_args(argv)
-    except UsageError as e:
-        _eprint(f"usage: {e}")
-        return 2
-    try:
-        msg.check_against_wire()
-    except msg.WireMismatch as e:
-        _eprint(f"this flexloop package does not match its wire.json: {e}")
-        return 1
-    signal.signal(signal.SIGTERM, _request_stop)
-    signal.signal(signal.SIGINT, _request_stop)
-    try:
-        _Process(controller_class, args).serve()
-    except (ScenarioError, transport.TransportError, PeerError) as e:
-        _eprint(str(e))
-        return 1
-    except LawError as e:
-        _eprint(str(e))
-        traceback.print_exception(e.__cause__ or e, file=sys.stderr)
-        return 1
-    finally:
-        realtime.step_down()
-    return 0
-
-
-def _fingerprint(controller_class, params, rate_hz):
-    """The design's fingerprint: a replacement copies state only into an
-    identical design (class, its file, parameters, rate)."""
-    try:
-        where = os.path.basename(inspect.getfile(controller_class))
-    except TypeError:
-        where = ""
-    text = f"{where}:{controller_class.__qualname__}|{params.canonical()}|{rate_hz!r}"
-    digest = hashlib.blake2b(text.encode(), digest_size=8).digest()
-    # Never 0: 0 marks "no state to hand over".
-    return int.from_bytes(digest, "little") | 1
-
-
-class _Standing:
-    """An instance's duty sample by sample (shared/node duty.rs ``Standing``)."""
-
-    SHADOW, STANDBY, ACTIVE, RETIRING = "shadow", "standby", "active", "retiring"
-
-    def __init__(self, generation, late, standby=False):
-        self.generation = generation
-        self.duty = self.STANDBY if standby else self.SHADOW
-        self.priority_raised = not late
-        self.next_seq = None
-        self.skipped = 0
-
-    def on_sample(self, seq, oldest_seq, owner, named, caught_up):
-        """(duty, was, raise_priority) for the newest sample ``seq``."""
-        active = owner == self.generation
-        if self.next_seq is not None:
-            first = seq if active else oldest_seq
-            self.skipped += max(0, first - self.next_seq)
-        self.next_seq = seq + 1
-        raise_priority = not self.priority_raised and (
-            (named == self.generation and caught_up) or active
-        )
-        self.priority_raised |= raise_priority
-        was = self.duty
-        if active:
-            self.duty = self.ACTIVE
-        elif was == self.ACTIVE:
-            self.duty = self.RETIRING
-        return self.duty, was, raise_priority
+    return main_for("controller", controller_class, argv, _Process)
 
 
 class _EstimateRing:
@@ -199,82 +110,28 @@ class _EstimateRing:
         return best
 
 
-class _HandoverRing:
-    """The last states other generations published as the active instance."""
-
-    SIZE = 8
-
-    def __init__(self):
-        self.slots = [msg.Handover() for _ in range(self.SIZE)]
-        self.valid = [False] * self.SIZE
-        self.newest_slot = None
-        self.scratch = msg.Handover()
-
-    def take(self, inlet, own_generation):
-        while inlet.receive_into(self.scratch):
-            h = self.scratch
-            if h.generation == own_generation or h.shadow != msg.HandoverMark.ACTIVE:
-                continue
-            slot = h.seq % self.SIZE
-            self.slots[slot], self.scratch = h, self.slots[slot]
-            self.valid[slot] = True
-            if self.newest_slot is None or self.slots[self.newest_slot].seq <= h.seq:
-                self.newest_slot = slot
-
-    def find(self, seq):
-        if seq < 0:
-            return None
-        slot = seq % self.SIZE
-        h = self.slots[slot]
-        return h if self.valid[slot] and h.seq == seq else None
-
-    def newest(self):
-        return None if self.newest_slot is None else self.slots[self.newest_slot]
-
-
-class _ActivationView:
-    """The newest activation (polled each sample: no wake-up)."""
-
-    def __init__(self, node):
-        self.inlet = transport.Inlet(
-            node, _ACTIVATION, msg.Activation, _ACTIVATION["loop_buffer_size"], listen=False
-        )
-        self.current = msg.Activation()
-        self.scratch = msg.Activation()
-
-    def refresh(self):
-        while self.inlet.receive_into(self.scratch):
-            if self.scratch.published_ns >= self.current.published_ns:
-                self.current, self.scratch = self.scratch, self.current
-        return self.current
-
-
 class _Process:
-    def __init__(self, controller_class, args):
+    def __init__(self, program, controller_class, args):
+        self.program = program
         self.args = args
         self.generation = args.generation
-        self.late = args.joining != AT_START
-        self.settings = load_settings(args)
+        self.late = args.late
+        self.settings, self.setup, self.law = make_law(program, controller_class, args)
         self.lockstep = self.settings.lockstep
         self.period_ns = self.settings.period_ns
-        setup = Setup(self.settings, args.own)
-        params = setup.params
-        try:
-            self.law = controller_class(setup)
-        except ScenarioError:
-            raise
-        except Exception as e:
-            raise LawError(f"{controller_class.__qualname__}: cannot be made: {e!r}") from e
-        params.check_all_read()
-        self.design_hash = _fingerprint(controller_class, params, self.settings.rate_hz)
-        self.standing = _Standing(self.generation, self.late, args.joining == STANDBY)
-        self.handovers = _HandoverRing()
+        self.design_hash = fingerprint(
+            controller_class, self.setup.params, self.settings.rate_hz
+        )
+        self.standing = Standing(self.generation, self.late, args.joining == STANDBY)
+        self.handovers = HandoverRing()
         self.estimates_ring = _EstimateRing(FOLLOW_DEPTH)
         # Bumpless hand-over (shared/node controller.rs ``Takeover``).
         self.copied = False
         self.shadow_u = [0.0] * msg.MAX_INPUTS
         self.shadow_seq = None
         self.u = [0.0] * msg.MAX_INPUTS
+        # The parts of the command the law last stepped.
+        self.parts = CommandParts()
         self.n_inputs = 0
         self.first_stepped = None
         self.stale_estimates = 0
@@ -286,7 +143,6 @@ class _Process:
         self.end_of_run = False
         self.backlog = [msg.Measurement() for _ in range(FOLLOW_DEPTH + 1)]
         self.command = msg.Command()
-        self.state = msg.Handover()
 
     # ---- start-up ----
 
@@ -300,30 +156,28 @@ class _Process:
         self.measurements = transport.Inlet(
             self.node, _MEASUREMENT, msg.Measurement, FOLLOW_DEPTH
         )
-        self.activation = _ActivationView(self.node)
+        self.activation = ActivationView(self.node)
         self.states_in = transport.Inlet(
             self.node, _STATE, msg.Handover, _STATE["loop_buffer_size"], listen=False
         )
-        self.states_out = transport.Outlet(self.node, _STATE, msg.Handover)
+        self.states_out = StateOut(self.node, _STATE, self.generation, self.design_hash)
         self.estimates = transport.Inlet(self.node, _ESTIMATE, msg.Estimate, FOLLOW_DEPTH)
-        since = time.monotonic()
-        while True:
+
+        def ready():
             if self.measurements.publishers() >= 1 and self.estimates.publishers() >= 1:
                 self.estimates_ring.take(self.estimates, self.activation.refresh())
                 # A replacement joins a running loop: its estimates come
                 # with the next sample.
-                if self.estimates_ring.any() or self.late:
-                    break
-            if _stop:
-                return False
-            if time.monotonic() - since > PEER_TIMEOUT_S:
-                raise PeerError(
-                    f"peers did not connect within {PEER_TIMEOUT_S:.0f} s: "
-                    f"{self.measurements.publishers()} measurement publishers (plant), "
-                    f"{self.estimates.publishers()} estimate publishers (observer), "
-                    "no first estimate yet"
-                )
-            time.sleep(0.002)
+                return self.estimates_ring.any() or self.late
+            return False
+
+        if not await_peers(
+            ready,
+            lambda: f"{self.measurements.publishers()} measurement publishers (plant), "
+            f"{self.estimates.publishers()} estimate publishers (observer), "
+            "no first estimate yet",
+        ):
+            return False
         # No collector pauses inside the loop: everything long-lived exists
         # now, and the per-sample path makes no cycles. Done before the
         # command port opens: the plant's tick 0 follows it by 2 ms.
@@ -344,7 +198,7 @@ class _Process:
         while self.measurements.receive_into(self.backlog[0]):
             pass
         if self.args.joining != RESTART:
-            while self.states_in.receive_into(self.state):
+            while self.states_in.receive_into(self.handovers.scratch):
                 pass
         self.estimates.clear_events()
         while self.estimates.receive_into(self.estimates_ring.scratch):
@@ -365,7 +219,7 @@ class _Process:
                 realtime.avoid_loop_cpu(rt)
                 if self.args.joining == STANDBY:
                     realtime.raise_priority(rt, cpu=False)
-                _eprint(
+                self.program.say(
                     f"start-up {(time.monotonic() - started) * 1e3:.1f} ms, "
                     f"{time.process_time() * 1e3:.1f} ms of CPU"
                 )
@@ -381,14 +235,18 @@ class _Process:
     def _loop(self):
         self.cpu_at_start = time.process_time()
         measurements = self.measurements
-        while not self.end_of_run and self.standing.duty != _Standing.RETIRING and not _stop:
+        while (
+            not self.end_of_run
+            and self.standing.duty != Standing.RETIRING
+            and not stop_requested()
+        ):
             if measurements.has_samples():
                 measurements.clear_events()
             else:
                 try:
                     measurements.wait(WAKEUP_TIMEOUT_S)
                 except Exception:
-                    if _stop:
+                    if stop_requested():
                         return
                     raise
             self._on_wakeup()
@@ -398,18 +256,18 @@ class _Process:
             # What the process costs its CPU per sample, all included
             # (waits, ports, the law): the loop's budget is one period.
             cpu_s = time.process_time() - self.cpu_at_start
-            _eprint(
+            self.program.say(
                 f"generation {self.generation}: {self.stepped} samples stepped, "
                 f"{self.commanded} commanded, {cpu_s / self.stepped * 1e6:.1f} µs of CPU per sample"
             )
         if self.law_skipped:
-            _eprint(
+            self.program.say(
                 f"generation {self.generation}: law skipped {self.law_skipped} samples, "
                 f"the first after sample {self.first_law_gap}"
             )
         skipped = self.standing.skipped
         if self.stale_estimates + skipped > 0:
-            _eprint(
+            self.program.say(
                 f"generation {self.generation}: {self.stale_estimates} stale estimates, "
                 f"{skipped} measurements skipped"
             )
@@ -420,7 +278,7 @@ class _Process:
             if p is not None:
                 p.close()
         if getattr(self, "activation", None) is not None:
-            self.activation.inlet.close()
+            self.activation.close()
         self.node = None
         gc.collect()
 
@@ -449,13 +307,13 @@ class _Process:
         )
         if raise_priority:
             realtime.raise_priority(self.settings.realtime)
-        if duty == _Standing.RETIRING:
+        if duty == Standing.RETIRING:
             # Replaced at a boundary: the new instance owns this sample.
             return
-        active = duty == _Standing.ACTIVE
+        active = duty == Standing.ACTIVE
         ring = self.estimates_ring
         ring.take(self.estimates, activation)
-        standby = duty == _Standing.STANDBY
+        standby = duty == Standing.STANDBY
         if (
             (active or standby or not self.copied)
             and ring.find(m.seq) is None
@@ -466,12 +324,12 @@ class _Process:
         if estimate is None:
             # No estimate at all yet (the observer not started): skip.
             return
-        if not active or was != _Standing.ACTIVE:
+        if not active or was != Standing.ACTIVE:
             # (The active instance needs no one else's state: off its
             # round trip.)
             self.handovers.take(self.states_in, self.generation)
         activation = self.activation.current
-        if was != _Standing.ACTIVE and not self.copied:
+        if was != Standing.ACTIVE and not self.copied:
             # A law of its own steps through every sample it missed.
             for i in range(n - 1):
                 older = backlog[i]
@@ -496,7 +354,7 @@ class _Process:
                 self._publish_state(m.seq, self.shadow_u, msg.HandoverMark.FOLLOWING)
             self.end_of_run |= bool(m.flags & msg.Flags.END_OF_RUN)
             return
-        if was != _Standing.ACTIVE:
+        if was != Standing.ACTIVE:
             self._take_over(m)
         self._step(m, estimate, self.u)
         self._publish_command(m, estimate, received_ns, self.u, 0)
@@ -523,7 +381,7 @@ class _Process:
             ring.take(self.estimates, self.activation.refresh())
             if ring.find(m.seq) is not None:
                 break
-            if _stop:
+            if stop_requested():
                 return False
         if self.lockstep and ring.find(m.seq) is None and not self.late:
             raise PeerError(f"lockstep: no estimate for tick {m.seq} from the observer")
@@ -539,7 +397,7 @@ class _Process:
                 raise PeerError(f"measurement {m.seq}: {n_inputs} inputs")
             # The sample the law's history starts at (tests recompute the
             # law from here).
-            _eprint(f"generation {self.generation}: law stepped from sample {m.seq}")
+            self.program.say(f"generation {self.generation}: law stepped from sample {m.seq}")
         law = self.law
         self.stepped += 1
         if self.last_stepped is not None and m.seq != self.last_stepped + 1:
@@ -553,22 +411,17 @@ class _Process:
             u = law.step(m, estimate)
         except Exception as e:
             raise LawError(f"{type(law).__qualname__}.step at sample {m.seq} raised {e!r}") from e
-        offset = law._offset
-        if type(u) is float and self.n_inputs == 1:
-            out[0] = u + offset[0]
-            return
         try:
-            for i in range(self.n_inputs):
-                out[i] = float(u[i]) + offset[i]
+            self.parts.take(u, m, out, self.n_inputs, law._offset)
         except (TypeError, IndexError, ValueError) as e:
             raise LawError(
-                f"{type(law).__qualname__}.step at sample {m.seq} returned {u!r}, "
-                f"not a float or {self.n_inputs} floats"
+                f"{type(law).__qualname__}.step at sample {m.seq} returned {u!r}: {e} "
+                f"(a float, {self.n_inputs} floats or a flexloop.Output are commands)"
             ) from e
 
     def _publish_command(self, m, estimate, received_ns, u, flags):
-        """Command ``u`` for ``m``; the active instance's (``flags`` 0)
-        wakes the plant in lockstep."""
+        """Command ``u`` for ``m`` with the parts the law said; the active
+        instance's (``flags`` 0) wakes the plant in lockstep."""
         c = self.command
         c.seq = m.seq
         c.tick_ns = m.tick_ns
@@ -576,17 +429,15 @@ class _Process:
         c.received_ns = received_ns
         c.estimate_seq = estimate.seq
         c.estimate_published_ns = estimate.published_ns
-        c.flags = flags | (msg.Flags.STALE_ESTIMATE if estimate.seq != m.seq else 0)
+        c.flags = (
+            flags
+            | (msg.Flags.STALE_ESTIMATE if m.seq > estimate.seq else 0)
+            | (m.flags & msg.Flags.LOCKSTEP)
+        )
         c.generation = self.generation
         c.n_inputs = self.n_inputs
-        c.n_outputs = n_outputs = m.n_outputs
-        for i in range(self.n_inputs):
-            c.u[i] = u[i]
-            c.u_fb[i] = u[i]
-        r = self.law.r
-        for i in range(n_outputs):
-            c.r[i] = r[i]
-            c.e_meas[i] = r[i] - m.y[i]
+        c.n_outputs = m.n_outputs
+        self.parts.write(c, u, m, self.n_inputs, self.law.r)
         c.published_ns = time.monotonic_ns()
         self.commands.publish(c)
         if flags == 0:
@@ -595,46 +446,20 @@ class _Process:
                 self.commands.notify()
 
     def _publish_state(self, seq, u, mark):
-        h = self.state
-        h.seq = seq
-        h.generation = self.generation
-        h.shadow = mark
+        """The law's state after ``seq`` (with the default shift's offset
+        after it) and the command ``u``."""
         n = self.n_inputs
-        h.n_inputs = n
-        h.carried_hash = 0
-        h.carried_at = 0
-        h.carried_len = 0
-        state = self.law.save_state()
-        if state is None or len(state) + n > msg.MAX_HANDOVER_STATES:
-            h.design_hash = 0
-            h.n_states = 0
-        else:
-            h.design_hash = self.design_hash
-            k = len(state)
-            for i in range(k):
-                h.state[i] = state[i]
-            offset = self.law._offset
-            for i in range(n):
-                h.state[k + i] = offset[i]
-            h.n_states = k + n
-        for i in range(n):
-            h.u[i] = u[i]
-        self.states_out.publish(h)
+        self.states_out.publish(seq, mark, self.law.save_state(), self.law._offset, u, n)
 
     # ---- hand-over ----
 
     def _load(self, h):
         """Copies ``h`` into the law if it is of this design."""
         n = h.n_inputs
-        if (
-            h.design_hash != self.design_hash
-            or h.n_states < n
-            or h.n_states > msg.MAX_HANDOVER_STATES
-            or n != self.n_inputs
-        ):
+        if h.n_states < n or n != self.n_inputs:
             return False
-        values = h.state[: h.n_states]
-        if any(v != v or v in (float("inf"), float("-inf")) for v in values):
+        values = saved_state(h, self.design_hash)
+        if values is None:
             return False
         k = h.n_states - n
         self.law.load_state(values[:k])
@@ -673,7 +498,7 @@ class _Process:
             self.handovers.take(self.states_in, self.generation)
         last = self.handovers.find(m.seq - 1) if m.seq > 0 else None
         if not restart and m.seq > 0 and last is None:
-            _eprint(
+            self.program.say(
                 f"generation {self.generation} active from sample {m.seq} without its "
                 f"predecessor's state after sample {m.seq - 1}"
             )
@@ -683,16 +508,130 @@ class _Process:
             elif self.shadow_seq == last.seq:
                 # Another design: shift the output so that it continues the
                 # old command at the sample both computed.
-                delta = [last.u[i] - self.shadow_u[i] for i in range(self.n_inputs)]
+                # From what the law asked for before any clamp (the sum of
+                # its parts when it gives them), as the Rust process does: a
+                # shadow saturated at the limit would otherwise shift by the
+                # wrong amount and step the actuator at the switch.
+                own = self.parts.unclamped(self.shadow_u, self.n_inputs)
+                delta = [last.u[i] - own[i] for i in range(self.n_inputs)]
                 try:
                     self.law.shift_output(delta)
                 except Exception as e:
                     raise LawError(
                         f"{type(self.law).__qualname__}.shift_output raised {e!r}"
                     ) from e
-                _eprint(
+                self.program.say(
                     f"generation {self.generation} active from sample {m.seq}, output "
                     f"shifted by {' '.join(f'{d:.17g}' for d in delta)}"
                 )
         if not self.copied:
             self._follow(m.seq, newest_too=True)
+
+
+
+class CommandParts:
+    """What a law's ``step`` returned, as a command and its parts for the
+    record (shared/protocol ``Command``): a plain float or sequence is all
+    feedback, with r the law's ``r`` and e_meas r - y; an :class:`Output`
+    says its parts (preallocated: nothing is allocated per sample)."""
+
+    def __init__(self):
+        #: All of u is feedback, r and e_meas are the defaults.
+        self.plain = True
+        self.u_fb = [0.0] * msg.MAX_INPUTS
+        self.u_ff = [0.0] * msg.MAX_INPUTS
+        self.u_d = [0.0] * msg.MAX_INPUTS
+        self.r_given = False
+        self.r = [0.0] * msg.MAX_OUTPUTS
+        self.e_given = False
+        self.e_meas = [0.0] * msg.MAX_OUTPUTS
+
+    def take(self, result, m, out, n, offset):
+        """The command ``result`` for ``m`` into ``out[:n]``, its parts
+        kept, the default shift's ``offset`` added to u (and to its
+        feedback part); TypeError, IndexError or ValueError for what is
+        no command."""
+        kind = type(result)
+        if (kind is float or kind is int) and n == 1:
+            out[0] = float(result) + offset[0]
+            self.plain = True
+            return
+        if not isinstance(result, Output):
+            self.plain = True
+            if isinstance(result, (str, bytes)):
+                raise TypeError("a string is no command")
+            for i in range(n):
+                out[i] = float(result[i]) + offset[i]
+            return
+        fb = _fill(result.u_fb, n, self.u_fb, False)
+        ff = _fill(result.u_ff, n, self.u_ff, False)
+        d = _fill(result.u_d, n, self.u_d, False)
+        if result.u is not None:
+            _fill(result.u, n, out, False)
+        elif fb or ff or d:
+            for i in range(n):
+                out[i] = self.u_fb[i] + self.u_ff[i] + self.u_d[i]
+        else:
+            raise ValueError("an Output with neither u nor any of its parts")
+        n_outputs = m.n_outputs
+        self.r_given = _fill(result.r, n_outputs, self.r, True)
+        self.e_given = _fill(result.e_meas, n_outputs, self.e_meas, True)
+        # Without parts all of u is feedback, as a plain u is.
+        self.plain = not (fb or ff or d)
+        for i in range(n):
+            out[i] += offset[i]
+            self.u_fb[i] += offset[i]
+
+    def unclamped(self, u, n):
+        """What the law last asked for before any clamp: the sum of its
+        parts when it gave any (u_fb + u_ff + u_d), else ``u[:n]``."""
+        if self.plain:
+            return list(u[:n])
+        sums = [self.u_fb[i] + self.u_ff[i] + self.u_d[i] for i in range(n)]
+        if not any(self.u_fb[i] or self.u_ff[i] or self.u_d[i] for i in range(n)):
+            return list(u[:n])
+        return [v if math.isfinite(v) else u[i] for i, v in enumerate(sums)]
+
+    def write(self, c, u, m, n, law_r):
+        """Command ``u[:n]`` for ``m`` and the parts last taken into ``c``."""
+        if self.plain:
+            for i in range(n):
+                c.u[i] = c.u_fb[i] = u[i]
+                c.u_ff[i] = c.u_d[i] = 0.0
+            r_given = e_given = False
+        else:
+            fb, ff, d = self.u_fb, self.u_ff, self.u_d
+            for i in range(n):
+                c.u[i] = u[i]
+                c.u_fb[i] = fb[i]
+                c.u_ff[i] = ff[i]
+                c.u_d[i] = d[i]
+            r_given, e_given = self.r_given, self.e_given
+        r = self.r if r_given else law_r
+        e_meas, y = self.e_meas, m.y
+        for i in range(m.n_outputs):
+            c.r[i] = r[i]
+            c.e_meas[i] = e_meas[i] if e_given else r[i] - y[i]
+
+
+def _fill(value, n, dest, zero_rest):
+    """Copies ``value`` (a float for the first entry, or a sequence of at
+    least ``n``) into ``dest[:n]``; False (and zeros) when it is None.
+    With ``zero_rest`` a float fills the first entry and zeros the rest;
+    without, a float is only for ``n`` 1."""
+    if value is None:
+        for i in range(n):
+            dest[i] = 0.0
+        return False
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if n != 1 and not zero_rest:
+            raise ValueError(f"one float where {n} are due")
+        dest[0] = float(value)
+        for i in range(1, n):
+            dest[i] = 0.0
+        return True
+    if len(value) < n:
+        raise IndexError(f"{len(value)} values where {n} are due")
+    for i in range(n):
+        dest[i] = float(value[i])
+    return True

@@ -157,15 +157,21 @@ class Outlet:
 class Inlet:
     """Receives samples of one message type from a channel."""
 
-    def __init__(self, node, channel, payload, buffer_size, listen=True):
+    def __init__(self, node, channel, payload, buffer_size, listen=True, woken_by=None):
+        """``listen``: with a listener on the channel's own event service
+        (or, with ``woken_by``, on that channel's: a reader the publisher
+        wakes at another moment, as the observer is); without, it polls."""
         self.name = channel["name"]
         self.payload = payload
         self.size = ctypes.sizeof(payload)
         self.service = open_pubsub(node, channel, payload)
+        events = woken_by if woken_by is not None else channel
         try:
             self.subscriber = self.service.subscriber_builder().buffer_size(buffer_size).create()
             self.listener = (
-                open_event(node, channel).listener_builder().create() if listen else None
+                open_event(node, events).listener_builder().create()
+                if listen or woken_by is not None
+                else None
             )
         except TransportError:
             raise

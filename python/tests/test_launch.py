@@ -74,26 +74,52 @@ class Scenario(unittest.TestCase):
         for text, field in [
             ("[loop]\nrate_hz = -1\n", "loop.rate_hz"),
             ("[loop]\nmode = 3\n", "loop.mode"),
+            ("[loop]\ncommand_deadline_us = 100.0\n", "loop.command_deadline_us"),
             ("[controller]\nparams = 1\n", "controller.params"),
+            ("[controller]\nextra_delay_samples = 2\n", "controller.extra_delay_samples"),
             ("[plant]\ninput_limit = 0\n", "plant.input_limit"),
             ("[realtime]\ncontroller = { priority = 200 }\n", "realtime.controller.priority"),
-            ("[loop\n", "(syntax)"),
+            ("[reference]\nshape = \"ramp\"\n", "reference.shape"),
         ]:
             with self.subTest(field=field):
-                with self.assertRaisesRegex(ScenarioError, rf"s\.toml: {re.escape(field)}"):
+                with self.assertRaisesRegex(
+                    ScenarioError, rf"^scenario .*s\.toml: field `{re.escape(field)}`: "
+                ):
                     _settings(text)
+        with self.assertRaisesRegex(ScenarioError, r"^scenario .*s\.toml: cannot parse: "):
+            _settings("[loop\n")
+        with self.assertRaisesRegex(ScenarioError, r"^scenario .*nothing\.toml: cannot read: "):
+            load_settings(parse_args(["--scenario", "nothing.toml", "--prefix", "p",
+                                      "--run-dir", "r"]))
+
+    def test_the_deadline_and_the_loop_delay_are_the_setups(self):
+        s = Setup(_settings("[loop]\nrate_hz = 10000\ncommand_deadline_us = 30.0\n"))
+        self.assertEqual((s.command_deadline_s, s.loop_delay_samples), (30.0 / 1e6, 1))
+        s = Setup(_settings("[controller]\nextra_delay_samples = 1\n"))
+        self.assertEqual((s.command_deadline_s, s.loop_delay_samples), (None, 2))
+        with self.assertRaisesRegex(ScenarioError, "cannot also wait an extra sample"):
+            _settings("[loop]\ncommand_deadline_us = 30\n[controller]\nextra_delay_samples = 1\n")
 
     def test_the_reference_is_the_controllers(self):
         s = _settings("[reference]\nshape = \"sine\"\namplitude = 0.001\nfrequency_hz = 2.0\n")
         r = Setup(s).reference()
         t = 0.1234
         self.assertEqual(r.sample(t), 0.001 * math.sin(2.0 * math.pi * 2.0 * t))
+        self.assertEqual(r.derivatives(t)[0], r.sample(t))
         s = _settings("[reference]\nshape = \"step\"\namplitude = 2.0\nstart_s = 0.5\n")
         r = Setup(s).reference()
         self.assertEqual((r.sample(0.4), r.sample(0.5)), (0.0, 2.0))
         self.assertEqual(Setup(_settings("")).reference().sample(3.0), 0.0)
-        with self.assertRaisesRegex(ScenarioError, "reference.shape"):
+        self.assertIsNone(Setup(s).reference_direction)
+        s = _settings("[plant]\nmodel = \"mimo-example\"\n[reference]\nshape = \"scan\"\n"
+                      "start_s = 0.01\ndirection = [1.0, -0.5]\n")
+        self.assertEqual(Setup(s).reference_direction, (1.0, -0.5))
+        self.assertAlmostEqual(Setup(s).reference().sample(0.2), 0.17, delta=1e-12)
+        with self.assertRaisesRegex(ScenarioError, "field `reference.start_s`: a scan must start"):
             Setup(_settings("[reference]\nshape = \"scan\"\n")).reference()
+        with self.assertRaisesRegex(ScenarioError, "field `reference.direction`: has 3 entries"):
+            Setup(_settings("[plant]\nmodel = \"mimo-example\"\n[reference]\nshape = \"step\"\n"
+                            "direction = [1.0, 0.0, 1.0]\n")).reference()
 
 
 class ControllerParams(unittest.TestCase):
@@ -101,11 +127,11 @@ class ControllerParams(unittest.TestCase):
         p = Params("s.toml", {"kp": 2, "kd": "x", "extra": 1.0})
         self.assertEqual(p.number("kp"), 2.0)
         self.assertEqual(p.number("ki", default=0.5), 0.5)
-        with self.assertRaisesRegex(ScenarioError, "controller.params.kd: must be a number"):
+        with self.assertRaisesRegex(ScenarioError, "`controller.params.kd`: must be a number"):
             p.number("kd")
-        with self.assertRaisesRegex(ScenarioError, "controller.params.n: missing"):
+        with self.assertRaisesRegex(ScenarioError, "`controller.params.n`: missing"):
             p.number("n")
-        with self.assertRaisesRegex(ScenarioError, "controller.params.extra: unknown"):
+        with self.assertRaisesRegex(ScenarioError, "`controller.params.extra`: unknown"):
             p.check_all_read()
         with self.assertRaisesRegex(ScenarioError, "must be positive"):
             Params("s.toml", {"n": 0.0}).number("n", positive=True)

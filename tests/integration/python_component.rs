@@ -390,8 +390,11 @@ fn a_python_law_with_parameters_it_cannot_use_is_refused_and_the_loop_runs_on() 
     let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
     wait_for_ticks(&dir, 430);
     for (file, says) in [
-        (&missing, "controller.params.kd: missing"),
-        (&unknown, "controller.params.gain: unknown parameter"),
+        (&missing, "field `controller.params.kd`: missing"),
+        (
+            &unknown,
+            "field `controller.params.gain`: unknown parameter",
+        ),
     ] {
         let mut cmd = flexloop();
         cmd.args(["swap", "controller"])
@@ -430,8 +433,9 @@ fn example_scenario_with(dir: &Path, file: &str, exec: &[String]) -> PathBuf {
     path
 }
 
-/// The recorded commands of a lockstep run of `scenario_file`, 0.5 s.
-fn lockstep_commands(scenario_file: &Path, run_dir: &Path) -> Vec<(u64, f64)> {
+/// The recorded commands of a lockstep run of `scenario_file`, 0.5 s:
+/// each with u and its parts (u_fb, u_ff, u_d, r, e_meas).
+fn lockstep_commands(scenario_file: &Path, run_dir: &Path) -> Vec<(u64, [f64; 6])> {
     let mut cmd = flexloop();
     cmd.arg("up")
         .arg(scenario_file)
@@ -447,7 +451,13 @@ fn lockstep_commands(scenario_file: &Path, run_dir: &Path) -> Vec<(u64, f64)> {
     let out = run_bounded(cmd, Duration::from_secs(180));
     assert_ran(&out);
     let log = LogReader::open(&run_dir.join("samples.mcap")).unwrap();
-    let mut commands: Vec<(u64, f64)> = log.commands().map(|c| (c.seq, c.u[0])).collect();
+    let mut commands: Vec<(u64, [f64; 6])> = log
+        .commands()
+        .map(|c| {
+            let parts = [c.u[0], c.u_fb[0], c.u_ff[0], c.u_d[0], c.r[0], c.e_meas[0]];
+            (c.seq, parts)
+        })
+        .collect();
     commands.sort_by_key(|c| c.0);
     assert_clean(run_dir);
     commands
@@ -474,13 +484,20 @@ fn the_python_pid_commands_a_lockstep_run_as_the_rust_example_does() {
     assert_eq!(from_python.len(), 5_000, "0.5 s at 10 kHz");
     assert_eq!(from_python.len(), from_rust.len());
     let mut largest = 0.0_f64;
-    for ((seq_p, u_p), (seq_r, u_r)) in from_python.iter().zip(&from_rust) {
+    for ((seq_p, parts_p), (seq_r, parts_r)) in from_python.iter().zip(&from_rust) {
         assert_eq!(seq_p, seq_r);
-        assert!(
-            (u_p - u_r).abs() <= 1e-12,
-            "u({seq_p}): {u_p} from Python, {u_r} from Rust"
-        );
-        largest = largest.max(u_p.abs());
+        // The command and its parts for the record (the example writes
+        // u_fb, r and e_meas; u_ff and u_d stay 0).
+        for (name, (p, r)) in ["u", "u_fb", "u_ff", "u_d", "r", "e_meas"]
+            .iter()
+            .zip(parts_p.iter().zip(parts_r))
+        {
+            assert!(
+                (p - r).abs() <= 1e-12,
+                "{name}({seq_p}): {p} from Python, {r} from Rust"
+            );
+        }
+        largest = largest.max(parts_p[0].abs());
     }
     // The law did work: it drove the plant after the 1 mm sine.
     assert!(largest > 1e-3, "largest |u| {largest}");
