@@ -300,6 +300,51 @@ fn with_program(
     Ok(file)
 }
 
+/// The loop's design as it stands after swaps and sets (its scenario
+/// now, designed again: what `"auto"` chose included), or, when that
+/// cannot be read, what was chosen at start.
+fn design_now(entry: &registry::Entry) -> Vec<String> {
+    let now = crate::tune::current(Some(&entry.prefix))
+        .ok()
+        .and_then(|(path, text)| design_words(&path, &text).ok());
+    match now {
+        Some(parts) => parts
+            .into_iter()
+            .map(|(part, words)| format!("{part}: {words}"))
+            .collect(),
+        None => entry
+            .design
+            .iter()
+            .map(|d| format!("design at start: {d}"))
+            .collect(),
+    }
+}
+
+/// The design the scenario `text` (read from `path`) runs, by part: what
+/// closes the loop and the observer, in words (`status`, the live view).
+pub fn design_words(
+    path: &std::path::Path,
+    text: &str,
+) -> Result<Vec<(String, String)>, flexloop_scenario::ScenarioError> {
+    let accepted = flexloop_design::acceptance::accept_text(
+        path,
+        text,
+        &flexloop_scenario::Overrides::default(),
+        flexloop_runtime::realtime::online_cpus(),
+    )?;
+    let (s, d) = (&accepted.scenario, &accepted.design);
+    Ok(vec![
+        (
+            "controller".into(),
+            flexloop_analysis::loop_report::controller_words(s, d),
+        ),
+        (
+            "observer".into(),
+            flexloop_analysis::loop_report::observer_words(s, d),
+        ),
+    ])
+}
+
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it),
 /// its processes and its events so far. Returns whether stalls dominate.
 fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
@@ -331,8 +376,8 @@ fn print_status(entry: &registry::Entry) -> anyhow::Result<bool> {
         entry.prefix,
         entry.run_dir.display()
     );
-    if let Some(design) = &entry.design {
-        println!("  design: {design}");
+    for line in design_now(entry) {
+        println!("  {line}");
     }
     print_processes(&run_dir);
     if let Ok(live) = flexloop_live::endpoint(&entry.run_dir) {

@@ -123,6 +123,10 @@ impl Tuner for LoopTuner {
             .map(|(path, text)| (path.display().to_string(), text))
             .map_err(|e| e.reason)
     }
+
+    fn design(&self, file: &str, text: &str) -> Result<Vec<(String, String)>, String> {
+        crate::live::design_words(std::path::Path::new(file), text).map_err(|e| e.to_string())
+    }
 }
 
 /// The server process of a running loop.

@@ -132,7 +132,12 @@ fn auto_bandwidth_is_resolved_once_and_shown() {
     assert_ran(&status);
     let words = format!("PID f_bw {chosen:.1} Hz (auto)");
     let text = String::from_utf8_lossy(&status.stdout);
-    assert!(text.contains(&format!("design: {words}")), "{text}");
+    assert!(
+        text.contains(&format!(
+            "controller: PID f_bw {chosen:.1} Hz (\"auto\": the largest meeting the 6 dB rule)"
+        )),
+        "{text}"
+    );
     let out = stop(&prefix, up);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains(&words), "{err}");

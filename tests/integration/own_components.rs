@@ -15,7 +15,7 @@ use std::time::Duration;
 /// The examples' programs (pid-controller, luenberger-observer), built
 /// once for every test here, into this build's target directory (their
 /// dependencies are the workspace's own).
-fn built(example: &str) -> PathBuf {
+pub(crate) fn built(example: &str) -> PathBuf {
     static BUILT: OnceLock<PathBuf> = OnceLock::new();
     let debug = BUILT.get_or_init(|| {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -163,7 +163,8 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
         .arg(dir.join("run"));
     let out = run_bounded(up, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
-    // `design` says its report is the built-in design, not the program's law.
+    // `design` names the program and claims no closed loop: that needs the
+    // program's law, which flexloop does not have.
     let mut design = flexloop();
     design.arg("design").arg(&scenario);
     let report = run_bounded(design, Duration::from_secs(60));
@@ -171,9 +172,20 @@ fn the_example_controller_runs_a_lockstep_loop_as_its_law_says() {
     let said = String::from_utf8_lossy(&report.stdout);
     assert!(
         said.starts_with("Served by programs of one's own: the controller by ")
-            && said.contains("not the loop that runs with them"),
+            && said.contains("closed loop: NOT ANALYSED")
+            && !said.contains("spectral radius"),
         "{said}"
     );
+    let mut json = flexloop();
+    json.arg("design").arg(&scenario).arg("--json");
+    let report = run_bounded(json, Duration::from_secs(60));
+    assert!(report.status.success(), "{}", describe(&report));
+    let report: serde_json::Value = serde_json::from_slice(&report.stdout).unwrap();
+    assert_eq!(
+        report["loop"]["program_roles"],
+        serde_json::json!(["controller"])
+    );
+    assert!(report["loop"].get("spectral_radius").is_none(), "{report}");
     let run = dir.join("run");
     let log = LogReader::open(&run.join("samples.mcap")).unwrap();
     // The set-point the law follows is the scenario's (1 mm at 2 Hz), and
@@ -687,12 +699,21 @@ fn a_programs_params_are_set_live_and_handed_over_bumplessly() {
             && said.contains("controller generation 1"),
         "{said}"
     );
+    // `get` shows what the running law reads (the new process's record of
+    // its parameters, `params/controller.g1.json`): a float, its default
+    // marked, and none of the built-in controller's fields.
     assert_eq!(
         stdout(&on_loop(&["get", "controller.params.kp"])).trim(),
-        "8000"
+        "8000.0"
     );
     let all = stdout(&on_loop(&["get"]));
     assert!(all.contains("controller.params.ki = 90000.0"), "{all}");
+    assert!(
+        all.contains("controller.params.feedforward = false  # the law's default"),
+        "{all}"
+    );
+    assert!(!all.contains("controller.bandwidth_hz"), "{all}");
+    assert!(all.contains("supervision.safe_action"), "{all}");
     // The built-in controller's fields do not act on a program.
     let refused = on_loop(&["set", "controller.bandwidth_hz=40"]);
     assert_eq!(refused.status.code(), Some(2), "{}", describe(&refused));

@@ -1,9 +1,14 @@
 //! An observer of one's own for a flexloop loop: the lecture's predictor
 //! observer on a double integrator (docs/control.md, "the lecture's double
 //! integrator"), x̂(k+1|k) = Φ x̂(k|k−1) + Γ u(k) + L (y(k) − C x̂(k|k−1)),
-//! with its poles placed from `[observer.params]`.
+//! with its poles placed from `[observer.params]`; one per axis (output i
+//! moved by input i: the rigid body each actuator drives), so that it
+//! estimates position and velocity on any plant with as many inputs as
+//! outputs.
 
-use flexloop_sdk::{Estimate, EstimationLaw, Handover, Measurement, ObserverSetup, SetupError};
+use flexloop_sdk::{
+    Estimate, EstimationLaw, Handover, MAX_INPUTS, Measurement, ObserverSetup, SetupError,
+};
 
 /// `[observer.params]`.
 #[derive(serde::Deserialize, serde::Serialize)]
@@ -18,22 +23,25 @@ struct Params {
 }
 
 struct Predictor {
-    /// Φ = [[1, T], [0, 1]], Γ = [T²/(2m), T/m], C = [1, 0].
+    /// Φ = [[1, T], [0, 1]], Γ = [T²/(2m), T/m], C = [1, 0], per axis.
     ts: f64,
     gamma: [f64; 2],
     gain: [f64; 2],
-    /// x̂(k|k−1): position, velocity.
-    x: [f64; 2],
+    axes: usize,
+    /// x̂(k|k−1): position and velocity of each axis, [p0, v0, p1, v1, …].
+    x: [f64; 2 * MAX_INPUTS],
     design: u64,
 }
 
 impl EstimationLaw for Predictor {
     fn new(setup: &ObserverSetup<'_>) -> Result<Self, SetupError> {
         let p: Params = setup.params()?;
-        if setup.n_inputs() != 1 || setup.n_outputs() != 1 {
+        let axes = setup.n_inputs();
+        if axes != setup.n_outputs() {
             return Err(SetupError::Unsupported(format!(
-                "this observer is for one input and one output; the loop has {} and {}",
-                setup.n_inputs(),
+                "this observer estimates output i moved by input i; the loop has {} inputs and \
+                 {} outputs",
+                axes,
                 setup.n_outputs()
             )));
         }
@@ -61,39 +69,45 @@ impl EstimationLaw for Predictor {
             ts,
             gamma: [ts * ts / (2.0 * p.mass_kg), ts / p.mass_kg],
             gain: [l1, l2],
-            x: [0.0; 2],
+            axes,
+            x: [0.0; 2 * MAX_INPUTS],
             design,
         })
     }
 
     fn initial(&mut self, out: &mut Estimate) {
-        out.n_states = 2;
-        out.x_hat[..2].copy_from_slice(&self.x);
+        let n = 2 * self.axes;
+        out.n_states = n as u32;
+        out.x_hat[..n].copy_from_slice(&self.x[..n]);
     }
 
     fn step(&mut self, m: &Measurement, out: &mut Estimate) {
-        let innovation = m.y[0] - self.x[0];
-        let u = m.u_applied[0];
-        let [p, v] = self.x;
-        self.x = [
-            p + self.ts * v + self.gamma[0] * u + self.gain[0] * innovation,
-            v + self.gamma[1] * u + self.gain[1] * innovation,
-        ];
-        out.n_states = 2;
-        out.x_hat[..2].copy_from_slice(&self.x);
-        out.innovation[0] = innovation;
+        for i in 0..self.axes {
+            let innovation = m.y[i] - self.x[2 * i];
+            let u = m.u_applied[i];
+            let (p, v) = (self.x[2 * i], self.x[2 * i + 1]);
+            self.x[2 * i] = p + self.ts * v + self.gamma[0] * u + self.gain[0] * innovation;
+            self.x[2 * i + 1] = v + self.gamma[1] * u + self.gain[1] * innovation;
+            out.innovation[i] = innovation;
+        }
+        let n = 2 * self.axes;
+        out.n_states = n as u32;
+        out.x_hat[..n].copy_from_slice(&self.x[..n]);
     }
 
     fn save(&self, out: &mut Handover) {
-        flexloop_sdk::save_state(out, self.design, &self.x);
+        flexloop_sdk::save_state(out, self.design, &self.x[..2 * self.axes]);
     }
 
     fn load(&mut self, from: &Handover) -> bool {
-        let Some(&[p, v]) = flexloop_sdk::saved_state(from, self.design) else {
-            return false;
-        };
-        self.x = [p, v];
-        true
+        let n = 2 * self.axes;
+        match flexloop_sdk::saved_state(from, self.design) {
+            Some(state) if state.len() == n => {
+                self.x[..n].copy_from_slice(state);
+                true
+            }
+            _ => false,
+        }
     }
 }
 

@@ -351,53 +351,9 @@ fn report(
     } else {
         (None, Some("not searched".into()))
     };
-    let c = &scenario.controller;
     let pid = design.pid_bandwidth;
-    let f_bw = match pid {
-        Some(p) if p.auto => format!(
-            "{:.1} Hz (\"auto\": the largest meeting the 6 dB rule)",
-            p.hz
-        ),
-        Some(p) => format!("{:.1} Hz", p.hz),
-        None => String::new(),
-    };
-    let controller = match c.feedback.as_str() {
-        "pid" if ny > 1 || design.n_inputs > 1 => {
-            format!("PID f_bw {f_bw} on each of {ny} rigid-body-decoupled axes")
-        }
-        "pid" => format!("PID f_bw {f_bw}"),
-        _ if scenario.observer.design == "state-feedback" => "state feedback".to_string(),
-        _ => "none".to_string(),
-    };
-    let controller = if c.notches_hz.is_empty() || c.feedback != "pid" {
-        controller
-    } else {
-        let hz: Vec<String> = c.notches_hz.iter().map(|h| format!("{h}")).collect();
-        format!("{controller}, notches at {} Hz (pre-warped)", hz.join(", "))
-    };
-    let o = &scenario.observer;
-    let observer = match o.design.as_str() {
-        "kalman" => {
-            let mut parts = vec![format!(
-                "Kalman predictor, {} states",
-                design.observer.estimate_map.nrows()
-            )];
-            if o.mc {
-                parts.push("MC".into());
-            }
-            if o.ad {
-                parts.push(match o.damping_target {
-                    Some(z) => format!("AD to ζ {z}"),
-                    None => format!("AD +{}", o.damping_increase),
-                });
-                if o.bandpass_q > 0.0 {
-                    parts.push(format!("band-pass Q {}", o.bandpass_q));
-                }
-            }
-            parts.join(", ")
-        }
-        other => other.to_string(),
-    };
+    let controller = controller_words(scenario, design);
+    let observer = observer_words(scenario, design);
     Ok(LoopReport {
         scenario: scenario.name.clone(),
         model: scenario.plant.model.clone(),
@@ -780,13 +736,7 @@ pub fn program_loop_report(scenario: &Scenario, design: &LoopDesign) -> ProgramL
         input_unit: design.input_unit,
         program_roles,
         flexible_modes: design.flexible_modes.clone(),
-        observer: built_in_observer.then(|| {
-            format!(
-                "{}, {} states",
-                scenario.observer.design,
-                design.observer.estimate_map.nrows()
-            )
-        }),
+        observer: built_in_observer.then(|| observer_words(scenario, design)),
         observer_poles,
     }
 }
@@ -846,5 +796,69 @@ impl ProgramLoopReport {
             }
         }
         s
+    }
+}
+
+/// What closes the loop, in words: the PID and its f_bw (and whether
+/// `"auto"` chose it) with its notches, state feedback, none, or the
+/// program that serves the controller.
+pub fn controller_words(scenario: &Scenario, design: &LoopDesign) -> String {
+    if let Some(exec) = &scenario.controller.exec {
+        return format!("program {}", exec.join(" "));
+    }
+    let c = &scenario.controller;
+    let ny = design.n_outputs;
+    let f_bw = match design.pid_bandwidth {
+        Some(p) if p.auto => format!(
+            "{:.1} Hz (\"auto\": the largest meeting the 6 dB rule)",
+            p.hz
+        ),
+        Some(p) => format!("{:.1} Hz", p.hz),
+        None => String::new(),
+    };
+    let controller = match c.feedback.as_str() {
+        "pid" if ny > 1 || design.n_inputs > 1 => {
+            format!("PID f_bw {f_bw} on each of {ny} rigid-body-decoupled axes")
+        }
+        "pid" => format!("PID f_bw {f_bw}"),
+        _ if scenario.observer.design == "state-feedback" => "state feedback".to_string(),
+        _ => "none".to_string(),
+    };
+    if c.notches_hz.is_empty() || c.feedback != "pid" {
+        controller
+    } else {
+        let hz: Vec<String> = c.notches_hz.iter().map(|h| format!("{h}")).collect();
+        format!("{controller}, notches at {} Hz (pre-warped)", hz.join(", "))
+    }
+}
+
+/// The observer in words: its design and tuning (MC, AD, band-pass), or
+/// the program that serves it.
+pub fn observer_words(scenario: &Scenario, design: &LoopDesign) -> String {
+    let o = &scenario.observer;
+    if let Some(exec) = &o.exec {
+        return format!("program {}", exec.join(" "));
+    }
+    match o.design.as_str() {
+        "kalman" => {
+            let mut parts = vec![format!(
+                "Kalman predictor, {} states",
+                design.observer.estimate_map.nrows()
+            )];
+            if o.mc {
+                parts.push("MC".into());
+            }
+            if o.ad {
+                parts.push(match o.damping_target {
+                    Some(z) => format!("AD to ζ {z}"),
+                    None => format!("AD +{}", o.damping_increase),
+                });
+                if o.bandpass_q > 0.0 {
+                    parts.push(format!("band-pass Q {}", o.bandpass_q));
+                }
+            }
+            parts.join(", ")
+        }
+        other => other.to_string(),
     }
 }

@@ -119,17 +119,37 @@ impl EventsTail {
     }
 }
 
-/// `/scenario`: the loop's scenario as it stands, sent again when it changes.
+/// `/scenario`: the loop's scenario as it stands and the design it runs
+/// (`design`: what closes the loop, in words, `"auto"`'s choice included),
+/// sent again when it changes.
 #[derive(Default)]
 pub struct ScenarioWatch {
     last: Option<String>,
+    /// The text the message was last made from: the design is made again
+    /// only when it changes.
+    last_text: Option<String>,
 }
 
 impl ScenarioWatch {
     pub fn current(&mut self, tuner: &Arc<dyn Tuner>) -> Option<String> {
         let (file, text) = tuner.scenario().ok()?;
-        let json = serde_json::json!({"file": file, "toml": text}).to_string();
+        if self.last_text.as_deref() == Some(text.as_str())
+            && let Some(last) = &self.last
+        {
+            return Some(last.clone());
+        }
+        let design: serde_json::Map<String, serde_json::Value> = match tuner.design(&file, &text) {
+            Ok(parts) => parts
+                .into_iter()
+                .map(|(part, words)| (part, serde_json::Value::String(words)))
+                .collect(),
+            Err(e) => [("error".to_string(), serde_json::Value::String(e))]
+                .into_iter()
+                .collect(),
+        };
+        let json = serde_json::json!({"file": file, "toml": text, "design": design}).to_string();
         self.last = Some(json.clone());
+        self.last_text = Some(text);
         Some(json)
     }
 

@@ -21,4 +21,8 @@ pub trait Tuner: Send + Sync + 'static {
     fn set(&self, changes: &[(String, String)]) -> Result<SetOutcome, String>;
     /// The scenario as it stands: its file and its TOML text.
     fn scenario(&self) -> Result<(String, String), String>;
+    /// The design the scenario `text` (as [`Tuner::scenario`] gave it)
+    /// runs, in words by part (`controller`, `observer`): what `"auto"`
+    /// chose included. Asked only when the scenario changed.
+    fn design(&self, file: &str, text: &str) -> Result<Vec<(String, String)>, String>;
 }

@@ -235,7 +235,7 @@ impl<L: ControlLaw> Component for Controller<L> {
                     self.takeover
                         .follow(&mut self.core, &instance.handovers, older.seq, false);
                     self.core.step(older, e, &mut self.shadow_command);
-                    self.takeover.shadow_u = self.shadow_command.u;
+                    self.takeover.shadow_u = law_output(&self.shadow_command, self.n_inputs);
                     self.takeover.shadow_seq = older.seq;
                 }
             }
@@ -363,7 +363,7 @@ impl<L: ControlLaw> Controller<L> {
             self.n_inputs,
             self.n_outputs,
         );
-        self.takeover.shadow_u = self.shadow_command.u;
+        self.takeover.shadow_u = law_output(&self.shadow_command, self.n_inputs);
         self.takeover.shadow_seq = m.seq;
         if duty == Duty::Standby {
             let shadow_command = &self.shadow_command;
@@ -588,6 +588,28 @@ impl Takeover {
             core.shift_output(&delta[..n_inputs]);
         }
     }
+}
+
+/// What the law asked for, before any clamp: the sum of its parts when it
+/// gives them (`u_fb + u_ff + u_d`, as the built-in controller and the
+/// examples do), else its command. The bumpless shift continues the old
+/// command from this: a shadow saturated at the actuator's limit would
+/// otherwise shift by the wrong amount and step the actuator at the switch
+/// by as much as its own output exceeds the limit (seen: 706 N).
+fn law_output(command: &Command, n_inputs: usize) -> [f64; MAX_INPUTS] {
+    let n = n_inputs.min(MAX_INPUTS);
+    let has_parts =
+        (0..n).any(|i| command.u_fb[i] != 0.0 || command.u_ff[i] != 0.0 || command.u_d[i] != 0.0);
+    let mut out = command.u;
+    if has_parts {
+        for (i, u) in out.iter_mut().enumerate().take(n) {
+            let sum = command.u_fb[i] + command.u_ff[i] + command.u_d[i];
+            if sum.is_finite() {
+                *u = sum;
+            }
+        }
+    }
+    out
 }
 
 const RING: usize = FOLLOW_DEPTH;

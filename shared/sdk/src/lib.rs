@@ -41,7 +41,7 @@ pub use flexloop_components::control_law::{ControlLaw, ControllerSetup};
 pub use flexloop_components::estimation_law::{EstimationLaw, ObserverSetup};
 pub use flexloop_components::law_setup::{SetupError, save_state, saved_state};
 pub use flexloop_design::LoopDesign;
-pub use flexloop_design::reference::Reference;
+pub use flexloop_design::reference::{Derivatives, Reference};
 pub use flexloop_node::{own_args, run_controller, run_observer};
 pub use flexloop_protocol::{
     Command, Estimate, Handover, MAX_INPUTS, MAX_OUTPUTS, MAX_STATES, Measurement,
