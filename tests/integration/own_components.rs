@@ -123,7 +123,7 @@ impl ReferencePid {
 
 /// Waits (bounded) until the process `pid` is gone (the supervisor reaps
 /// its children at once).
-fn assert_gone(pid: i32) {
+pub(crate) fn assert_gone(pid: i32) {
     let since = std::time::Instant::now();
     while Path::new(&format!("/proc/{pid}")).exists() {
         assert!(
@@ -351,6 +351,40 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     let generations: std::collections::BTreeSet<u32> =
         log.commands().map(|c| c.generation).collect();
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
+    // Back to the lecture's state feedback, a built-in design without an
+    // integrator (feedback = "none"): nothing in it can take the old
+    // command over, so it runs its own law from its first sample, and the
+    // switch is the two laws' difference there, measured and reported
+    // (docs/components.md, "Back to a built-in design").
+    let design = flexloop_design::acceptance::accept(
+        &scenario("lecture-double-integrator"),
+        &flexloop_scenario::Overrides::default(),
+        2,
+    )
+    .unwrap()
+    .design;
+    assert!(design.feedback.is_none());
+    let estimates: std::collections::HashMap<u64, &flexloop_protocol::Estimate> =
+        log.estimates().map(|e| (e.seq, e)).collect();
+    let back: Vec<&Command> = log.commands().filter(|c| c.generation == 2).collect();
+    assert!(back.len() > 500, "{} commands", back.len());
+    for c in &back {
+        let mut law = flexloop_components::ControllerCore::new(&design, 2);
+        let mut out = Command::default();
+        law.step(measurements[&c.seq], estimates[&c.seq], &mut out);
+        assert_eq!(
+            c.u[0], out.u[0],
+            "sample {}: not the built-in law's own",
+            c.seq
+        );
+    }
+    let last_of_program = served.last().unwrap();
+    assert_eq!(last_of_program.seq + 1, back[0].seq);
+    let du_switch = swaps[1]["detail"]["switch"]["du_switch"].as_f64().unwrap();
+    assert!(
+        (du_switch - (back[0].u[0] - last_of_program.u[0]).abs()).abs() < 1e-12,
+        "{du_switch}"
+    );
     assert!(
         !events(&dir).iter().any(|e| e["kind"] == "crash"),
         "{:?}",
@@ -519,7 +553,7 @@ fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
 }
 
 /// The observer example's scenario, with both programs as built here.
-fn observer_scenario(dir: &Path) -> PathBuf {
+pub(crate) fn observer_scenario(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/luenberger-observer/scenario.toml"),
     )

@@ -484,3 +484,78 @@ matrix! {
     mimo_built_in_observer_python_controller: "mimo", false, Python;
     mimo_observer_program_python_controller: "mimo", true, Python;
 }
+
+/// With a command deadline τ_d (each command acts from t_k + τ_d,
+/// docs/deadline.md) a program serves the loop too: the Rust example with
+/// its model feedforward evaluates the reference at the SDK's actuation
+/// instant, t_k + τ_d, and its every command is its law's; the plant
+/// counts no miss in lockstep.
+#[test]
+fn a_program_serves_a_loop_with_a_command_deadline() {
+    let dir = temp_dir("matrix-deadline");
+    let base = Plant {
+        tag: "deadline",
+        scenario: scenario("thesis-mc-ad-deadline-30us"),
+        mass: 12.5,
+    };
+    let mut table: toml::Table =
+        toml::from_str(&std::fs::read_to_string(&base.scenario).unwrap()).unwrap();
+    let mut params = params_table(&pid_params(base.mass));
+    params.insert("feedforward".into(), toml::Value::Boolean(true));
+    served_by_program(
+        &mut table,
+        ProgramRole::Controller,
+        &controller_exec(Controller::Rust),
+        None,
+        Some(params),
+    );
+    let file = dir.join("deadline.toml");
+    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
+    let mut up = flexloop();
+    up.arg("up")
+        .arg(&file)
+        .args(["--no-realtime", "--mode", "lockstep", "--run-dir"])
+        .arg(dir.join("run"));
+    let out = run_bounded(up, Duration::from_secs(300));
+    assert_ran(&out);
+    let run = dir.join("run");
+    let summary = summary(&run);
+    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    let design = design(&file);
+    let tau = design.command_deadline_s.unwrap();
+    assert_eq!(tau, 30e-6);
+    let log = LogReader::open(&run.join("samples.mcap")).unwrap();
+    let commands: HashMap<u64, &Command> = log.commands().map(|c| (c.seq, c)).collect();
+    let mut law = ReferencePid::new(base.mass, design.ts, design.input_limit);
+    let mut checked = 0;
+    let mut feedforward_seen = 0.0f64;
+    for m in log.measurements() {
+        let Some(sent) = commands.get(&m.seq) else {
+            break;
+        };
+        let r = design.reference.sample(m.seq as f64 * design.ts)[0];
+        let (_, u_fb) = law.step(0, r, m.y[0]);
+        let ahead = design.reference.sample(m.seq as f64 * design.ts + tau);
+        let u_ff: f64 = design.feedforward[0]
+            .iter()
+            .zip(&ahead)
+            .map(|(g, d)| g * d)
+            .sum();
+        let u = (u_fb + u_ff).clamp(-design.input_limit, design.input_limit);
+        assert!(
+            (sent.u[0] - u).abs() <= 1e-12 * u.abs().max(1.0),
+            "sample {}: sent {}, the law at t_k + τ_d gives {u}",
+            m.seq,
+            sent.u[0]
+        );
+        assert_eq!(sent.u_ff[0], u_ff);
+        feedforward_seen = feedforward_seen.max(u_ff.abs());
+        checked += 1;
+    }
+    assert!(checked > 2_000, "{checked}");
+    assert!(
+        feedforward_seen > 100.0,
+        "the scan's feedforward: {feedforward_seen} N"
+    );
+    assert_clean(&run);
+}

@@ -634,3 +634,86 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
     assert_eq!(summary["gaps"]["estimate"], 0, "{summary}");
     assert_clean(&dir);
 }
+
+/// The scan rms of e_true of a lockstep `flexloop run` of `scenario_file`.
+fn scan_rms(scenario_file: &Path, run_dir: &Path) -> f64 {
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(scenario_file)
+        .args(["--mode", "lockstep", "--no-realtime", "--run-dir"])
+        .arg(run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    let metrics: Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("metrics.json")).unwrap())
+            .unwrap();
+    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
+    metrics["control"]["rms_e_true_scan"].as_f64().unwrap()
+}
+
+/// The thesis' MC + AD scan (thesis-mc-ad-redesigned, f_bw 43.5 Hz, the
+/// fitted feedforward gains) under the thesis' controller written in
+/// Python (python/examples/thesis_pid.py: Table 3.3's PID, MC and AD from
+/// the estimate's parts, the feedforward on the reference's derivatives at
+/// the actuation instant) against the built-in controller at the same
+/// gains, both with the plain feedforward form: the same scan error.
+#[test]
+fn the_thesis_controller_in_python_scans_as_the_built_in_one_at_the_same_gains() {
+    let dir = temp_dir("python-thesis-pid");
+    let plain = [(
+        "feedforward_form = \"modified\"",
+        "feedforward_form = \"plain\"",
+    )];
+    let built_in = scenario_variant(&dir, "thesis-mc-ad-redesigned", "built-in.toml", &plain, "");
+    let text = std::fs::read_to_string(&built_in).unwrap();
+    let mut table: toml::Table = toml::from_str(&text).unwrap();
+    let ff = table["controller"]["feedforward"].clone();
+    let gain = |k: &str| ff[k].as_float().unwrap();
+    let mut params = toml::Table::new();
+    for (key, value) in [
+        ("bandwidth_hz", 43.5),
+        // The mass the built-in PID is tuned on (the chain's rigid body).
+        ("mass_kg", 12.5),
+        ("ff_snap", gain("snap")),
+        ("ff_jerk", gain("jerk")),
+        ("ff_acc", gain("acc")),
+        ("ff_vel", gain("vel")),
+    ] {
+        params.insert(key.into(), toml::Value::Float(value));
+    }
+    let exec = [
+        python(),
+        repo()
+            .join("python/examples/thesis_pid.py")
+            .display()
+            .to_string(),
+    ];
+    flexloop_scenario::program::served_by_program(
+        &mut table,
+        flexloop_scenario::ProgramRole::Controller,
+        &exec,
+        None,
+        Some(params),
+    );
+    let in_python = dir.join("python.toml");
+    std::fs::write(&in_python, toml::to_string(&table).unwrap()).unwrap();
+    let rms_built_in = scan_rms(&built_in, &dir.join("run-built-in"));
+    let rms_python = scan_rms(&in_python, &dir.join("run-python"));
+    let off = (rms_python - rms_built_in).abs() / rms_built_in;
+    assert!(
+        off < 0.01,
+        "scan rms {:.4} nm in Python against {:.4} nm built-in ({:.3} %)",
+        rms_python * 1e9,
+        rms_built_in * 1e9,
+        off * 100.0
+    );
+    // The Python law's command carries its parts as the built-in one's does.
+    let log = flexloop_components::LogReader::open(&dir.join("run-python/samples.mcap")).unwrap();
+    let c = log.commands().nth(1_000).unwrap();
+    assert!(
+        c.u_ff[0] != 0.0 && c.u_d[0] != 0.0 && c.u_fb[0] != 0.0,
+        "{c:?}"
+    );
+    assert!((c.u[0] - (c.u_fb[0] + c.u_ff[0] + c.u_d[0])).abs() < 1e-9);
+    assert_clean(&dir.join("run-python"));
+}
