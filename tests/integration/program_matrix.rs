@@ -1,7 +1,8 @@
 //! Components of one's own on every plant flexloop takes (docs/components.md):
 //! {the built-in chain, a lumped network, a second-order file, a
 //! state-space file, a MIMO plant} × {observer built-in, observer program}
-//! × {controller built-in, Rust program, Python program}, each in lockstep:
+//! × {controller built-in, Rust program, Python program}, and the chain
+//! with a scanned sensor and with a command deadline, each in lockstep:
 //! the loop starts on the controller from tick 0, swaps to another and back
 //! (to and from a program by `swap --exec` with `--param`), and every
 //! command of the controller that started is its law recomputed here from
@@ -112,6 +113,18 @@ fn plant(tag: &str) -> Plant {
         "state-space" => Plant {
             tag: "state-space",
             scenario: from_file("state-space", "chain_abcd.npz"),
+            mass: chain_mass,
+        },
+        // The chain with its sensor scanned along it (a scheduled observer).
+        "sensor-scan" => Plant {
+            tag: "sensor-scan",
+            scenario: scenario("thesis-sensor-scan-ad"),
+            mass: chain_mass,
+        },
+        // The chain with each command applied on arrival, 30 µs after its tick.
+        "deadline" => Plant {
+            tag: "deadline",
+            scenario: scenario("thesis-mc-ad-deadline-30us"),
             mass: chain_mass,
         },
         // Two actuators on a 10 kg beam: about half the mass each.
@@ -483,6 +496,12 @@ matrix! {
     state_space_observer_program_python_controller: "state-space", true, Python;
     mimo_built_in_observer_python_controller: "mimo", false, Python;
     mimo_observer_program_python_controller: "mimo", true, Python;
+    sensor_scan_built_in_observer_built_in_controller: "sensor-scan", false, BuiltIn;
+    sensor_scan_built_in_observer_rust_controller: "sensor-scan", false, Rust;
+    sensor_scan_observer_program_rust_controller: "sensor-scan", true, Rust;
+    deadline_built_in_observer_built_in_controller: "deadline", false, BuiltIn;
+    deadline_built_in_observer_rust_controller: "deadline", false, Rust;
+    deadline_built_in_observer_python_controller: "deadline", false, Python;
 }
 
 /// With a command deadline τ_d (each command acts from t_k + τ_d,
