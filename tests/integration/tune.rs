@@ -72,6 +72,35 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
     // Only the controller's design changed: the observer keeps generation 0.
     assert!(!said.contains("observer generation"), "{said}");
     assert_eq!(get(&prefix, "controller.bandwidth_hz"), "35.5");
+    // `status` shows the design as it stands, not the one it started with.
+    let status = flexloop_on(&prefix, &["status"]);
+    assert_ran(&status);
+    let shown = stdout(&status);
+    assert!(
+        shown.contains("controller: PID f_bw 35.5 Hz")
+            && !shown.contains("43.5 Hz")
+            && shown.contains("observer: Kalman predictor"),
+        "{shown}"
+    );
+    // And `"auto"` set live: status says what it chose (the largest f_bw
+    // meeting the 6 dB rule on this loop, near the 43.5 Hz of
+    // docs/control.md §10.1).
+    let out = flexloop_on(&prefix, &["set", "controller.bandwidth_hz=\"auto\""]);
+    assert!(out.status.success(), "{}", describe(&out));
+    let status = flexloop_on(&prefix, &["status"]);
+    let shown = stdout(&status);
+    let chosen: f64 = shown
+        .split("controller: PID f_bw ")
+        .nth(1)
+        .and_then(|rest| {
+            rest.split(" Hz (\"auto\": the largest meeting the 6 dB rule)")
+                .next()
+        })
+        .and_then(|hz| hz.parse().ok())
+        .unwrap_or_else(|| panic!("no auto choice shown: {shown}"));
+    assert!((43.0..=45.0).contains(&chosen), "{shown}");
+    let out = flexloop_on(&prefix, &["set", "controller.bandwidth_hz=35.5"]);
+    assert!(out.status.success(), "{}", describe(&out));
 
     // The scenario as it stands saves the tuned loop, and every command
     // accepts it.
@@ -115,9 +144,9 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
         assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
     }
     let swaps = of_kind(&dir, "swap");
-    assert_eq!(swaps.len(), 2, "{swaps:?}");
+    assert_eq!(swaps.len(), 4, "{swaps:?}");
     let sets = of_kind(&dir, "set");
-    assert_eq!(sets.len(), 1, "{sets:?}");
+    assert_eq!(sets.len(), 3, "{sets:?}");
     let set = &sets[0]["detail"];
     assert_eq!(set["fields"][0]["field"], "controller.bandwidth_hz");
     assert_eq!(set["fields"][0]["old"], "43.5");
@@ -146,7 +175,7 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
     );
     let generations: std::collections::BTreeSet<u32> =
         log.commands().map(|c| c.generation).collect();
-    assert_eq!(generations.len(), 3, "controllers 0, 1, 2: {generations:?}");
+    assert_eq!(generations.len(), 5, "controllers 0 to 4: {generations:?}");
     assert_clean(&dir);
 }
 
