@@ -212,6 +212,16 @@ fn live_clients_get_the_recorded_messages_at_their_rate_and_bad_clients_disturb_
         std::fs::read_to_string(file).unwrap(),
         "{file}"
     );
+    // With the design it runs, in words (what `status` prints): the
+    // lecture's state feedback on its predictor observer.
+    assert_eq!(
+        scenario["design"]["controller"], "state feedback",
+        "{scenario}"
+    );
+    assert_eq!(
+        scenario["design"]["observer"], "state-feedback",
+        "{scenario}"
+    );
     // Unsubscribed (from all but /latency): the server hands it nothing
     // more between two of its latency messages but the latency itself.
     assert_eq!(seen["handed_after_unsubscribing"], 0, "{seen}");
