@@ -459,7 +459,8 @@ class _Process:
 
     def _catch_up(self, state_seq, first_live, stepped):
         """Steps through the supervisor's replay of the measurements after
-        ``state_seq`` (reporting its progress, which paces the replay)
+        ``state_seq`` (reporting its progress: the first report opens the
+        replay for this generation, the others pace it)
         while the live queue fills, then through the live samples held
         meanwhile; bounded by :data:`CATCH_UP_TIMEOUT_S` without progress."""
         if self.stash is None:

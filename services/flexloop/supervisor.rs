@@ -371,6 +371,18 @@ impl RunningLoop {
         }
     }
 
+    /// Kills one child by pid (one we started and have not reaped) with
+    /// SIGKILL, which a stopped or hung process cannot ignore; its exit is
+    /// not expected: the conductor deals with it as a crash.
+    pub fn kill(&mut self, pid: i32) {
+        if let Some(c) = self.children.iter().find(|c| c.pid == pid)
+            && c.exit.is_none()
+        {
+            // SAFETY: a pid we started and have not reaped, so not reused.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+    }
+
     /// Says whether the exit of `pid` is expected (not the run's failure).
     pub fn expect_exit(&mut self, pid: i32, expected: bool) {
         if let Some(c) = self.children.iter_mut().find(|c| c.pid == pid) {

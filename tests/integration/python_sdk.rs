@@ -594,9 +594,8 @@ fn the_python_observer_swaps_into_a_running_loop_and_back() {
 fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
     let dir = temp_dir("python-observer-restart");
     let file = python_observer_scenario(&dir);
-    // Without warm spares: with them, the supervisor feeds its replay as
-    // soon as any replay reader is there (the spare observer), before the
-    // restarted program has subscribed, and the program sees none of it.
+    // Without warm spares (tests/integration/observer_restart.rs runs the
+    // same with them).
     let mut text = std::fs::read_to_string(&file).unwrap();
     text.push_str("\n[supervision]\nwarm_spares = false\n");
     std::fs::write(&file, text).unwrap();

@@ -11,10 +11,13 @@
 
 mod events;
 mod policy;
+mod silence;
 mod steps;
 
 pub use events::{Action, Event, Record, Stage};
 pub use policy::{Policy, backoff};
+#[cfg(test)]
+pub use silence::SilenceRule;
 pub use steps::{DrainStep, Engagement, Failure, Renewal, RestartPlan, Retirement, ShadowStep};
 
 use super::measure::{AppliedHistory, BEFORE_SWITCH, Pace};
@@ -28,6 +31,7 @@ use flexloop_protocol::handover::ACTIVE;
 use flexloop_protocol::{Activation, Handover};
 use flexloop_scenario::schema::RestartPolicy;
 use serde_json::{Value, json};
+use silence::SilenceWatch;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -80,6 +84,8 @@ pub struct Core {
     /// A swap or restart is under way: crashes wait for its end to be
     /// settled (it may be the one that deals with them).
     busy: bool,
+    /// What the loop shows of the controller's and observer's output.
+    silence: SilenceWatch,
 }
 
 impl Core {
@@ -102,6 +108,7 @@ impl Core {
             pace: Pace::default(),
             applied,
             busy: false,
+            silence: SilenceWatch::default(),
         }
     }
 
@@ -163,12 +170,15 @@ impl Core {
                 seq,
                 command_seq,
                 u,
+                fresh,
             } => {
                 self.applied.push(seq, command_seq, u);
+                self.silence.tick(seq, fresh);
                 Vec::new()
             }
             Event::Estimate { seq } => {
                 self.saw_sample(seq.saturating_sub(1));
+                self.silence.estimate(seq);
                 Vec::new()
             }
             Event::State { role, state } => {
@@ -199,9 +209,11 @@ impl Core {
                 if let Some(seq) = self.last_seq {
                     self.pace.push(now, seq);
                 }
+                self.silence.polled(now);
                 Vec::new()
             }
             Event::Tick { now, stage } => match stage {
+                Stage::Silence => self.check_silence(now),
                 Stage::Restarts => self.due_restarts(now),
                 Stage::Retiring => self.check_retiring(now),
                 Stage::Standby => self.keep_standby().into_iter().collect(),
@@ -249,9 +261,12 @@ impl Core {
         self.busy = true;
     }
 
-    /// It ended: the crashes seen meanwhile are settled now.
+    /// It ended: the crashes seen meanwhile are settled now. The roles'
+    /// silence is judged afresh from here (a new instance may serve).
     pub fn end_operation(&mut self, now: Instant) -> Vec<Action> {
         self.busy = false;
+        self.silence.restart_clock(Role::Controller, now);
+        self.silence.restart_clock(Role::Observer, now);
         self.settle_crashes(now)
     }
 
@@ -273,6 +288,7 @@ impl Core {
                 continue;
             };
             let (role, generation, code) = (m.role, m.generation, m.exit.unwrap_or(-1));
+            let cause = if m.silenced { "silent" } else { "crashed" };
             if m.spare() || m.standby() {
                 let duty = if m.spare() { "spare" } else { "standby" };
                 let budget = if m.spare() {
@@ -319,7 +335,7 @@ impl Core {
                 actions.push(self.crash_record(
                     role,
                     generation,
-                    json!({"exit": code, "fatal": reason}),
+                    json!({"exit": code, "cause": cause, "fatal": reason}),
                 ));
                 continue;
             }
@@ -328,7 +344,7 @@ impl Core {
             actions.push(self.crash_record(
                 role,
                 generation,
-                json!({"exit": code, "restart_in_ms": wait.as_millis() as u64}),
+                json!({"exit": code, "cause": cause, "restart_in_ms": wait.as_millis() as u64}),
             ));
             self.pending.push(PendingRestart {
                 role,
@@ -336,6 +352,47 @@ impl Core {
             });
         }
         actions
+    }
+
+    /// A live controller or observer that left the loop without its output
+    /// for the policy's ticks (and wall time) is hung: it is killed, and its
+    /// exit is dealt with as a crash's (the standby, a restart, a program's
+    /// rollback), its `crash` event saying `"cause": "silent"`. Not while a
+    /// swap or restart is under way, nor once the run ends.
+    fn check_silence(&mut self, now: Instant) -> Vec<Action> {
+        if self.busy || self.run_ending {
+            return Vec::new();
+        }
+        let Some(silent) = self.silence.silent(&self.policy.silence, now) else {
+            return Vec::new();
+        };
+        let Some(m) = self
+            .roster
+            .serving(silent.role)
+            .filter(|m| m.alive() && !m.silenced)
+        else {
+            return Vec::new();
+        };
+        let (pid, generation) = (m.pid, m.generation);
+        if let Some(m) = self.roster.get_mut(pid) {
+            m.silenced = true;
+        }
+        // Its replacement is judged from its own start.
+        self.silence.restart_clock(silent.role, now);
+        vec![
+            self.note(
+                "silent",
+                silent.role,
+                generation,
+                json!({
+                    "pid": pid,
+                    "ticks_without_output": silent.ticks,
+                    "seconds_without_output": silent.since.as_secs_f64(),
+                    "action": "killed, then handled as a crash",
+                }),
+            ),
+            Action::Kill(pid),
+        ]
     }
 
     fn crash_record(&self, role: Role, generation: Option<u32>, detail: Value) -> Action {

@@ -112,6 +112,7 @@ impl Ports {
                     seq: m.seq,
                     command_seq: m.command_seq,
                     u: m.u_applied,
+                    fresh: m.flags & (flags::HELD_INPUT | flags::FALLBACK) == 0,
                 });
                 if m.flags & flags::END_OF_RUN != 0 {
                     core.handle(Event::EndOfRun);
@@ -186,12 +187,11 @@ impl Ports {
     }
 
     /// Replays to the restarted observer `generation` the measurements after
-    /// its dead predecessor's last state (see [`Replay::feed`]).
+    /// its dead predecessor's last state (see [`Replay::feed`]). Nothing
+    /// before that generation says it is catching up, with its reader open
+    /// (`poll` hands the replay its reports): the channel keeps no history,
+    /// and another reader (an idle warm spare) is no sign that it listens.
     pub fn feed_replay(&self, replay: &mut Replay, generation: u32, state_seq: u64) {
-        // Nothing before the observer listens: the channel keeps no history.
-        if self.replay_out.subscribers() == 0 {
-            return;
-        }
         let out = &self.replay_out;
         replay.feed(generation, state_seq, |m| out.publish(|r| *r = *m).is_ok());
     }

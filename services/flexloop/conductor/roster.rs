@@ -59,6 +59,8 @@ pub struct Member {
     /// It published a state (following in shadow, or serving): it has
     /// followed the loop at least once.
     pub followed: bool,
+    /// Judged hung (silent) and killed: its exit is a fault of that cause.
+    pub silenced: bool,
 }
 
 impl Member {
@@ -111,6 +113,7 @@ impl Roster {
             fatal_recorded: false,
             program,
             followed: false,
+            silenced: false,
         });
     }
 

@@ -179,6 +179,7 @@ impl Conductor {
             match action {
                 Action::Record(record) => self.record(record),
                 Action::Stop(pid) => self.stop(running, pid),
+                Action::Kill(pid) => running.kill(pid),
                 Action::EndRun(outcome) => return Some(outcome),
                 Action::Restart(role) => {
                     let result = self.operation(running, |c, running| c.restart(running, role));

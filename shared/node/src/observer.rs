@@ -417,9 +417,10 @@ impl std::fmt::Display for CaughtUp {
 /// A restarted observer holds the state its dead predecessor last published
 /// (after measurement `state_seq`) and has just received `first_live`: it
 /// steps through the supervisor's replay of the measurements in between,
-/// reporting its progress (which paces the replay), while the live queue
-/// fills, and then through the live samples held meanwhile. Design-time
-/// work in shadow, off the loop's CPU; bounded by [`CATCH_UP_TIMEOUT`].
+/// reporting first that it is catching up (which begins the replay), then
+/// its progress (which paces it), while the live queue fills, and then
+/// through the live samples held meanwhile. Design-time work in shadow, off
+/// the loop's CPU; bounded by [`CATCH_UP_TIMEOUT`].
 #[allow(clippy::too_many_arguments)]
 fn catch_up(
     core: &mut Stamped<impl EstimationLaw>,
@@ -435,6 +436,13 @@ fn catch_up(
     let mut merge = CatchUp::after(state_seq);
     if let Some(m) = first_live {
         merge.hold_live(m);
+    }
+    // Says it is catching up from `state_seq`, its replay reader open: the
+    // supervisor begins the replay on this report (the channel keeps no
+    // history, and other observers read it too) and paces it by the next.
+    {
+        let core = &*core;
+        instance.publish_state(states_out, state_seq, &[], |h| core.save(h))?;
     }
     let mut last_progress = Instant::now();
     let (mut replayed, mut reported) = (0u64, state_seq);

@@ -7,10 +7,11 @@
 //! leaves an error transient that a lightly damped filter has not shed by
 //! the switch. So the supervisor keeps a ring of recent measurements and
 //! replays those after the old state (channel `flexloop/measurement-replay`,
-//! paced by the progress the observer reports as `CATCHING_UP` states),
-//! while the live queue holds the newest ones. [`CatchUp`] merges the two
-//! into the one gapless sequence the observer steps through, and says when
-//! the replay has reached the live samples.
+//! begun by the observer's first `CATCHING_UP` state, which it publishes
+//! with its replay reader open, and paced by the progress it reports in the
+//! next ones), while the live queue holds the newest ones. [`CatchUp`]
+//! merges the two into the one gapless sequence the observer steps through,
+//! and says when the replay has reached the live samples.
 
 use flexloop_protocol::Measurement;
 

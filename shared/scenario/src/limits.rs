@@ -37,7 +37,8 @@ pub const DIRECTION_MAX: f64 = 1e3;
 pub const TIMER_SLACK_NS_MAX: u64 = 1_000_000;
 /// `realtime.<process>.cpu`: the kernel's CPU set size.
 pub const CPU_MAX: usize = 1023;
-/// `supervision.command_watchdog_ticks`, `supervision.estimate_watchdog_ticks`.
+/// `supervision.command_watchdog_ticks`, `supervision.estimate_watchdog_ticks`,
+/// `supervision.silent_ticks`.
 pub const WATCHDOG_TICKS_MAX: u32 = 100_000;
 /// `supervision.max_restarts`.
 pub const MAX_RESTARTS_MAX: u32 = 1_000_000;

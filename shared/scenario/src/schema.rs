@@ -725,6 +725,17 @@ pub struct SupervisionSection {
     /// becomes the next spare.
     #[serde(default = "yes")]
     pub warm_spares: bool,
+    /// Ticks of the loop without a role's output (no fresh command, no
+    /// estimate) after which the supervisor judges the live process hung,
+    /// stops it and brings the role back as after a crash (with real-time
+    /// priority; on a shared machine also not before 0.5 s, in lockstep 3 s:
+    /// docs/architecture.md, "Standby, watchdogs and guards").
+    #[serde(default = "default_silent_ticks")]
+    pub silent_ticks: u32,
+}
+
+fn default_silent_ticks() -> u32 {
+    200
 }
 
 fn two() -> u32 {
@@ -753,6 +764,7 @@ impl Default for SupervisionSection {
             max_restarts: default_max_restarts(),
             restart_backoff_ms: default_backoff(),
             warm_spares: true,
+            silent_ticks: default_silent_ticks(),
         }
     }
 }

@@ -118,6 +118,7 @@ impl Scenario {
                 "supervision.estimate_watchdog_ticks",
                 self.supervision.estimate_watchdog_ticks,
             ),
+            ("supervision.silent_ticks", self.supervision.silent_ticks),
         ] {
             if !(1..=limits::WATCHDOG_TICKS_MAX).contains(&ticks) {
                 return Err(self.err(

@@ -30,11 +30,14 @@ pub enum Event<'a> {
     SpareIdle { pid: i32 },
     /// A command for sample `seq` on the loop's command channel.
     Command { seq: u64 },
-    /// The plant's sample `seq`: the command it applied over it and its value.
+    /// The plant's sample `seq`: the command it applied over it and its
+    /// value; `fresh`: a command made for it (the plant neither held its
+    /// input nor applied its safe action).
     Applied {
         seq: u64,
         command_seq: u64,
         u: [f64; MAX_INPUTS],
+        fresh: bool,
     },
     /// The observer's estimate for `seq` (it follows the measurement of `seq - 1`).
     Estimate { seq: u64 },
@@ -57,6 +60,8 @@ pub enum Stage {
     Restarts,
     /// Standbys told to retire that did not become spares in time.
     Retiring,
+    /// A live controller or observer that went silent (hung).
+    Silence,
     /// The standby controller, if one is to be kept.
     Standby,
     /// A warm spare of each role, if they are kept.
@@ -64,7 +69,8 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const IN_ORDER: [Stage; 4] = [
+    pub const IN_ORDER: [Stage; 5] = [
+        Stage::Silence,
         Stage::Restarts,
         Stage::Retiring,
         Stage::Standby,
@@ -84,6 +90,9 @@ pub enum Action {
     StartStandby { scenario: PathBuf, generation: u32 },
     /// Stop the process (its exit is dealt with already).
     Stop(i32),
+    /// Kill the hung process (SIGKILL: a stopped or deadlocked process
+    /// handles no SIGTERM); its exit is then dealt with as a crash's.
+    Kill(i32),
     /// Append a line to the run's events file.
     Record(Record),
     /// The run cannot go on.

@@ -1,7 +1,8 @@
 //! The scenario's supervision settings, and the restart back-off.
 
-use flexloop_scenario::Scenario;
+use super::silence::SilenceRule;
 use flexloop_scenario::schema::{RestartPolicy, SafeAction};
+use flexloop_scenario::{Mode, Scenario};
 use std::time::Duration;
 
 /// The scenario's supervision settings the decisions follow.
@@ -15,6 +16,8 @@ pub struct Policy {
     pub keep_standby: bool,
     pub rate_hz: f64,
     pub n_inputs: usize,
+    /// When a live controller or observer counts as hung.
+    pub silence: SilenceRule,
 }
 
 impl Policy {
@@ -28,8 +31,28 @@ impl Policy {
             keep_standby: supervision.safe_action == SafeAction::Standby,
             rate_hz: scenario.timing.rate_hz,
             n_inputs,
+            silence: SilenceRule {
+                ticks: u64::from(supervision.silent_ticks),
+                floor: if realtime_priority(scenario) {
+                    SilenceRule::REALTIME_FLOOR
+                } else {
+                    SilenceRule::SHARED_MACHINE_FLOOR
+                },
+                lockstep: scenario.timing.mode == Mode::Lockstep,
+            },
         }
     }
+}
+
+/// Whether the loop's controller and observer run at real-time priority:
+/// the scenario asks for it (not dropped by `--no-realtime`) and the
+/// supervisor may grant it (root: otherwise each process runs at normal
+/// priority and says once what the kernel refused).
+fn realtime_priority(scenario: &Scenario) -> bool {
+    let rt = &scenario.realtime;
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let root = unsafe { libc::geteuid() } == 0;
+    root && rt.controller.priority.is_some() && rt.observer.priority.is_some()
 }
 
 /// The wait before a component's restart, given how many restarts before it

@@ -22,6 +22,11 @@ fn policy() -> Policy {
         keep_standby: false,
         rate_hz: 10_000.0,
         n_inputs: 1,
+        silence: SilenceRule {
+            ticks: 20,
+            floor: Duration::ZERO,
+            lockstep: false,
+        },
     }
 }
 
@@ -127,8 +132,9 @@ impl Fixture {
 
     fn upkeep(&mut self, ms: u64) -> Vec<Action> {
         let now = self.at(ms);
-        Stage::IN_ORDER[1..]
+        Stage::IN_ORDER
             .iter()
+            .filter(|s| !matches!(s, Stage::Silence | Stage::Restarts))
             .flat_map(|&stage| self.core.handle(Event::Tick { now, stage }))
             .collect()
     }
@@ -918,6 +924,7 @@ fn the_step_at_a_switch_is_the_one_the_plant_applied() {
             seq,
             command_seq,
             u,
+            fresh: true,
         }
     };
     for seq in 1..10 {
@@ -998,4 +1005,113 @@ fn a_spare_taken_as_the_standby_is_replaced_at_the_next_stage_of_the_same_tick()
         stage: Stage::Spares,
     });
     assert_eq!(spares, [Action::StartSpare(Role::Controller)]);
+}
+
+// ---- hung components ----
+
+impl Fixture {
+    /// The loop's ticks `from..to` as the plant reports them, with a fresh
+    /// command or not, and the observer's estimates or not; then a poll at `ms`.
+    fn ticks(&mut self, from: u64, to: u64, commands: bool, estimates: bool, ms: u64) {
+        for seq in from..to {
+            self.core.handle(Event::Applied {
+                seq,
+                command_seq: if commands { seq - 1 } else { from - 1 },
+                u: [0.0; MAX_INPUTS],
+                fresh: commands,
+            });
+            if estimates {
+                self.core.handle(Event::Estimate { seq: seq + 1 });
+            }
+        }
+        let now = self.at(ms);
+        self.core.handle(Event::Polled { now });
+    }
+
+    fn silence_stage(&mut self, ms: u64) -> Vec<Action> {
+        let now = self.at(ms);
+        self.core.handle(Event::Tick {
+            now,
+            stage: Stage::Silence,
+        })
+    }
+}
+
+/// A hung controller (alive, no command: stopped, deadlocked, a law that
+/// sleeps) is found from the plant's held ticks, killed, and its exit
+/// dealt with as a crash whose cause is its silence: restarted.
+#[test]
+fn a_hung_controller_is_killed_and_restarted_as_after_a_crash() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    assert!(f.silence_stage(0).is_empty());
+    // Held ticks, fewer than the rule's 20: nothing yet.
+    f.ticks(100, 115, false, true, 2);
+    assert!(f.silence_stage(2).is_empty());
+    f.ticks(115, 130, false, true, 4);
+    let actions = f.silence_stage(4);
+    let silent = record(&actions, "silent");
+    assert_eq!(silent.role, Role::Controller);
+    assert_eq!(silent.detail["pid"], CONTROLLER);
+    assert_eq!(silent.detail["ticks_without_output"], 30);
+    assert!(actions.contains(&Action::Kill(CONTROLLER)));
+    // Judged once.
+    f.ticks(130, 200, false, true, 6);
+    assert!(f.silence_stage(6).is_empty());
+    // Its exit (SIGKILL) is a crash of cause "silent": a restart.
+    let crash = f.exit(CONTROLLER, 137, 7);
+    let crash = record(&crash, "crash");
+    assert_eq!(crash.detail["cause"], "silent");
+    assert_eq!(crash.detail["restart_in_ms"], 0);
+    assert_eq!(f.tick(8), [Action::Restart(Role::Controller)]);
+}
+
+#[test]
+fn a_hung_observer_is_judged_first_and_a_crash_is_a_crash() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    // In realtime the controller runs on without estimates: only the
+    // observer falls behind.
+    f.ticks(100, 150, true, false, 5);
+    let actions = f.silence_stage(5);
+    assert_eq!(record(&actions, "silent").role, Role::Observer);
+    assert!(actions.contains(&Action::Kill(OBSERVER)));
+    // A process that dies of itself is a crash of cause "crashed".
+    let mut g = Fixture::new(policy());
+    g.ticks(1, 100, true, true, 0);
+    let crash = g.exit(CONTROLLER, 139, 1);
+    assert_eq!(record(&crash, "crash").detail["cause"], "crashed");
+}
+
+#[test]
+fn no_silence_is_judged_during_a_swap_or_restart_and_a_new_instance_has_its_own_clock() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    f.core.begin_operation();
+    f.ticks(100, 200, false, true, 10);
+    assert!(f.silence_stage(10).is_empty(), "busy");
+    assert!(f.core.end_operation(f.at(11)).is_empty());
+    // From the end of the operation on: only further silent ticks count.
+    f.ticks(200, 210, false, true, 12);
+    assert!(f.silence_stage(12).is_empty());
+    f.ticks(210, 230, false, true, 14);
+    assert!(!f.silence_stage(14).is_empty());
+}
+
+#[test]
+fn a_hung_controller_with_a_standby_hands_the_loop_to_it() {
+    let mut f = Fixture::new(standby());
+    f.launch(25, Role::Controller, 1, Joining::Standby);
+    f.state(Role::Controller, 1, 50, FOLLOWING);
+    f.ticks(1, 100, true, true, 0);
+    f.ticks(100, 130, false, true, 3);
+    let actions = f.silence_stage(3);
+    assert!(actions.contains(&Action::Kill(CONTROLLER)), "{actions:?}");
+    f.exit(CONTROLLER, 137, 4);
+    assert_eq!(f.tick(5), [Action::Restart(Role::Controller)]);
+    let is_program = |_: &Path| false;
+    assert_eq!(
+        f.core.plan_restart(Role::Controller, &is_program),
+        Ok(RestartPlan::Promote { generation: 1 })
+    );
 }

@@ -1,0 +1,143 @@
+//! A hung component is a fault like a dead one (issue 31): the controller
+//! or the observer stopped (SIGSTOP) or a program whose law sleeps is
+//! found from what the loop shows (the plant's held ticks, the estimates
+//! falling behind), killed, and brought back as after a crash: a `silent`
+//! event, a `crash` of cause "silent", a restart (a program rolled back to
+//! the built-in design that served before it); the loop runs on and
+//! nothing is left. (How many ticks that costs is a timing figure: `flexloop
+//! chaos` measures it, no test asserts it.)
+
+use crate::util::*;
+use serde_json::Value;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// Waits (bounded) for the first event of `kind` for `role`.
+fn await_event(dir: &Path, kind: &str, role: &str) -> Value {
+    let since = Instant::now();
+    loop {
+        if let Some(e) = events(dir)
+            .into_iter()
+            .find(|e| e["kind"] == kind && e["role"] == role)
+        {
+            return e;
+        }
+        assert!(
+            since.elapsed() < Duration::from_secs(60),
+            "no {kind} event for the {role}: {:?}",
+            events(dir)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn signal(pid: i32, signal: i32) {
+    // SAFETY: a pid of a process this test's loop started (read from its
+    // supervisor's list); at worst the call fails.
+    unsafe { libc::kill(pid, signal) };
+}
+
+/// The hung `role` of a running loop in `dir` is detected, killed and
+/// replaced; the loop goes on; returns the silent event.
+fn hang_is_handled(dir: &Path, prefix: &str, up: Up, role: &str) -> Value {
+    let hung = pid_on_duty(dir, role, "active");
+    signal(hung, libc::SIGSTOP);
+    let silent = await_event(dir, "silent", role);
+    assert_eq!(silent["detail"]["pid"], hung, "{silent}");
+    let crash = await_event(dir, "crash", role);
+    assert_eq!(crash["detail"]["cause"], "silent", "{crash}");
+    await_event(dir, "restart", role);
+    // The stopped process is gone (SIGKILL reaches a stopped process).
+    let since = Instant::now();
+    while Path::new(&format!("/proc/{hung}")).exists() {
+        assert!(since.elapsed() < Duration::from_secs(30), "{hung} lives on");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // The loop runs on, served by the replacement.
+    let replacement = pid_on_duty(dir, role, "active");
+    assert_ne!(replacement, hung);
+    let after = recorded_ticks_in(dir, "samples.mcap");
+    wait_for_ticks(dir, after + 500);
+    let out = stop(prefix, up);
+    // Recovered: `up` ends as a run whose faults were all dealt with.
+    assert_ran(&out);
+    assert_clean(dir);
+    silent
+}
+
+#[test]
+fn a_stopped_controller_is_found_silent_killed_and_restarted() {
+    let dir = temp_dir("hang-controller");
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
+    wait_for_ticks(&dir, 2_000);
+    let silent = hang_is_handled(&dir, &prefix, up, "controller");
+    assert!(silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200);
+}
+
+#[test]
+fn a_stopped_observer_is_found_silent_killed_and_restarted() {
+    let dir = temp_dir("hang-observer");
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
+    wait_for_ticks(&dir, 2_000);
+    hang_is_handled(&dir, &prefix, up, "observer");
+}
+
+#[test]
+fn in_lockstep_a_stopped_controller_is_found_silent_and_restarted() {
+    let dir = temp_dir("hang-lockstep");
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 2_000);
+    hang_is_handled(&dir, &prefix, up, "controller");
+    // The plant held its input while it waited: the run's own counters
+    // say so, nothing was lost from the record.
+    let summary = summary(&dir);
+    for channel in ["measurement", "estimate"] {
+        assert_eq!(summary["gaps"][channel], 0, "{channel}: {summary}");
+    }
+}
+
+/// A Python controller whose law sleeps 4 s after it started: alive, its
+/// process answers signals, but it sends nothing. Swapped into a running
+/// loop, it is found silent, killed and rolled back to the built-in
+/// controller that served before it.
+#[test]
+fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
+    let dir = temp_dir("hang-program");
+    let law = dir.join("sleepy.py");
+    std::fs::write(
+        &law,
+        "import time\nimport flexloop\n\n\
+         class Sleepy(flexloop.Controller):\n\
+         \x20   def __init__(self, setup):\n\
+         \x20       super().__init__(setup)\n\
+         \x20       self.since = time.monotonic()\n\n\
+         \x20   def step(self, m, estimate):\n\
+         \x20       if time.monotonic() - self.since > 4.0:\n\
+         \x20           time.sleep(3600)\n\
+         \x20       return -100.0 * m.y[0]\n\n\
+         flexloop.run(Sleepy)\n",
+    )
+    .unwrap();
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
+    wait_for_ticks(&dir, 1_000);
+    let python = python_with(&["flexloop", "iceoryx2"]);
+    let mut swap = flexloop();
+    swap.args(["swap", "--prefix", &prefix, "controller", "--exec"])
+        .arg(&python)
+        .arg(&law);
+    let out = run_bounded(swap, Duration::from_secs(150));
+    assert!(out.status.success(), "{}", describe(&out));
+    let program = pid_on_duty(&dir, "controller", "active");
+    let silent = await_event(&dir, "silent", "controller");
+    assert_eq!(silent["detail"]["pid"], program, "{silent}");
+    let restart = await_event(&dir, "restart", "controller");
+    assert!(
+        restart["detail"]["rolled_back_from"].is_string(),
+        "a program is rolled back: {restart}"
+    );
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    let out = stop(&prefix, up);
+    assert_ran(&out);
+    assert_clean(&dir);
+}
