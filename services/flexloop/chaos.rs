@@ -1,9 +1,10 @@
 //! `flexloop chaos`: fault injection as a user runs it before trusting a
 //! deployment. It starts a loop (`flexloop up`), kills its processes with
-//! SIGKILL at random moments, stops it, and reads from the recording what
-//! each kill cost: ticks on the plant's safe action until the loop
-//! recovered, samples the recording lacks, whether a replacement came, and
-//! the files left in shared memory.
+//! SIGKILL at random moments (or, `--fault hang`, stops them with SIGSTOP:
+//! alive and silent, which the supervisor must find by itself), stops it,
+//! and reads from the recording what each fault cost: ticks on the plant's
+//! safe action until the loop recovered, samples the recording lacks,
+//! whether a replacement came, and the files left in shared memory.
 
 use crate::launch::{resolve_scenario, stamped_run_dir};
 use anyhow::{Context, Result, anyhow, bail};
@@ -52,6 +53,10 @@ pub struct ChaosArgs {
         default_value = "controller,observer"
     )]
     pub roles: Vec<Target>,
+    /// The fault: `kill` (SIGKILL) or `hang` (SIGSTOP: the process stays
+    /// alive and silent; controller and observer only)
+    #[arg(long, value_enum, default_value = "kill")]
+    pub fault: Fault,
     /// Loop rate [default: the scenario's]
     #[arg(long = "rate", value_name = "HZ")]
     pub rate_hz: Option<f64>,
@@ -61,6 +66,32 @@ pub struct ChaosArgs {
     /// Where chaos.json and the loop's run directory (loop/) go [default: runs/<stamp>-chaos-<pid>]
     #[arg(long, value_name = "DIR")]
     pub run_dir: Option<PathBuf>,
+}
+
+/// What is done to the process aimed at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Fault {
+    /// SIGKILL: it dies, and the supervisor hears of its exit.
+    Kill,
+    /// SIGSTOP: it stays alive and sends nothing (a deadlock, an endless
+    /// loop); the supervisor must judge it silent (docs/architecture.md).
+    Hang,
+}
+
+impl Fault {
+    fn name(self) -> &'static str {
+        match self {
+            Fault::Kill => "kill",
+            Fault::Hang => "hang",
+        }
+    }
+
+    fn signal(self) -> i32 {
+        match self {
+            Fault::Kill => libc::SIGKILL,
+            Fault::Hang => libc::SIGSTOP,
+        }
+    }
 }
 
 /// What a kill aims at.
@@ -101,6 +132,18 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
     }
     if args.roles.is_empty() {
         bail!("--roles: at least one role");
+    }
+    if args.fault == Fault::Hang
+        && let Some(r) = args
+            .roles
+            .iter()
+            .find(|r| matches!(r, Target::Logger | Target::Spare))
+    {
+        bail!(
+            "--fault hang --roles {}: the supervisor judges a hung controller or observer from \
+             the loop's output; a hung logger or idle spare has none to judge it by",
+            r.name()
+        );
     }
     let scenario_path = resolve_scenario(args.scenario.clone())?;
     let overrides = Overrides {
@@ -359,10 +402,11 @@ fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Injected {
         let at_ns = monotonic_ns();
         // SAFETY: a pid from this loop's process list, a child of the
         // `flexloop up` this command started.
-        unsafe { libc::kill(pid, libc::SIGKILL) };
+        unsafe { libc::kill(pid, args.fault.signal()) };
         let replaced = await_replacement(loop_dir, target, pid);
         eprintln!(
-            "kill {:>3}/{}: {} pid {pid}{}",
+            "{} {:>3}/{}: {} pid {pid}{}",
+            args.fault.name(),
             i + 1,
             args.kills,
             target.name(),
@@ -375,6 +419,7 @@ fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Injected {
         kills.push(Kill {
             role: target.name().into(),
             pid,
+            fault: args.fault.name().into(),
             at_ns,
             seq: None,
             held_ticks: None,

@@ -31,11 +31,14 @@ pub struct ChaosFile {
     pub aborted: Option<String>,
 }
 
-/// One kill -9.
+/// One fault: a kill -9, or a hang (SIGSTOP: alive, silent).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Kill {
     pub role: String,
     pub pid: i32,
+    /// `kill` (SIGKILL) or `hang` (SIGSTOP).
+    #[serde(default = "kill")]
+    pub fault: String,
     /// When it was sent (CLOCK_MONOTONIC ns, the loop's clock).
     pub at_ns: u64,
     /// The loop's newest recorded tick before it.
@@ -62,4 +65,8 @@ pub struct RoleFaults {
     /// Kills after which no replacement was seen serving.
     pub not_replaced: u32,
     pub missing_samples: u64,
+}
+
+fn kill() -> String {
+    "kill".into()
 }
