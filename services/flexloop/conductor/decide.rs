@@ -171,9 +171,10 @@ impl Core {
                 command_seq,
                 u,
                 fresh,
+                stalled,
             } => {
                 self.applied.push(seq, command_seq, u);
-                self.silence.tick(seq, fresh);
+                self.silence.tick(seq, fresh, stalled);
                 Vec::new()
             }
             Event::Estimate { seq } => {

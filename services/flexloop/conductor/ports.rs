@@ -113,6 +113,7 @@ impl Ports {
                     command_seq: m.command_seq,
                     u: m.u_applied,
                     fresh: m.flags & (flags::HELD_INPUT | flags::FALLBACK) == 0,
+                    stalled: m.flags & flags::STALLED_TICK != 0,
                 });
                 if m.flags & flags::END_OF_RUN != 0 {
                     core.handle(Event::EndOfRun);

@@ -32,12 +32,14 @@ pub enum Event<'a> {
     Command { seq: u64 },
     /// The plant's sample `seq`: the command it applied over it and its
     /// value; `fresh`: a command made for it (the plant neither held its
-    /// input nor applied its safe action).
+    /// input nor applied its safe action); `stalled`: the plant woke late
+    /// for it (a machine stall).
     Applied {
         seq: u64,
         command_seq: u64,
         u: [f64; MAX_INPUTS],
         fresh: bool,
+        stalled: bool,
     },
     /// The observer's estimate for `seq` (it follows the measurement of `seq - 1`).
     Estimate { seq: u64 },

@@ -8,10 +8,11 @@
 //! observer's estimates fall behind the ticks. A role is silent when both
 //! hold: it has left [`SilenceRule::ticks`] of the loop's ticks without
 //! its output, and [`SilenceRule::floor`] of wall time since its last
-//! output. The tick count is what the loop lost; the floor keeps a machine
-//! that merely starved the process (no real-time priority, a loaded CI
-//! machine: a process descheduled for tens of milliseconds) from being
-//! judged hung. In lockstep the plant waits for each command, so ticks
+//! output (ticks the plant marked stalled, a machine stall that froze
+//! every process alike, do not count). The tick count is what the loop
+//! lost; the floor keeps a machine that merely starved the process (no
+//! real-time priority, a loaded CI machine: a process descheduled for tens
+//! of milliseconds) from being judged hung. In lockstep the plant waits for each command, so ticks
 //! come once a second when the controller is silent (the plant's own miss
 //! timeout): the floor alone decides there.
 //!
@@ -20,7 +21,13 @@
 //! observer's.
 
 use flexloop_node::Role;
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
+
+/// Ticks whose count of unstalled ticks is kept, to place an output that
+/// arrives after the ticks it covered (one look drains the measurements
+/// before the estimates): 1.6 s at 10 kHz, more than one look's worth.
+const TICKS_KEPT: usize = 16_384;
 
 /// When a role counts as silent.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,6 +69,9 @@ struct Output {
 #[derive(Debug, Default)]
 pub struct SilenceWatch {
     newest_tick: Option<u64>,
+    /// Unstalled ticks seen so far, and per recent tick that count as of it.
+    unstalled: u64,
+    counts: VecDeque<(u64, u64)>,
     controller: Output,
     observer: Output,
 }
@@ -77,8 +87,16 @@ pub struct Silent {
 
 impl SilenceWatch {
     /// The plant's tick `seq`; `fresh_command`: the plant applied a command
-    /// made for it (it neither held its input nor applied its safe action).
-    pub fn tick(&mut self, seq: u64, fresh_command: bool) {
+    /// made for it (it neither held its input nor applied its safe action);
+    /// `stalled`: it woke late for it (a machine stall).
+    pub fn tick(&mut self, seq: u64, fresh_command: bool, stalled: bool) {
+        if self.newest_tick.is_none_or(|n| seq > n) {
+            self.unstalled += u64::from(!stalled);
+            if self.counts.len() == TICKS_KEPT {
+                self.counts.pop_front();
+            }
+            self.counts.push_back((seq, self.unstalled));
+        }
         self.newest_tick = Some(self.newest_tick.map_or(seq, |n| n.max(seq)));
         if fresh_command {
             let c = &mut self.controller;
@@ -117,6 +135,16 @@ impl SilenceWatch {
         o.fresh = false;
     }
 
+    /// Unstalled ticks after tick `seq` (all those seen, if it is older
+    /// than those kept).
+    fn unstalled_after(&self, seq: u64) -> u64 {
+        let i = self.counts.partition_point(|&(s, _)| s <= seq);
+        match i.checked_sub(1).and_then(|i| self.counts.get(i)) {
+            Some(&(_, count)) => self.unstalled - count,
+            None => self.unstalled,
+        }
+    }
+
     /// The role found silent at `now` under `rule`, the observer first
     /// (its silence silences a controller that waits for it). Nothing
     /// before a role's first output: start-up is not silence.
@@ -124,7 +152,7 @@ impl SilenceWatch {
         let newest = self.newest_tick?;
         let judge = |role: Role, o: &Output| {
             let (seq, at) = (o.seq?, o.at?);
-            let ticks = newest.saturating_sub(seq);
+            let ticks = self.unstalled_after(seq);
             let since = now.saturating_duration_since(at);
             let enough_ticks = if rule.lockstep {
                 ticks >= 1
@@ -165,7 +193,7 @@ mod tests {
 
     fn run(watch: &mut SilenceWatch, from: u64, to: u64, commands: bool, estimates: bool) {
         for seq in from..to {
-            watch.tick(seq, commands);
+            watch.tick(seq, commands, false);
             if estimates {
                 watch.estimate(seq + 1);
             }
@@ -253,6 +281,32 @@ mod tests {
         v.polled(t0 + Duration::from_secs(3));
         let s = v.silent(&lockstep, t0 + Duration::from_secs(4)).unwrap();
         assert_eq!(s.role, Role::Observer);
+    }
+
+    #[test]
+    fn ticks_the_plant_marked_stalled_do_not_count() {
+        let t0 = Instant::now();
+        let mut w = SilenceWatch::default();
+        run(&mut w, 0, 100, true, true);
+        w.polled(t0);
+        // A machine stall: 500 late ticks, the controller not yet answered.
+        for seq in 100..600 {
+            w.tick(seq, false, true);
+            w.estimate(seq + 1);
+        }
+        for seq in 600..610 {
+            w.tick(seq, false, false);
+            w.estimate(seq + 1);
+        }
+        w.polled(t0 + Duration::from_millis(50));
+        assert_eq!(w.silent(&RULE, t0 + Duration::from_millis(50)), None);
+        for seq in 610..625 {
+            w.tick(seq, false, false);
+            w.estimate(seq + 1);
+        }
+        w.polled(t0 + Duration::from_millis(60));
+        let s = w.silent(&RULE, t0 + Duration::from_millis(60)).unwrap();
+        assert_eq!((s.role, s.ticks), (Role::Controller, 25));
     }
 
     #[test]

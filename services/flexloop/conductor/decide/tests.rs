@@ -925,6 +925,7 @@ fn the_step_at_a_switch_is_the_one_the_plant_applied() {
             command_seq,
             u,
             fresh: true,
+            stalled: false,
         }
     };
     for seq in 1..10 {
@@ -1019,6 +1020,7 @@ impl Fixture {
                 command_seq: if commands { seq - 1 } else { from - 1 },
                 u: [0.0; MAX_INPUTS],
                 fresh: commands,
+                stalled: false,
             });
             if estimates {
                 self.core.handle(Event::Estimate { seq: seq + 1 });
