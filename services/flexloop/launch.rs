@@ -141,9 +141,13 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
         .with_context(in_run_dir)?;
     let _ = std::fs::remove_file(probe);
     // The scenario as it ran, so that the run can be analysed and refitted later.
-    std::fs::copy(&args.scenario, RunDir::new(&run_dir).scenario_copy())
-        .context("cannot copy the scenario")
-        .with_context(in_run_dir)?;
+    write_scenario_copy(
+        &args.scenario,
+        &scenario,
+        &RunDir::new(&run_dir).scenario_copy(),
+    )
+    .context("cannot copy the scenario")
+    .with_context(in_run_dir)?;
     copy_model_file(&scenario, &run_dir).with_context(in_run_dir)?;
     report_dead_prefixes();
     let prefix = format!("flx{}_", std::process::id());
@@ -161,6 +165,56 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
         overrides: args.overrides.clone(),
         live: None,
     })
+}
+
+/// The run's copy of the scenario: the file as it is (comments kept) when
+/// its relative paths hold from the run directory too; otherwise (a model
+/// file outside the scenario's directory, `../plant.npz`; a program of
+/// one's own, its path and working directory) its TOML with those paths
+/// made absolute, so that `run`'s metrics, `report` and `tune-ff`, which
+/// read the copy, find them. (A model file inside the scenario's directory
+/// is copied beside it: [`copy_model_file`].)
+fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(source)?;
+    let leaves = |file: &Option<PathBuf>| {
+        file.as_ref().is_some_and(|f| {
+            f.is_relative()
+                && !f
+                    .components()
+                    .all(|c| matches!(c, std::path::Component::Normal(_)))
+        })
+    };
+    let programs = scenario.controller.exec.is_some() || scenario.observer.exec.is_some();
+    if !programs && !leaves(&scenario.plant.file) && !leaves(&scenario.observer.correction_file) {
+        std::fs::write(copy, text)?;
+        return Ok(());
+    }
+    let mut table: toml::Table = toml::from_str(&text)?;
+    flexloop_scenario::plant_description::anchor_files(&mut table, &std::path::absolute(source)?);
+    // A file inside the scenario's directory is copied: its relative path
+    // finds the copy.
+    for (section, key, file) in [
+        ("plant", "file", &scenario.plant.file),
+        (
+            "observer",
+            "correction_file",
+            &scenario.observer.correction_file,
+        ),
+    ] {
+        if let Some(file) = file
+            .as_ref()
+            .filter(|f| f.is_relative() && !leaves(&Some((*f).clone())))
+            && let Some(toml::Value::Table(section)) = table.get_mut(section)
+        {
+            section.insert(key.into(), toml::Value::String(file.display().to_string()));
+        }
+    }
+    let header = format!(
+        "# {} as it ran, its paths outside the run directory made absolute.\n",
+        source.display()
+    );
+    std::fs::write(copy, header + &toml::to_string(&table)?)?;
+    Ok(())
 }
 
 /// The plant's model file and the IO observer's correction file beside the

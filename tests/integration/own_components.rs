@@ -786,3 +786,38 @@ fn a_programs_params_are_set_live_and_handed_over_bumplessly() {
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
     assert_clean(&dir);
 }
+
+/// A scenario naming its program by a relative path (as the examples'
+/// scenarios do): the run's copy of the scenario finds it too, so `run`
+/// prints its metrics and `report` reads the run (both design the loop
+/// again from the copy in the run directory).
+#[test]
+fn a_program_named_by_a_relative_path_is_found_again_by_run_and_report() {
+    let dir = temp_dir("own-controller-relative");
+    std::fs::create_dir_all(dir.join("bin")).unwrap();
+    std::fs::copy(example_program(), dir.join("bin/pid-controller")).unwrap();
+    let scenario = example_scenario(&dir, "pid.toml", "");
+    let text = std::fs::read_to_string(&scenario).unwrap();
+    let exec = format!("exec = [{:?}]", example_program().display().to_string());
+    std::fs::write(
+        &scenario,
+        text.replacen(&exec, "exec = [\"./bin/pid-controller\"]", 1),
+    )
+    .unwrap();
+    let run = dir.join("run");
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(&scenario)
+        .args(["--mode", "lockstep", "--no-realtime", "--duration", "0.3"])
+        .arg("--run-dir")
+        .arg(&run);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(run.join("metrics.json").is_file());
+    let mut report = flexloop();
+    report.arg("report").arg(&run);
+    let out = run_bounded(report, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(run.join("report/report.html").is_file());
+    assert_clean(&run);
+}

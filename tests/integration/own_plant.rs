@@ -158,3 +158,49 @@ fn a_drive_train_of_its_own_runs_and_tracks_with_the_bandwidth_it_chose() {
     assert!(rms < 50.0, "{rms} nm");
     assert_clean(&dir.join("run"));
 }
+
+/// A model file outside the scenario's directory (`../chain_mkd.npz`) is
+/// read where it is, and the run's copy of the scenario names it by its
+/// absolute path, so that `report` (which designs the loop again from the
+/// copy in the run directory) finds it.
+#[test]
+fn a_model_file_outside_the_scenarios_directory_is_found_again_by_report() {
+    let dir = temp_dir("own-plant-outside");
+    let mut cmd = std::process::Command::new(python_with(&["numpy", "scipy"]));
+    cmd.arg(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/integration/python/write_chain_models.py"),
+    )
+    .arg(&*dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let sub = dir.join("scenarios");
+    std::fs::create_dir_all(&sub).unwrap();
+    let own = with_plant(
+        &sub,
+        "thesis-mc-ad",
+        "outside",
+        "model = \"second-order\"\nfile = \"../chain_mkd.npz\"\n",
+    );
+    let run = dir.join("run");
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(&own)
+        .args(["--mode", "lockstep", "--no-realtime", "--run-dir"])
+        .arg(&run);
+    let out = run_bounded(cmd, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    let copy: toml::Table =
+        toml::from_str(&std::fs::read_to_string(run.join("scenario.toml")).unwrap()).unwrap();
+    let named = Path::new(copy["plant"]["file"].as_str().unwrap());
+    assert!(named.is_absolute(), "{named:?}");
+    assert_eq!(
+        std::fs::canonicalize(named).unwrap(),
+        std::fs::canonicalize(dir.join("chain_mkd.npz")).unwrap()
+    );
+    let mut report = flexloop();
+    report.arg("report").arg(&run);
+    let out = run_bounded(report, Duration::from_secs(180));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert_clean(&run);
+}
