@@ -43,8 +43,7 @@ impl Scenario {
     /// Checks ranges and consistency; the design step checks the maths.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         self.validate_name()?;
-        self.validate_command_deadline()?;
-        self.validate_program()?;
+        // The rate first: the deadline is judged against its period.
         let (rate_min, rate_max) = limits::RATE_HZ;
         self.within(
             "loop.rate_hz",
@@ -53,6 +52,8 @@ impl Scenario {
             rate_max,
             "Hz",
         )?;
+        self.validate_command_deadline()?;
+        self.validate_program()?;
         self.within(
             "loop.duration_s",
             self.timing.duration_s,
@@ -72,6 +73,13 @@ impl Scenario {
         }
         self.validate_names()?;
         self.validate_applicability()?;
+        if self.observer.ad && self.observer.flexible_modes == Some(0) {
+            return Err(self.err(
+                "observer.flexible_modes",
+                "0 leaves active damping (observer.ad) no mode to act on: estimate at least \
+                 one flexible mode, or turn AD off",
+            ));
+        }
         self.validate_plant_description()?;
         self.validate_kalman_weights()?;
         self.validate_correction()?;

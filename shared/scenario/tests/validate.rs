@@ -386,3 +386,30 @@ fn an_io_observer_takes_exactly_one_correction_filter() {
         assert!(message.contains(words), "{message}");
     }
 }
+
+/// Issue 31's smaller refusals: each names the field at fault.
+#[test]
+fn a_negative_rate_is_the_rates_fault_and_ad_needs_a_mode() {
+    let thesis = include_str!("../../../scenarios/thesis-mc-ad.toml");
+    let with_deadline = thesis.replace(
+        "rate_hz = 10000\n",
+        "rate_hz = -10000\ncommand_deadline_us = 30.0\n",
+    );
+    assert_ne!(with_deadline, thesis);
+    let e = Scenario::from_text(
+        std::path::Path::new("t.toml"),
+        &with_deadline,
+        &Overrides::default(),
+    )
+    .unwrap_err();
+    assert_eq!(e.field.as_deref(), Some("loop.rate_hz"), "{e}");
+    let no_modes = thesis.replace("ad = true\n", "ad = true\nflexible_modes = 0\n");
+    assert_ne!(no_modes, thesis);
+    let e = Scenario::from_text(
+        std::path::Path::new("t.toml"),
+        &no_modes,
+        &Overrides::default(),
+    )
+    .unwrap_err();
+    assert_eq!(e.field.as_deref(), Some("observer.flexible_modes"), "{e}");
+}
