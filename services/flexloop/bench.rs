@@ -329,7 +329,14 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         run_dir.histogram_log(0).display(),
         run_dir.bench().display()
     );
-    Ok(0)
+    // A verdict that fails is the command's failure: a script running the
+    // benchmark must not read a FAILED or a does-NOT-fit as a pass.
+    let verdict_failed = grid.stalls_dominate() || (!fits && rate >= 1e-4);
+    Ok(if verdict_failed {
+        crate::launch::VERDICT_FAILED
+    } else {
+        0
+    })
 }
 
 /// How the plant waited for its ticks and what it cost: the setting (or its

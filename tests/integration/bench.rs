@@ -21,8 +21,19 @@ fn bench_thesis_mc_briefly(args: &[&str], run_dir: &std::path::Path) -> String {
         .args(["--no-realtime", "--run-dir"])
         .arg(run_dir);
     let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
+    assert_bench_ran(&out);
     String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The bench ran and printed its verdict: exit 0, or exit 3 with a verdict
+/// that failed (a loaded test machine may not keep 2 kHz: the bench says
+/// so in its exit status, which is what this accepts, not a timing figure).
+fn assert_bench_ran(out: &std::process::Output) {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let failed_verdict = out.status.code() == Some(3)
+        && (stdout.contains("verdict: FAILED") || stdout.contains("does NOT fit"));
+    assert!(out.status.success() || failed_verdict, "{}", describe(out));
+    assert!(stdout.contains("verdict: "), "{}", describe(out));
 }
 
 #[test]
