@@ -61,7 +61,7 @@ fn wait_for_other_finisher(prefix: &str) {
 
 fn finish(entry: &Entry, command: &str) -> Vec<String> {
     let mut said = Vec::new();
-    let killed = end_processes(&entry.prefix);
+    let killed = end_processes(&entry.prefix, &entry.run_dir);
     let files = flexloop_transport::leftover_files_for_prefix(&entry.prefix).len();
     flexloop_transport::remove_leftovers(&entry.prefix);
     let mut what = format!(
@@ -84,27 +84,34 @@ fn finish(entry: &Entry, command: &str) -> Vec<String> {
 }
 
 /// Waits for the processes of `prefix` to end (bounded), then kills those
-/// left; how many it had to kill.
-fn end_processes(prefix: &str) -> usize {
+/// left; how many it had to kill. A program of one's own may not end with
+/// its supervisor (the SIGTERM its death sends is the program's to handle:
+/// a hung one, a stopped one, one that sleeps in its law does not), so it
+/// is ended here too.
+fn end_processes(prefix: &str, run_dir: &std::path::Path) -> usize {
     let since = Instant::now();
-    while !processes_of(prefix).is_empty() && since.elapsed() < OWN_END {
+    while !processes_of(prefix, run_dir).is_empty() && since.elapsed() < OWN_END {
         std::thread::sleep(Duration::from_millis(50));
     }
-    let left = processes_of(prefix);
+    let left = processes_of(prefix, run_dir);
     for pid in &left {
         // SAFETY: a process whose command line names this dead loop's prefix.
         unsafe { libc::kill(*pid, libc::SIGKILL) };
     }
     let since = Instant::now();
-    while !processes_of(prefix).is_empty() && since.elapsed() < Duration::from_secs(2) {
+    while !processes_of(prefix, run_dir).is_empty() && since.elapsed() < Duration::from_secs(2) {
         std::thread::sleep(Duration::from_millis(20));
     }
     left.len()
 }
 
-/// Live loop processes (`flexloop-<role>`) started with `--prefix <prefix>`;
-/// not `flexloop down --prefix <prefix>` itself.
-fn processes_of(prefix: &str) -> Vec<i32> {
+/// Live loop processes started with `--prefix <prefix>`: the built-in ones
+/// (`flexloop-<role>`), and programs of one's own, whatever their name,
+/// by the flags every loop process is started with (`--prefix <prefix>
+/// --run-dir <run_dir>`); not `flexloop down --prefix <prefix>` itself.
+fn processes_of(prefix: &str, run_dir: &std::path::Path) -> Vec<i32> {
+    let run_dir = std::path::absolute(run_dir).unwrap_or_else(|_| run_dir.to_path_buf());
+    let run_dir = run_dir.as_os_str().as_encoded_bytes();
     let Ok(dir) = std::fs::read_dir("/proc") else {
         return Vec::new();
     };
@@ -117,10 +124,11 @@ fn processes_of(prefix: &str) -> Vec<i32> {
             let program = args
                 .first()
                 .map(|a| a.rsplit(|b| *b == b'/').next().unwrap_or(a));
-            program.is_some_and(|p| p.starts_with(b"flexloop-"))
-                && args
-                    .windows(2)
-                    .any(|w| w[0] == b"--prefix" && w[1] == prefix.as_bytes())
+            let flag =
+                |name: &[u8], value: &[u8]| args.windows(2).any(|w| w[0] == name && w[1] == value);
+            flag(b"--prefix", prefix.as_bytes())
+                && (program.is_some_and(|p| p.starts_with(b"flexloop-"))
+                    || flag(b"--run-dir", run_dir))
         })
         .collect()
 }

@@ -299,7 +299,10 @@ pub fn supervise(
     let entry = registry::Entry {
         prefix: prepared.plan.prefix.clone(),
         supervisor_pid: std::process::id() as i32,
-        run_dir: prepared.plan.run_dir.clone(),
+        // Absolute: another command in another directory finishes a loop
+        // whose supervisor died, and finds its processes by it.
+        run_dir: std::path::absolute(&prepared.plan.run_dir)
+            .unwrap_or_else(|_| prepared.plan.run_dir.clone()),
         scenario: prepared.scenario.name.clone(),
         cpus: pinned_cpus(&prepared.scenario),
         design: pid_words(&prepared.design),

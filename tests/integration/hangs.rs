@@ -141,3 +141,86 @@ fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
     assert_ran(&out);
     assert_clean(&dir);
 }
+
+/// The loop owns what it started: when its supervisor is killed (kill -9),
+/// a program of one's own that does not end on the SIGTERM its
+/// supervisor's death sends (here: a law asleep in its step, whose handler
+/// only sets a flag) is ended by the next command that finishes the dead
+/// loop, which says so, and nothing is left. (A stopped one is ended by
+/// the kernel: its process group is orphaned, and a stopped member of an
+/// orphaned group gets SIGHUP.)
+#[test]
+fn a_hung_program_does_not_outlive_its_killed_supervisor() {
+    let dir = temp_dir("hang-orphan");
+    let marker = dir.join("sleep-now");
+    let law = dir.join("sleepy.py");
+    std::fs::write(
+        &law,
+        format!(
+            "import os, time\nimport flexloop\n\n\
+             class Sleepy(flexloop.Controller):\n\
+             \x20   def step(self, m, estimate):\n\
+             \x20       if os.path.exists({:?}):\n\
+             \x20           time.sleep(3600)\n\
+             \x20       return -100.0 * m.y[0]\n\n\
+             flexloop.run(Sleepy)\n",
+            marker.display().to_string()
+        ),
+    )
+    .unwrap();
+    let mut table: toml::Table =
+        toml::from_str(&std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap())
+            .unwrap();
+    let exec = [
+        python_with(&["flexloop", "iceoryx2"]),
+        law.display().to_string(),
+    ];
+    flexloop_scenario::program::served_by_program(
+        &mut table,
+        flexloop_scenario::ProgramRole::Controller,
+        &exec,
+        None,
+        None,
+    );
+    let file = dir.join("sleepy.toml");
+    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
+    let (up, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 500);
+    let program = pid_on_duty(&dir, "controller", "active");
+    std::fs::write(&marker, "").unwrap();
+    // The law is asleep once the loop stops moving (lockstep).
+    let mut last = recorded_ticks_in(&dir, "samples.mcap");
+    loop {
+        std::thread::sleep(Duration::from_millis(300));
+        let now = recorded_ticks_in(&dir, "samples.mcap");
+        if now == last {
+            break;
+        }
+        last = now;
+    }
+    signal(up.id() as i32, libc::SIGKILL);
+    let out = up.wait(Duration::from_secs(30));
+    assert!(!out.status.success());
+    assert!(
+        Path::new(&format!("/proc/{program}")).exists(),
+        "it died with its supervisor"
+    );
+    let mut down = flexloop();
+    down.args(["down", "--prefix", &prefix]);
+    let down = run_bounded(down, Duration::from_secs(120));
+    assert!(down.status.success(), "{}", describe(&down));
+    let said = String::from_utf8_lossy(&down.stdout);
+    // (Another test's command may have finished the dead loop first.)
+    if said.contains(&prefix) {
+        assert!(said.contains("outlived it and were killed"), "{said}");
+    }
+    let since = Instant::now();
+    while Path::new(&format!("/proc/{program}")).exists() {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "{program} lives on"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_clean(&dir);
+}
