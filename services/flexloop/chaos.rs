@@ -332,7 +332,8 @@ fn pids_of(loop_dir: &RunDir, target: Target) -> Vec<i32> {
         .collect()
 }
 
-/// Waits until the loop ticks with an active controller and observer.
+/// Waits until the loop ticks (its first samples recorded) with an active
+/// controller and observer.
 fn wait_until_serving(loop_dir: &RunDir, up: &mut UpProcess) -> Result<()> {
     let since = Instant::now();
     loop {
@@ -347,9 +348,14 @@ fn wait_until_serving(loop_dir: &RunDir, up: &mut UpProcess) -> Result<()> {
                     .display()
             );
         }
+        // Listed, and the loop ticks: a process stopped before the loop's
+        // first sample is a start-up that fails, not a fault of a running
+        // loop (the plant waits for its peers, then ends the run).
         let serving = [Target::Controller, Target::Observer]
             .iter()
-            .all(|&t| !pids_of(loop_dir, t).is_empty());
+            .all(|&t| !pids_of(loop_dir, t).is_empty())
+            && flexloop_components::mcap_repair::topic_counts(&loop_dir.samples(0))
+                .is_ok_and(|c| c.get("/measurement").copied().unwrap_or(0) > 0);
         if serving {
             return Ok(());
         }
