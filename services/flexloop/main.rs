@@ -83,6 +83,15 @@ enum Command {
 }
 
 impl Command {
+    /// Whether SIGINT and SIGTERM end the command by their default action,
+    /// at once, with no handler: `design` starts no process and writes no
+    /// file, and a large model's design computes for long without a point
+    /// that could look at the shutdown flag, so Ctrl-C must not wait for it
+    /// (docs/own-plant.md). The shell sees the signal (exit status 130 or 143).
+    fn ends_on_signal(&self) -> bool {
+        matches!(self, Command::Design(_))
+    }
+
     /// Whether the command supervises processes (it must outlive a closed stdout).
     fn supervises(&self) -> bool {
         matches!(
@@ -111,7 +120,9 @@ fn main() {
 
 fn dispatch(command: Command) -> anyhow::Result<i32> {
     use anyhow::Context;
-    shutdown::install().context("cannot install signal handlers")?;
+    if !command.ends_on_signal() {
+        shutdown::install().context("cannot install signal handlers")?;
+    }
     if !command.supervises() {
         // A command that only reads and prints ends quietly when its reader
         // does (`flexloop status | head`), as Unix tools do; one that

@@ -3,6 +3,8 @@
 use std::fmt;
 use std::path::PathBuf;
 
+use crate::limits;
+
 /// Where a model's arrays came from, for error messages.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ArraySource {
@@ -82,6 +84,18 @@ const SAVE_AS_V7: &str =
 pub enum ModelFileErrorKind {
     /// The file cannot be read (missing, no permission, ...).
     Io { reason: String },
+    /// Not a regular file (a FIFO, a device, a directory, a socket): `found` says what.
+    NotARegularFile { found: String },
+    /// A file larger than [`MAX_FILE_BYTES`](crate::limits::MAX_FILE_BYTES).
+    FileTooLarge { bytes: u64 },
+    /// An array whose declared shape exceeds what flexloop takes
+    /// ([`limits`](crate::limits)), refused before its data are read.
+    ArrayTooLarge { shape: Vec<u64> },
+    /// An array whose data take (`Some`: declare) more bytes than
+    /// [`MAX_ARRAY_BYTES`](crate::limits::MAX_ARRAY_BYTES), stored or inflated.
+    ArrayDataTooLarge { bytes: Option<u64> },
+    /// More arrays than [`MAX_ARRAYS`](crate::limits::MAX_ARRAYS) (`None`: counted up to the cap).
+    TooManyArrays { count: Option<u64> },
     /// The file name ends in neither `.npz` nor `.mat`.
     UnknownFormat { extension: Option<String> },
     /// A MAT-file of version 7.3, which is HDF5, not level 5.
@@ -133,6 +147,52 @@ impl fmt::Display for ModelFileErrorKind {
         use ModelFileErrorKind::*;
         match self {
             Io { reason } => write!(f, "cannot read the file: {reason}"),
+            NotARegularFile { found } => write!(
+                f,
+                "is {found}, not a regular file: a model is read from a regular .npz or .mat file"
+            ),
+            FileTooLarge { bytes } => write!(
+                f,
+                "the file has {}, more than the {} flexloop reads: the largest model it takes \
+                 ({LOOP_SIZE}) fits in well under 1 MiB; reduce the model first (e.g. by modal \
+                 truncation)",
+                bytes_text(*bytes),
+                bytes_text(limits::MAX_FILE_BYTES)
+            ),
+            ArrayTooLarge { shape } => write!(
+                f,
+                "declares {} entries, more than any model array flexloop takes: at most {} in \
+                 each dimension ({LOOP_SIZE}); it is not read",
+                shape_text_u64(shape),
+                limits::MAX_DIMENSION
+            ),
+            ArrayDataTooLarge { bytes } => {
+                match bytes {
+                    Some(bytes) => write!(f, "its data take {}", bytes_text(*bytes))?,
+                    None => write!(
+                        f,
+                        "its data inflate to more than {} (inflating stopped there)",
+                        bytes_text(limits::MAX_ARRAY_BYTES)
+                    )?,
+                }
+                write!(
+                    f,
+                    "; an array flexloop takes needs at most {} (a 128×128 float64 matrix is \
+                     128 KiB), so it is not read",
+                    bytes_text(limits::MAX_ARRAY_BYTES)
+                )
+            }
+            TooManyArrays { count } => {
+                match count {
+                    Some(count) => write!(f, "the file holds {count} arrays")?,
+                    None => write!(f, "the file holds more than {} arrays", limits::MAX_ARRAYS)?,
+                }
+                write!(
+                    f,
+                    "; a model has at most five, and flexloop reads at most {}",
+                    limits::MAX_ARRAYS
+                )
+            }
             UnknownFormat { extension } => {
                 match extension {
                     Some(ext) => write!(f, "unknown model file type `.{ext}`")?,
@@ -211,6 +271,34 @@ impl fmt::Display for ModelFileErrorKind {
     }
 }
 
+/// What the loop carries, as the size errors say it.
+const LOOP_SIZE: &str = "the loop carries at most 128 states: a state-space model of 128 states, a \
+     second-order one of 64 degrees of freedom, at most 8 inputs and 8 outputs";
+
+/// A declared shape, which may not fit a `usize`.
+fn shape_text_u64(shape: &[u64]) -> String {
+    let dims: Vec<String> = shape.iter().map(u64::to_string).collect();
+    if dims.is_empty() {
+        return "a scalar".to_string();
+    }
+    dims.join("×")
+}
+
+/// A byte count as people read it: `512 bytes`, `16 MiB`, `4.0 GiB`.
+pub(crate) fn bytes_text(bytes: u64) -> String {
+    const UNITS: [(&str, u64); 3] = [("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)];
+    for (unit, size) in UNITS {
+        if bytes >= size {
+            return if bytes.is_multiple_of(size) {
+                format!("{} {unit}", bytes / size)
+            } else {
+                format!("{:.1} {unit}", bytes as f64 / size as f64)
+            };
+        }
+    }
+    format!("{bytes} bytes")
+}
+
 /// A shape as a reader writes it: `3×4`, `5` (a 1-D array of five), `scalar`.
 pub(crate) fn shape_text(shape: &[usize]) -> String {
     if shape.is_empty() {
@@ -249,6 +337,21 @@ mod tests {
             "{e}"
         );
         assert!(e.to_string().contains("save plant.mat A B C D -v7"), "{e}");
+    }
+
+    #[test]
+    fn sizes_read_plainly() {
+        assert_eq!(bytes_text(100), "100 bytes");
+        assert_eq!(bytes_text(16 << 20), "16 MiB");
+        assert_eq!(bytes_text((1 << 30) * 4 + (1 << 29)), "4.5 GiB");
+        let e = ModelFileErrorKind::ArrayTooLarge {
+            shape: vec![100_000, 100_000],
+        };
+        assert!(
+            e.to_string()
+                .starts_with("declares 100000×100000 entries, more than any model array"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -11,10 +11,15 @@
 //! - `npz`, `mat`, `inline`: one reader per source. The file formats are
 //!   parsed by crates (`zip` and `npyz`; `matrw`); `mat` adds the header and
 //!   framing checks matrw lacks (see there).
+//! - [`limits`]: what is read at most. A model file must be a regular file
+//!   of at most 16 MiB, and every array it declares fit the loop (at most
+//!   128 per dimension), checked before anything is read, inflated or
+//!   allocated for it (docs/own-plant.md, "What flexloop reads at most").
 
 mod array;
 pub mod error;
 mod inline;
+pub mod limits;
 mod mat;
 mod model_arrays;
 mod npz;

@@ -12,12 +12,23 @@
 //!   variable list, so a truncated file would read as one with fewer arrays
 //!   (an optional `D` would silently vanish); each top-level element's byte
 //!   count is checked against the file, and matrw reads each element on its
-//!   own and must find exactly one variable in it.
+//!   own and must find exactly one variable in it;
+//! - the sizes (docs/own-plant.md): at most [`MAX_ARRAYS`] variables; a compressed
+//!   variable is inflated here, never beyond [`MAX_ARRAY_BYTES`] whatever it
+//!   holds (matrw would inflate all of it), and matrw is handed the
+//!   uncompressed element; each variable's array flags, dimensions and name
+//!   are read here, the dimensions checked against what flexloop takes
+//!   ([`check_shape`]) and the data's byte count against the element, before
+//!   matrw allocates anything for them;
+//! - the classes: a cell, struct, object, char or sparse array is told by
+//!   its class and named, without matrw (which misreads the short struct
+//!   field names scipy writes); matrw reads numeric arrays only.
 
 use matrw::{MatVariable, MatlabType, NumericArray};
 
 use crate::array::{Array, signed_to_f64, unsigned_to_f64};
 use crate::error::{FileFormat, ModelFileErrorKind};
+use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS, check_shape};
 use crate::read::{Entry, Fault, NamedArrays, catch};
 
 /// The level-5 header: 116 bytes of text, 8 of subsystem data offset, 2 of
@@ -85,27 +96,236 @@ pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
     let mut arrays = NamedArrays::new();
     let mut previous: Option<String> = None;
     for (index, element) in elements.iter().enumerate() {
-        let Some((name, variable)) = parse_one(&header, element) else {
+        let unreadable = |previous: &Option<String>, why: &str| {
             let after = previous
                 .as_ref()
                 .map(|name| format!(" (the one after `{name}`)"))
                 .unwrap_or_default();
-            return Err(Fault::file(corrupt(format!(
-                "variable {} of {}{after} cannot be read: its data are damaged, or of a \
-                 kind the reader does not parse (a model file holds numeric matrices only)",
+            Fault::file(corrupt(format!(
+                "variable {} of {}{after} cannot be read: {why}",
                 index + 1,
                 elements.len()
-            ))));
+            )))
         };
-        // An unnamed element is not a variable: MATLAB's subsystem data
-        // (class definitions for objects) when the header does not point to it.
-        if name.is_empty() {
+        let Some(variable) =
+            Variable::read(element, endian).map_err(|why| unreadable(&previous, &why))?
+        else {
             continue;
-        }
-        arrays.insert(name.clone(), array_of(variable))?;
+        };
+        let Some(entry) = variable.entry(&header, endian) else {
+            return Err(unreadable(&previous, DAMAGED));
+        };
+        let name = variable.name;
+        arrays.insert(name.clone(), entry?)?;
         previous = Some(name);
     }
     Ok(arrays)
+}
+
+/// Why a variable cannot be read, when flexloop's checks or matrw say so.
+const DAMAGED: &str = "its data are damaged, or of a kind the reader does not parse (a model \
+                       file holds numeric matrices only)";
+
+/// The classes of a level-5 array (the low byte of its array flags).
+const MX_CELL: u32 = 1;
+const MX_STRUCT: u32 = 2;
+const MX_OBJECT: u32 = 3;
+const MX_CHAR: u32 = 4;
+const MX_SPARSE: u32 = 5;
+const MX_NUMERIC: std::ops::RangeInclusive<u32> = 6..=15;
+const MX_FUNCTION: u32 = 16;
+const MX_OPAQUE: u32 = 17;
+/// The complex bit of the array flags' flag byte.
+const COMPLEX: u32 = 0x0800;
+/// The sub-element data types of the array flags, dimensions and name.
+const MI_INT8: u32 = 1;
+const MI_INT32: u32 = 5;
+const MI_UINT32: u32 = 6;
+
+/// One variable's `miMATRIX` element, uncompressed (a compressed variable
+/// inflated, with a bound), and what flexloop reads of its header itself
+/// before matrw sees it: the class, the declared dimensions, the name.
+struct Variable<'a> {
+    /// The `miMATRIX` element: its tag and its bytes, at most as declared.
+    element: std::borrow::Cow<'a, [u8]>,
+    /// Inflating stopped at [`MAX_ARRAY_BYTES`] before the stream's end.
+    inflated_beyond_cap: bool,
+    class: u32,
+    complex: bool,
+    /// None for an opaque object, whose element carries no dimensions.
+    dims: Option<Vec<u64>>,
+    name: String,
+    /// Where the data sub-elements begin, after the name.
+    data_at: usize,
+}
+
+impl<'a> Variable<'a> {
+    /// The variable of a top-level element (framed by [`elements`]); `None`
+    /// for an unnamed element, which is not a variable (MATLAB's subsystem
+    /// data when the header does not point to it); `Err` saying why it
+    /// cannot be read.
+    fn read(element: &'a [u8], endian: Endian) -> Result<Option<Self>, String> {
+        let (data_type, _) = tag(element, 0, endian).ok_or(DAMAGED)?;
+        let (element, inflated_beyond_cap) = if data_type == MI_COMPRESSED {
+            let (inflated, beyond) = inflate(&element[8..])?;
+            (std::borrow::Cow::Owned(inflated), beyond)
+        } else {
+            (std::borrow::Cow::Borrowed(element), false)
+        };
+        let (data_type, size) = tag(&element, 0, endian).ok_or(DAMAGED)?;
+        if data_type != MI_MATRIX {
+            return Err(format!(
+                "it holds data of type {data_type}, not a variable (miMATRIX 14)"
+            ));
+        }
+        let size = usize::try_from(size).unwrap_or(usize::MAX);
+        if size > element.len() - 8 && !inflated_beyond_cap {
+            return Err(format!(
+                "it should have {size} bytes, its compressed data hold {}",
+                element.len() - 8
+            ));
+        }
+        // At most the declared bytes (a top-level element may be padded).
+        let end = 8 + size.min(element.len() - 8);
+        let element = match element {
+            std::borrow::Cow::Borrowed(e) => std::borrow::Cow::Borrowed(&e[..end]),
+            std::borrow::Cow::Owned(mut e) => {
+                e.truncate(end);
+                std::borrow::Cow::Owned(e)
+            }
+        };
+        let body = &element[8..];
+        let (flags_type, flags, mut at) = sub_element(body, 0, endian).ok_or(DAMAGED)?;
+        if flags_type != MI_UINT32 || flags.len() != 8 {
+            return Err(DAMAGED.into());
+        }
+        let flags = endian.u32([flags[0], flags[1], flags[2], flags[3]]);
+        let class = flags & 0xff;
+        let dims = if class == MX_OPAQUE {
+            None
+        } else {
+            let (dims_type, dims, next) = sub_element(body, at, endian).ok_or(DAMAGED)?;
+            if dims_type != MI_INT32 || dims.len() < 8 || dims.len() % 4 != 0 {
+                return Err(DAMAGED.into());
+            }
+            at = next;
+            let dims = dims
+                .chunks_exact(4)
+                .map(|d| u64::try_from(endian.u32([d[0], d[1], d[2], d[3]]) as i32).ok())
+                .collect::<Option<Vec<u64>>>()
+                .ok_or("it declares a negative dimension")?;
+            Some(dims)
+        };
+        let (name_type, name, data_at) = sub_element(body, at, endian).ok_or(DAMAGED)?;
+        if name_type != MI_INT8 {
+            return Err(DAMAGED.into());
+        }
+        let name = String::from_utf8_lossy(name).into_owned();
+        if name.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(Self {
+            element,
+            inflated_beyond_cap,
+            class,
+            complex: flags & COMPLEX != 0,
+            dims,
+            name,
+            data_at,
+        }))
+    }
+
+    /// The variable as an array, or why it is not one; `Err` when the whole
+    /// file is refused for it (an array beyond what flexloop takes); `None`
+    /// if its data cannot be read (matrw fails or panics).
+    fn entry(&self, header: &[u8], endian: Endian) -> Option<Result<Entry, Fault>> {
+        let refused = |kind| Some(Ok(Err(kind)));
+        match self.class {
+            MX_CELL => return refused(not_numeric("a cell array")),
+            MX_STRUCT => return refused(not_numeric("a struct")),
+            MX_OBJECT | MX_FUNCTION | MX_OPAQUE => {
+                return refused(not_numeric("an object or another unsupported MATLAB class"));
+            }
+            MX_CHAR => return refused(not_numeric("text (a char array)")),
+            MX_SPARSE => return refused(ModelFileErrorKind::Sparse),
+            class if MX_NUMERIC.contains(&class) => {}
+            _ => return None,
+        }
+        // The declared dimensions first, then what the data take: nothing
+        // of an array beyond what flexloop takes reaches matrw.
+        let too_large = |kind| Some(Err(Fault::array(&self.name, kind)));
+        if let Err(kind) = check_shape(self.dims.as_deref().unwrap_or_default()) {
+            return too_large(kind);
+        }
+        if self.inflated_beyond_cap {
+            return too_large(ModelFileErrorKind::ArrayDataTooLarge { bytes: None });
+        }
+        let stored = self.element.len() as u64 - 8;
+        if stored > MAX_ARRAY_BYTES {
+            return too_large(ModelFileErrorKind::ArrayDataTooLarge {
+                bytes: Some(stored),
+            });
+        }
+        if self.complex {
+            return refused(ModelFileErrorKind::Complex);
+        }
+        // The real part's byte count must lie within the element, so that
+        // matrw allocates no more than the file holds.
+        sub_element(&self.element[8..], self.data_at, endian)?;
+        let (name, variable) = parse_one(header, &self.element)?;
+        (name == self.name).then_some(Ok(array_of(variable)))
+    }
+}
+
+/// The tag at `at` of `bytes`: its data type and byte count (the long form
+/// only, as a top-level element's).
+fn tag(bytes: &[u8], at: usize, endian: Endian) -> Option<(u32, u32)> {
+    let word = |i: usize| -> Option<u32> {
+        let w = bytes.get(at + i..at + i + 4)?;
+        Some(endian.u32([w[0], w[1], w[2], w[3]]))
+    };
+    Some((word(0)?, word(4)?))
+}
+
+/// The sub-element at `at` of a `miMATRIX` element's body: its data type,
+/// its data, and where the next begins (after the padding to 8 bytes);
+/// `None` if it does not lie within the body. The small form (a byte count
+/// of 1 to 4 in the upper half of the first word, the data in the second)
+/// included.
+fn sub_element(body: &[u8], at: usize, endian: Endian) -> Option<(u32, &[u8], usize)> {
+    let (first, second) = tag(body, at, endian)?;
+    if first >> 16 != 0 {
+        let len = (first >> 16) as usize;
+        if len > 4 {
+            return None;
+        }
+        return Some((first & 0xffff, &body[at + 4..at + 4 + len], at + 8));
+    }
+    let len = usize::try_from(second).ok()?;
+    let start = at + 8;
+    let data = body.get(start..start.checked_add(len)?)?;
+    let next = (start + len).next_multiple_of(8).min(body.len());
+    Some((first, data, next))
+}
+
+/// The zlib stream of a compressed variable inflated, at most
+/// [`MAX_ARRAY_BYTES`] and one byte: whether it went beyond is the second
+/// value (the bytes then begin the variable, enough to name it).
+fn inflate(compressed: &[u8]) -> Result<(Vec<u8>, bool), String> {
+    use std::io::Read;
+    let mut inflated = Vec::new();
+    flate2::read::ZlibDecoder::new(compressed)
+        .take(MAX_ARRAY_BYTES + 1)
+        .read_to_end(&mut inflated)
+        .map_err(|e| format!("its compressed data are damaged ({e})"))?;
+    let beyond = inflated.len() as u64 > MAX_ARRAY_BYTES;
+    if inflated.len() < 8 {
+        return Err(format!(
+            "its compressed data inflate to {} bytes, too few for a variable",
+            inflated.len()
+        ));
+    }
+    Ok((inflated, beyond))
 }
 
 /// The one variable of `element` read by matrw after `header`; `None` if
@@ -185,6 +405,11 @@ fn elements(body: &[u8], endian: Endian) -> Result<Vec<&[u8]>, Fault> {
     while at < body.len() {
         let left = body.len() - at;
         let number = elements.len() + 1;
+        if elements.len() == MAX_ARRAYS {
+            return Err(Fault::file(ModelFileErrorKind::TooManyArrays {
+                count: None,
+            }));
+        }
         if left < 8 {
             return Err(Fault::file(corrupt(format!(
                 "truncated: {left} bytes after variable {}, too few for another",

@@ -8,6 +8,7 @@ use nalgebra::DMatrix;
 
 use crate::array::{Array, VectorAs};
 use crate::error::{ArraySource, FileFormat, ModelFileError, ModelFileErrorKind};
+use crate::limits::MAX_FILE_BYTES;
 use crate::read::{Entry, NamedArrays};
 use crate::{inline, mat, npz};
 
@@ -43,12 +44,8 @@ impl ModelArrays {
                 return Err(ModelFileError::new(&source, None, kind));
             }
         };
-        let bytes = std::fs::read(path).map_err(|e| {
-            let kind = ModelFileErrorKind::Io {
-                reason: e.to_string(),
-            };
-            ModelFileError::new(&source, None, kind)
-        })?;
+        let bytes =
+            read_regular_file(path).map_err(|kind| ModelFileError::new(&source, None, kind))?;
         Self::from_bytes(source, format, &bytes)
     }
 
@@ -227,6 +224,72 @@ impl ModelArrays {
     fn error(&self, name: &str, kind: ModelFileErrorKind) -> ModelFileError {
         ModelFileError::new(&self.source, Some(name), kind)
     }
+}
+
+/// The bytes of the regular file at `path` (a symbolic link is followed),
+/// refused before it is read if it is anything else or larger than
+/// [`MAX_FILE_BYTES`]. The metadata are checked before the file is opened,
+/// and again on the file opened (without blocking, so that a FIFO put in
+/// its place meanwhile cannot hold the open), and the read stops at the
+/// cap whatever the file does meanwhile.
+fn read_regular_file(path: &Path) -> Result<Vec<u8>, ModelFileErrorKind> {
+    use std::io::Read;
+    use std::os::unix::fs::OpenOptionsExt;
+
+    let io = |e: std::io::Error| ModelFileErrorKind::Io {
+        reason: e.to_string(),
+    };
+    check_metadata(&std::fs::metadata(path).map_err(io)?)?;
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(path)
+        .map_err(io)?;
+    let metadata = file.metadata().map_err(io)?;
+    check_metadata(&metadata)?;
+    let mut bytes = Vec::with_capacity(usize::try_from(metadata.len()).unwrap_or(0));
+    file.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(ModelFileErrorKind::FileTooLarge {
+            bytes: bytes.len() as u64,
+        });
+    }
+    Ok(bytes)
+}
+
+/// A regular file of at most [`MAX_FILE_BYTES`], or why not.
+fn check_metadata(metadata: &std::fs::Metadata) -> Result<(), ModelFileErrorKind> {
+    use std::os::unix::fs::FileTypeExt;
+
+    let kind = metadata.file_type();
+    let found = if kind.is_file() {
+        None
+    } else if kind.is_dir() {
+        Some("a directory")
+    } else if kind.is_fifo() {
+        Some("a FIFO (named pipe)")
+    } else if kind.is_char_device() {
+        Some("a character device")
+    } else if kind.is_block_device() {
+        Some("a block device")
+    } else if kind.is_socket() {
+        Some("a socket")
+    } else {
+        Some("not a file")
+    };
+    if let Some(found) = found {
+        return Err(ModelFileErrorKind::NotARegularFile {
+            found: found.to_string(),
+        });
+    }
+    if metadata.len() > MAX_FILE_BYTES {
+        return Err(ModelFileErrorKind::FileTooLarge {
+            bytes: metadata.len(),
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use npyz::{DType, NpyFile, Order, TypeChar};
 
 use crate::array::{Array, signed_to_f64, unsigned_to_f64};
 use crate::error::{FileFormat, ModelFileErrorKind};
+use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS, check_shape};
 use crate::read::{Entry, Fault, NamedArrays, catch};
 
 /// The names scipy.io.loadmat adds to the variables of a MAT-file: a model
@@ -15,11 +16,31 @@ use crate::read::{Entry, Fault, NamedArrays, catch};
 /// them into a .mat).
 const LOADMAT_METADATA: [&str; 3] = ["__header__", "__version__", "__globals__"];
 
+/// What is inflated of a member declared beyond the cap, for its `.npy`
+/// header's shape (NumPy pads the header to 64 bytes; a shape of two
+/// dimensions takes about 128).
+const NPY_HEADER_PREFIX: u64 = 4096;
+
 /// The arrays of an `.npz` archive, named as `np.load` names them (the member
 /// name without `.npy`), less scipy.io.loadmat's metadata.
 pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
+    // The count the archive's end record declares, before the zip crate
+    // reads its whole directory (180 000 empty members fit in the file cap,
+    // and take it a second and 60 MB to list).
+    if let Some(count) = declared_members(bytes)
+        && count > MAX_ARRAYS as u64
+    {
+        return Err(Fault::file(ModelFileErrorKind::TooManyArrays {
+            count: Some(count),
+        }));
+    }
     let mut archive = zip::ZipArchive::new(Cursor::new(bytes))
         .map_err(|e| Fault::file(corrupt(format!("not a zip archive ({e})"))))?;
+    if archive.len() > MAX_ARRAYS {
+        return Err(Fault::file(ModelFileErrorKind::TooManyArrays {
+            count: Some(archive.len() as u64),
+        }));
+    }
     let mut arrays = NamedArrays::new();
     for index in 0..archive.len() {
         let mut member = archive
@@ -42,12 +63,38 @@ pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
             arrays.insert(member_name, refused)?;
             continue;
         };
+        // The size the archive declares, then what the member inflates to
+        // whatever it declares (a zip bomb): neither beyond one array's cap.
+        // A member declared beyond it is read no further than its header,
+        // whose shape tells the user more than a byte count (a model of
+        // 1000 degrees of freedom, where flexloop takes 64).
+        let declared = member.size();
+        let read_at_most = if declared > MAX_ARRAY_BYTES {
+            NPY_HEADER_PREFIX
+        } else {
+            MAX_ARRAY_BYTES + 1
+        };
         // The zip crate checks the member's CRC as its last bytes are read: a
         // damaged member fails here rather than giving wrong numbers.
         let mut npy = Vec::new();
-        member
+        (&mut member)
+            .take(read_at_most)
             .read_to_end(&mut npy)
             .map_err(|e| Fault::array(&name, corrupt(format!("cannot extract the array ({e})"))))?;
+        let too_large = |kind| Fault::array(&name, kind);
+        if let Some(shape) = declared_shape(&npy) {
+            check_shape(&shape).map_err(too_large)?;
+        }
+        if declared > MAX_ARRAY_BYTES {
+            return Err(too_large(ModelFileErrorKind::ArrayDataTooLarge {
+                bytes: Some(declared),
+            }));
+        }
+        if npy.len() as u64 > MAX_ARRAY_BYTES {
+            return Err(too_large(ModelFileErrorKind::ArrayDataTooLarge {
+                bytes: None,
+            }));
+        }
         let entry = catch(|| read_npy(&npy))
             .unwrap_or_else(|| Err(corrupt("the .npy reader stopped on malformed data".into())))
             .map_err(|kind| Fault::array(&name, kind))?;
@@ -59,8 +106,14 @@ pub(crate) fn read(bytes: &[u8]) -> Result<NamedArrays, Fault> {
 /// One `.npy` array (any byte order, C or Fortran order, numbers or
 /// booleans), or why it is not one; `Err` if the bytes are not a `.npy` array.
 fn read_npy(bytes: &[u8]) -> Result<Entry, ModelFileErrorKind> {
+    // The header's shape, before npyz multiplies it out (unchecked) or
+    // anything is read or allocated for it; again as npyz reads it.
+    if let Some(shape) = declared_shape(bytes) {
+        check_shape(&shape)?;
+    }
     let npy =
         NpyFile::new(bytes).map_err(|e| corrupt(format!("not a readable .npy array ({e})")))?;
+    check_shape(npy.shape())?;
     let shape = npy
         .shape()
         .iter()
@@ -117,6 +170,76 @@ fn read_npy(bytes: &[u8]) -> Result<Entry, ModelFileErrorKind> {
     array
         .map(Ok)
         .ok_or_else(|| corrupt("the data do not fill the array's shape".into()))
+}
+
+/// The number of members the end-of-central-directory record of a zip
+/// archive declares: the last record whose comment ends the file (APPNOTE
+/// 4.3.16), where it is told without the zip crate; `None` for a zip64
+/// archive (0xFFFF there) or none found, which the zip crate then reads.
+fn declared_members(zip: &[u8]) -> Option<u64> {
+    const SIGNATURE: &[u8] = b"PK\x05\x06";
+    const RECORD: usize = 22;
+    let earliest = zip.len().saturating_sub(RECORD + usize::from(u16::MAX));
+    let at = (earliest..=zip.len().checked_sub(RECORD)?)
+        .rev()
+        .find(|&at| {
+            let comment = usize::from(u16::from_le_bytes([zip[at + 20], zip[at + 21]]));
+            zip[at..].starts_with(SIGNATURE) && at + RECORD + comment == zip.len()
+        })?;
+    let field = |i: usize| u16::from_le_bytes([zip[at + i], zip[at + i + 1]]);
+    let count = field(8).max(field(10));
+    if count != u16::MAX {
+        return Some(u64::from(count));
+    }
+    // Zip64: the locator just before the record points to the zip64 end
+    // record, which holds the counts as 64-bit numbers (APPNOTE 4.3.14–15).
+    let u64_at = |i: usize| Some(u64::from_le_bytes(zip.get(i..i + 8)?.try_into().ok()?));
+    let locator = at.checked_sub(20)?;
+    if !zip[locator..].starts_with(b"PK\x06\x07") {
+        return None;
+    }
+    let record = usize::try_from(u64_at(locator + 8)?).ok()?;
+    if !zip.get(record..)?.starts_with(b"PK\x06\x06") {
+        return None;
+    }
+    Some(u64_at(record + 24)?.max(u64_at(record + 32)?))
+}
+
+/// The shape a `.npy` header declares (its `'shape': (…)` entry, read as
+/// plainly as the format writes it), if it can be told without npyz; a
+/// number too large for a `u64` is `u64::MAX`.
+fn declared_shape(npy: &[u8]) -> Option<Vec<u64>> {
+    let rest = npy.strip_prefix(b"\x93NUMPY")?;
+    let (&major, rest) = rest.split_first()?;
+    let rest = rest.get(1..)?;
+    let (len, rest) = match major {
+        1 => (
+            usize::from(u16::from_le_bytes([*rest.first()?, *rest.get(1)?])),
+            rest.get(2..)?,
+        ),
+        _ => {
+            let len: [u8; 4] = rest.get(..4)?.try_into().ok()?;
+            (
+                usize::try_from(u32::from_le_bytes(len)).ok()?,
+                rest.get(4..)?,
+            )
+        }
+    };
+    let header = std::str::from_utf8(rest.get(..len)?).ok()?;
+    let at = header
+        .find("'shape':")
+        .or_else(|| header.find("\"shape\":"))?;
+    let tuple = header[at..].split_once('(')?.1.split_once(')')?.0;
+    tuple
+        .split(',')
+        .map(str::trim)
+        .filter(|n| !n.is_empty())
+        .map(|n| match n.parse::<u64>() {
+            Ok(n) => Some(n),
+            Err(_) if n.bytes().all(|b| b.is_ascii_digit()) => Some(u64::MAX),
+            Err(_) => None,
+        })
+        .collect()
 }
 
 /// Every entry of `npy` as `T` (the caller matched the dtype to `T`); `Err`
@@ -340,6 +463,41 @@ mod tests {
         );
         assert_eq!(message(read(&twice)), "t.npz: array `M`: is given twice");
         assert!(message(read(b"MATLAB 5.0 MAT-file")).contains("not a zip archive"));
+    }
+
+    #[test]
+    fn declared_shapes_and_member_counts_are_read_before_the_readers() {
+        assert_eq!(
+            declared_shape(&npy("<f8", false, "(3, 4)", &[])),
+            Some(vec![3, 4])
+        );
+        assert_eq!(declared_shape(&npy("<f8", false, "()", &[])), Some(vec![]));
+        assert_eq!(
+            declared_shape(&npy("<f8", false, "(99999999999999999999999,)", &[])),
+            Some(vec![u64::MAX])
+        );
+        assert_eq!(declared_shape(b"\x93NUMPY\x01\x00\xff\xff{'shape"), None);
+        assert_eq!(declared_shape(b"not an array"), None);
+        let members: Vec<(String, Vec<u8>)> = (0..3)
+            .map(|i| (format!("x{i}.npy"), npy("<f8", false, "()", &f64s(&[1.0]))))
+            .collect();
+        let members: Vec<(&str, Vec<u8>)> = members
+            .iter()
+            .map(|(n, b)| (n.as_str(), b.clone()))
+            .collect();
+        let file = npz(&members, true);
+        assert_eq!(declared_members(&file), Some(3));
+        assert_eq!(declared_members(&file[..file.len() - 1]), None);
+        assert_eq!(declared_members(b"PK"), None);
+        // A shape beyond the bound is refused naming the array, before its data.
+        let huge = npz(&[("K.npy", npy("<f8", false, "(129, 129)", &[]))], false);
+        assert_eq!(
+            message(read(&huge)),
+            "t.npz: array `K`: declares 129×129 entries, more than any model array flexloop \
+             takes: at most 128 in each dimension (the loop carries at most 128 states: a \
+             state-space model of 128 states, a second-order one of 64 degrees of freedom, at \
+             most 8 inputs and 8 outputs); it is not read"
+        );
     }
 
     #[test]

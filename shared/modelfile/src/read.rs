@@ -63,13 +63,64 @@ impl NamedArrays {
 }
 
 /// Runs a third-party reader on untrusted bytes; `None` if it panicked.
-/// flexloop's own checks come first and the tests show that no truncation of
-/// a valid file gets this far, but both readers still hold an `unwrap` or an
-/// unchecked product for some malformed inputs (matrw 0.1.4: zlib data,
-/// struct field names written in the short form scipy uses; npyz 0.9: the
-/// product of a header's shape): a damaged file must be an error naming it,
-/// never a crash of the tool. (The default panic hook still prints the
-/// panic on stderr; a library must not replace the process's hook.)
+/// flexloop's own checks come first (the framing, every declared size) and
+/// the tests show that no truncation of a valid file gets this far, but
+/// both readers still hold an `unwrap` or an unchecked product for some
+/// malformed inputs (matrw 0.1.4: mismatched real and imaginary types;
+/// npyz 0.9: the product of a header's shape): a damaged file must be an
+/// error naming it, never a crash of the tool, and never a panic message
+/// and backtrace before that error. The panic is silenced on this thread
+/// only, for this call only ([`quiet_panics`]).
 pub(crate) fn catch<T>(read: impl FnOnce() -> T + std::panic::UnwindSafe) -> Option<T> {
-    std::panic::catch_unwind(read).ok()
+    quiet_panics::run(read)
+}
+
+/// A process-wide panic hook installed once, around the hook there was:
+/// it passes every panic on to that hook except one on a thread inside
+/// [`catch`]. Swapping the hook around each call (`take_hook`, `set_hook`)
+/// would race with other threads (the tests read files in parallel) and
+/// silence their panics, or restore a hook another thread had just
+/// replaced; the wrapper never changes what any other panic prints.
+mod quiet_panics {
+    use std::cell::Cell;
+    use std::sync::Once;
+
+    thread_local! {
+        /// Whether this thread is inside [`run`].
+        static QUIET: Cell<bool> = const { Cell::new(false) };
+    }
+
+    static INSTALL: Once = Once::new();
+
+    fn install() {
+        INSTALL.call_once(|| {
+            let previous = std::panic::take_hook();
+            std::panic::set_hook(Box::new(move |info| {
+                if !QUIET.with(Cell::get) {
+                    previous(info);
+                }
+            }));
+        });
+    }
+
+    pub(super) fn run<T>(read: impl FnOnce() -> T + std::panic::UnwindSafe) -> Option<T> {
+        install();
+        let was = QUIET.with(|q| q.replace(true));
+        let result = std::panic::catch_unwind(read);
+        QUIET.with(|q| q.set(was));
+        result.ok()
+    }
+
+    #[cfg(test)]
+    mod tests {
+        #[test]
+        fn a_caught_panic_is_silent_and_others_are_not() {
+            assert_eq!(super::run(|| 7), Some(7));
+            let none: Option<()> = super::run(|| panic!("a reader's unwrap"));
+            assert_eq!(none, None);
+            // Nested, and the flag is back after each.
+            assert_eq!(super::run(|| super::run(|| -> u8 { panic!() })), Some(None));
+            assert!(!super::QUIET.with(std::cell::Cell::get));
+        }
+    }
 }

@@ -7,6 +7,9 @@ use crate::limits;
 use crate::plant_description::{Attachment, OWN_MODELS};
 use crate::{Scenario, ScenarioError};
 
+// A lumped network's masses are two states each, as many as the loop carries.
+const _: () = assert!(2 * limits::LUMPED_MASSES_MAX == flexloop_protocol::MAX_STATES);
+
 impl Scenario {
     pub(crate) fn validate_plant_description(&self) -> Result<(), ScenarioError> {
         let p = &self.plant;
@@ -181,11 +184,37 @@ impl Scenario {
             return Err(self.err(
                 "plant.masses_kg",
                 format!(
-                    "1 to {} masses, got {}",
+                    "1 to {} masses (each is two states; the loop carries at most {}), got {}",
                     limits::LUMPED_MASSES_MAX,
+                    flexloop_protocol::MAX_STATES,
                     masses.len()
                 ),
             ));
+        }
+        // Each force is one of the loop's inputs, each position one of its
+        // outputs: refused here, before the network is assembled and designed.
+        for (field, count, max, what) in [
+            (
+                "plant.forces",
+                p.forces.len(),
+                flexloop_protocol::MAX_INPUTS,
+                "inputs",
+            ),
+            (
+                "plant.positions",
+                p.positions.len(),
+                flexloop_protocol::MAX_OUTPUTS,
+                "outputs",
+            ),
+        ] {
+            if count > max {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "{count} entries, each one of the loop's {what}: it carries at most {max}"
+                    ),
+                ));
+            }
         }
         self.masses_in_range(masses)?;
         let n = masses.len();

@@ -15,6 +15,7 @@ use flexloop_control::zoh_inverse::continuous_from_zoh;
 use flexloop_modelfile::{ModelArrays, VectorAs};
 use flexloop_scenario::schema::{Attachment, Rayleigh};
 use flexloop_scenario::{Scenario, ScenarioError};
+use nalgebra::DMatrix;
 
 /// The share of the sample rate up to which the observer keeps a user's
 /// flexible modes by default (`observer.max_mode_hz`): a mode at 0.15 f_s
@@ -246,6 +247,84 @@ fn model_error(s: &Scenario, arrays: &ModelArrays, e: PlantModelError) -> Scenar
     )
 }
 
+/// The most degrees of freedom of a second-order model (`M`, `K`, `D`):
+/// each is two states, and the loop carries at most
+/// [`MAX_STATES`](flexloop_protocol::MAX_STATES), as a lumped network's 64
+/// masses (`plant.masses_kg`) and the uniform chain's 64 nodes are.
+pub const MAX_DEGREES_OF_FREEDOM: usize = flexloop_protocol::MAX_STATES / 2;
+
+// The model file's own bound on every array (checked as the file is read,
+// before anything is inflated) is the loop's.
+const _: () =
+    assert!(flexloop_modelfile::limits::MAX_DIMENSION as usize == flexloop_protocol::MAX_STATES);
+
+/// The model's size against what the loop carries, from the arrays' shapes
+/// before anything is designed (a large model's eigen-decomposition and
+/// Kalman design take minutes and memory, then fail on the loop's size):
+/// each of `sizes` (an array, and the degrees of freedom or states its
+/// shape gives) at most what the loop carries, the inputs (B's columns) and
+/// outputs (C's rows) too.
+fn check_model_size(
+    s: &Scenario,
+    arrays: &ModelArrays,
+    sizes: &[(&str, &DMatrix<f64>, usize)],
+    (b, c): (&DMatrix<f64>, &DMatrix<f64>),
+    second_order: bool,
+) -> Result<(), ScenarioError> {
+    use flexloop_protocol::{MAX_INPUTS, MAX_OUTPUTS, MAX_STATES};
+    let refuse = |name: &str, m: &DMatrix<f64>, why: String| {
+        Err(ScenarioError::new(
+            &s.source,
+            Some(arrays_field(s)),
+            format!(
+                "{}: array `{name}` is {}×{}: {why}",
+                arrays.source(),
+                m.nrows(),
+                m.ncols()
+            ),
+        ))
+    };
+    let max = if second_order {
+        MAX_DEGREES_OF_FREEDOM
+    } else {
+        MAX_STATES
+    };
+    for &(name, m, n) in sizes {
+        if n > max {
+            let why = if second_order {
+                format!(
+                    "a model of {n} degrees of freedom ({} states); the loop carries at most \
+                     {MAX_STATES} states, a second-order model of at most {max} degrees of \
+                     freedom: reduce it first (keep the modes you need, or condense the nodes \
+                     that are neither actuated nor measured)",
+                    2 * n
+                )
+            } else {
+                format!(
+                    "a model of {n} states; the loop carries at most {MAX_STATES}: reduce it \
+                     first (e.g. modal or balanced truncation)"
+                )
+            };
+            return refuse(name, m, why);
+        }
+    }
+    if b.ncols() > MAX_INPUTS {
+        let why = format!(
+            "{} inputs (columns); the loop carries at most {MAX_INPUTS}",
+            b.ncols()
+        );
+        return refuse("B", b, why);
+    }
+    if c.nrows() > MAX_OUTPUTS {
+        let why = format!(
+            "{} outputs (rows); the loop carries at most {MAX_OUTPUTS}",
+            c.nrows()
+        );
+        return refuse("C", c, why);
+    }
+    Ok(())
+}
+
 fn output_names(n: usize) -> Vec<String> {
     (1..=n).map(|i| format!("y{i}")).collect()
 }
@@ -263,6 +342,13 @@ fn second_order(s: &Scenario) -> Result<(ModalModel, Vec<String>), ScenarioError
         .map_err(file_err)?;
     let b = arrays.matrix("B", VectorAs::Column).map_err(file_err)?;
     let c = arrays.matrix("C", VectorAs::Row).map_err(file_err)?;
+    let square = |m: &DMatrix<f64>| m.nrows().max(m.ncols());
+    let mut sizes = vec![("M", &m, square(&m)), ("K", &k, square(&k))];
+    if let Some(d) = &d {
+        sizes.push(("D", d, square(d)));
+    }
+    sizes.extend([("B", &b, b.nrows()), ("C", &c, c.ncols())]);
+    check_model_size(s, &arrays, &sizes, (&b, &c), true)?;
     let damping = scenario_damping(s);
     if d.is_some() && damping.is_some() {
         let field = if s.plant.zeta.is_some() {
@@ -309,6 +395,12 @@ fn state_space(s: &Scenario, ts: f64) -> Result<(ModalModel, Vec<String>), Scena
     let d = arrays
         .optional_matrix("D", VectorAs::Row)
         .map_err(file_err)?;
+    let sizes = [
+        ("A", &a, a.nrows().max(a.ncols())),
+        ("B", &b, b.nrows()),
+        ("C", &c, c.ncols()),
+    ];
+    check_model_size(s, &arrays, &sizes, (&b, &c), false)?;
     let (a, b) = match arrays.scalar("ts").map_err(file_err)? {
         None => (a, b),
         Some(file_ts) => {
