@@ -10,7 +10,10 @@
 
 use crate::tune;
 use anyhow::Context;
-use flexloop_live::{DEFAULT_ADDRESS, LiveOptions, LoopSide, SetOutcome, Tuner};
+use flexloop_live::{
+    DEFAULT_ADDRESS, HOW_TO_GIVE_A_TOKEN, LiveOptions, LoopSide, OptionsError, SetOutcome,
+    TOKEN_ENV, Tuner,
+};
 use flexloop_runfiles::RunDir;
 use std::net::{SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
@@ -18,9 +21,10 @@ use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// The token travels to the server in its environment, not on its command
-/// line (which every local user can read in /proc).
-const TOKEN_ENV: &str = "FLEXLOOP_LIVE_TOKEN";
+// The token comes to `up` in its environment (TOKEN_ENV) or a file, and
+// travels to the server in the server's environment: never on a command
+// line, which every local user can read in /proc/PID/cmdline (a process's
+// environment only its own user can).
 const STDERR_FILE: &str = "live-server.stderr";
 /// How long the server may take to listen before `up` goes on without it.
 const START_LIMIT: Duration = Duration::from_secs(10);
@@ -34,13 +38,18 @@ pub struct LiveFlags {
     #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1, default_missing_value = DEFAULT_ADDRESS)]
     pub live: Option<SocketAddr>,
     /// Allow --live on an address other than loopback (the loop is then seen from
-    /// other machines; needs --live-token or --live-read-only)
+    /// other machines; needs a token, FLEXLOOP_LIVE_TOKEN or --live-token-file, or
+    /// --live-read-only)
     #[arg(long, requires = "live")]
     pub live_remote: bool,
-    /// Changes of the loop from live clients need this token (they set the
-    /// parameter live.token to it first)
-    #[arg(long, value_name = "TOKEN", requires = "live")]
+    /// Refused: a token on the command line is readable by every local user
+    #[arg(long, value_name = "TOKEN", hide = true)]
     pub live_token: Option<String>,
+    /// Changes of the loop from live clients need the token in this file (its one
+    /// line, at least 16 characters; clients set the parameter live.token to it);
+    /// or give it in the environment as FLEXLOOP_LIVE_TOKEN
+    #[arg(long, value_name = "PATH", requires = "live")]
+    pub live_token_file: Option<PathBuf>,
     /// Live clients see the loop and change nothing
     #[arg(long, requires = "live")]
     pub live_read_only: bool,
@@ -50,21 +59,71 @@ impl LiveFlags {
     /// The checked options; the address is tried before anything starts, so
     /// that a taken port fails `up` instead of leaving a loop without its view.
     pub fn options(&self) -> anyhow::Result<Option<LiveOptions>> {
+        if self.live_token.is_some() {
+            anyhow::bail!(
+                "--live-token: a token on the command line is readable by every local user \
+                 (/proc/PID/cmdline); {HOW_TO_GIVE_A_TOKEN}"
+            );
+        }
         let Some(address) = self.live else {
             return Ok(None);
         };
-        let options = LiveOptions::checked(
-            address,
-            self.live_remote,
-            self.live_token.clone(),
-            self.live_read_only,
-        )?;
+        let from_env = std::env::var_os(TOKEN_ENV);
+        let token = match (&self.live_token_file, from_env) {
+            (Some(_), Some(_)) => anyhow::bail!(
+                "--live-token-file and {TOKEN_ENV}: two tokens; give one (unset {TOKEN_ENV} \
+                 or leave out --live-token-file)"
+            ),
+            (Some(path), None) => Some(token_from_file(path)?),
+            (None, Some(value)) => Some(
+                value
+                    .into_string()
+                    .map_err(|_| anyhow::anyhow!("{TOKEN_ENV}: the token is not UTF-8"))?,
+            ),
+            (None, None) => None,
+        };
+        let source = match &self.live_token_file {
+            Some(path) => format!("--live-token-file {}", path.display()),
+            None => TOKEN_ENV.to_string(),
+        };
+        let options = LiveOptions::checked(address, self.live_remote, token, self.live_read_only)
+            .map_err(|e| match e {
+            OptionsError::ShortToken(_) | OptionsError::EmptyToken => {
+                anyhow::anyhow!("{source}: {e}")
+            }
+            e => e.into(),
+        })?;
         if address.port() != 0 {
             TcpListener::bind(address)
                 .with_context(|| format!("--live {address}: cannot listen there"))?;
         }
         Ok(Some(options))
     }
+}
+
+/// The token in `path`: its one line, without the line's end. A file others
+/// may read is used, with a warning.
+fn token_from_file(path: &Path) -> anyhow::Result<String> {
+    use std::os::unix::fs::PermissionsExt;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("--live-token-file {}", path.display()))?;
+    let token = text.trim_end_matches(['\n', '\r']);
+    if token.contains(['\n', '\r']) {
+        anyhow::bail!(
+            "--live-token-file {}: more than one line; the token is the file's one line",
+            path.display()
+        );
+    }
+    if let Ok(meta) = std::fs::metadata(path)
+        && meta.permissions().mode() & 0o077 != 0
+    {
+        eprintln!(
+            "flexloop: warning: --live-token-file {}: others than its owner may read it \
+             (chmod 600)",
+            path.display()
+        );
+    }
+    Ok(token.to_string())
 }
 
 /// `live-server --prefix P --run-dir D --address A --rate-hz R [--remote] [--read-only]`.
@@ -196,6 +255,8 @@ impl LiveServer {
                 endpoint.address,
                 if endpoint.read_only {
                     ", read-only"
+                } else if endpoint.token_required {
+                    ", changes need live.token"
                 } else {
                     ""
                 }

@@ -5,7 +5,10 @@
 //! the rate it named; clients that never read, drop their connection or
 //! send garbage disturb neither the loop, nor the logger, nor the others;
 //! parameters change the loop through the swap path, or are refused with
-//! the reason.
+//! the reason. What a client can take of the server is bounded: 16
+//! connections (one more is refused at once), a message of 64 KiB, and
+//! wrong tokens throttled; the token comes from the environment or a file,
+//! never the command line.
 
 use crate::util::*;
 use flexloop_components::LogReader;
@@ -18,8 +21,42 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+/// A token long enough (16 characters or more).
+const TOKEN: &str = "s3cret-0123456789abcdef";
+
 /// Where the loop's live server listens, once it does (`live.json`).
 fn live_url(dir: &Path, up: &mut Up) -> String {
+    format!(
+        "ws://{}",
+        live_endpoint(dir, up)["address"].as_str().unwrap()
+    )
+}
+
+/// The live server's pid (`live.json`), once it listens.
+fn live_pid(dir: &Path, up: &mut Up) -> String {
+    live_endpoint(dir, up)["pid"].to_string()
+}
+
+/// A file holding `token`, readable by its owner only.
+fn token_file(dir: &Path, name: &str, token: &str) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let path = dir.join(name);
+    std::fs::write(&path, format!("{token}\n")).unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+    path
+}
+
+/// `live_summary.json`, which the server writes when it stops.
+fn live_summary(dir: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("live_summary.json")).unwrap()).unwrap()
+}
+
+/// What the live server wrote to its log.
+fn live_log(dir: &Path) -> String {
+    std::fs::read_to_string(dir.join("live-server.stderr")).unwrap_or_default()
+}
+
+fn live_endpoint(dir: &Path, up: &mut Up) -> Value {
     let since = Instant::now();
     loop {
         if let Some(out) = up.ended() {
@@ -29,8 +66,7 @@ fn live_url(dir: &Path, up: &mut Up) -> String {
             );
         }
         if let Ok(text) = std::fs::read_to_string(dir.join("live.json")) {
-            let live: Value = serde_json::from_str(&text).unwrap();
-            return format!("ws://{}", live["address"].as_str().unwrap());
+            return serde_json::from_str(&text).unwrap();
         }
         assert!(
             since.elapsed() < Duration::from_secs(90),
@@ -249,6 +285,8 @@ fn live_clients_get_the_recorded_messages_at_their_rate_and_bad_clients_disturb_
 #[test]
 fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
     let dir = temp_dir("live-tune");
+    let tokens = temp_dir("live-tune-token");
+    let file = token_file(&tokens, "token", TOKEN);
     let (mut up, prefix) = start(
         &dir,
         "default",
@@ -257,14 +295,19 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
             "lockstep",
             "--live",
             "127.0.0.1:0",
-            "--live-token",
-            "s3cret",
+            "--live-token-file",
+            file.to_str().unwrap(),
         ],
     );
     let url = live_url(&dir, &mut up);
     wait_for_ticks(&dir, 2_000);
-    let seen = client("tune", &url, "60", Some("s3cret"));
-    stop(&prefix, up);
+    let seen = client("tune", &url, "60", Some(TOKEN));
+    let out = stop(&prefix, up);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("changes need live.token"),
+        "{}",
+        describe(&out)
+    );
 
     let all = &seen["parameters"];
     assert_eq!(parameter(all, "controller.bandwidth_hz"), 43.5, "{all}");
@@ -359,8 +402,11 @@ fn a_live_server_beyond_loopback_needs_the_flag_and_a_token_before_anything_star
     let dir = temp_dir("live-remote");
     for (args, says) in [
         (vec!["--live", "0.0.0.0:0"], "--live-remote"),
-        (vec!["--live", "0.0.0.0:0", "--live-remote"], "--live-token"),
-        (vec!["--live-token", "x"], "--live"),
+        (
+            vec!["--live", "0.0.0.0:0", "--live-remote"],
+            "FLEXLOOP_LIVE_TOKEN",
+        ),
+        (vec!["--live-token-file", "x"], "--live"),
     ] {
         let mut c = flexloop();
         c.args(["up", "default", "--no-realtime", "--run-dir"])
@@ -375,4 +421,273 @@ fn a_live_server_beyond_loopback_needs_the_flag_and_a_token_before_anything_star
         );
         assert!(!dir.join("run").exists(), "{args:?}: a run started");
     }
+}
+
+/// `up` with `env` added to its environment and `args` after the scenario,
+/// to its end (bounded); its output.
+fn up_with(dir: &Path, env: &[(&str, &str)], args: &[&str]) -> std::process::Output {
+    let mut c = flexloop();
+    c.args([
+        "up",
+        "lecture-double-integrator",
+        "--no-realtime",
+        "--run-dir",
+    ])
+    .arg(dir)
+    .args(args)
+    .env_remove("FLEXLOOP_LIVE_TOKEN")
+    .envs(env.iter().copied());
+    run_bounded(c, Duration::from_secs(120))
+}
+
+#[test]
+fn a_live_token_comes_from_the_environment_or_a_file_never_the_command_line() {
+    let dir = temp_dir("live-token-sources");
+    let short = "x".repeat(15);
+    let short_file = token_file(&dir, "short", &short);
+    let good_file = token_file(&dir, "good", TOKEN);
+    fn with<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+        [&["--live", "127.0.0.1:0", "--duration", "1"][..], extra].concat()
+    }
+    /// The environment `up` gets, its arguments, what its refusal says.
+    type Refused<'a> = (Vec<(&'a str, &'a str)>, Vec<&'a str>, &'a [&'a str]);
+    let refused: [Refused; 5] = [
+        // On the command line: every local user reads it in /proc/PID/cmdline.
+        (
+            vec![],
+            with(&["--live-token", TOKEN]),
+            &[
+                "readable by every local user",
+                "FLEXLOOP_LIVE_TOKEN",
+                "--live-token-file",
+            ],
+        ),
+        (
+            vec![("FLEXLOOP_LIVE_TOKEN", &short)],
+            with(&[]),
+            &["FLEXLOOP_LIVE_TOKEN", "15 characters", "16"],
+        ),
+        (
+            vec![],
+            with(&["--live-token-file", short_file.to_str().unwrap()]),
+            &["--live-token-file", "15 characters"],
+        ),
+        (
+            vec![("FLEXLOOP_LIVE_TOKEN", "")],
+            with(&[]),
+            &["FLEXLOOP_LIVE_TOKEN", "empty"],
+        ),
+        (
+            vec![("FLEXLOOP_LIVE_TOKEN", TOKEN)],
+            with(&["--live-token-file", good_file.to_str().unwrap()]),
+            &["two tokens"],
+        ),
+    ];
+    for (env, args, says) in refused {
+        let run = dir.join("refused");
+        let out = up_with(&run, &env, &args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", describe(&out));
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        for word in says {
+            assert!(
+                stderr.contains(word),
+                "{args:?}: {word:?}: {}",
+                describe(&out)
+            );
+        }
+        assert!(!stderr.contains(TOKEN), "the token was printed: {stderr}");
+        assert!(!run.exists(), "{args:?}: a run started");
+    }
+    // The environment and a file are taken: the live view then wants the token.
+    for (name, env, args) in [
+        ("env", vec![("FLEXLOOP_LIVE_TOKEN", TOKEN)], vec![]),
+        (
+            "file",
+            vec![],
+            vec!["--live-token-file", good_file.to_str().unwrap()],
+        ),
+    ] {
+        let run = dir.join(name);
+        let out = up_with(
+            &run,
+            &env,
+            &[&["--live", "127.0.0.1:0", "--duration", "4"][..], &args].concat(),
+        );
+        assert_ran(&out);
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("changes need live.token"),
+            "{name}: {}",
+            describe(&out)
+        );
+        assert!(run.join("live_summary.json").is_file(), "{name}");
+    }
+}
+
+#[test]
+fn live_connections_beyond_the_cap_are_refused_and_slow_clients_hold_bounded_memory() {
+    let dir = temp_dir("live-flood");
+    let (mut up, prefix) = start(
+        &dir,
+        "lecture-double-integrator",
+        &["--rate", "1000", "--live", "127.0.0.1:0"],
+    );
+    let url = live_url(&dir, &mut up);
+    let pid = live_pid(&dir, &mut up);
+    // Straight to the crate's own port (loopback), not through the
+    // server's address: advertisements, and nothing else.
+    let bypass = client("bypass", &url, "2", Some(&pid));
+    assert_eq!(bypass["received"], 0, "{bypass}");
+    assert_eq!(bypass["get"], serde_json::json!([]), "{bypass}");
+    assert!(
+        statuses(&bypass).contains("not a client of this server"),
+        "{bypass}"
+    );
+    // 1 000 at once; the 16 admitted subscribe to everything and never
+    // read, for 8 s (at 1 kHz their queues of 8 192 fill in under 3 s).
+    let seen = client("flood", &url, "8", Some(&pid));
+    stop(&prefix, up);
+    eprintln!("flood: {seen}");
+    assert_eq!(seen["admitted"], 16, "{seen}");
+    let refused_503 = seen["refused_503"].as_u64().unwrap();
+    let refused_otherwise = seen["refused_otherwise"].as_array().unwrap().len() as u64;
+    assert_eq!(refused_503 + refused_otherwise, 1000 - 16, "{seen}");
+    assert!(refused_503 >= 900, "{seen}");
+    assert!(
+        seen["refusal_body"]
+            .as_str()
+            .unwrap()
+            .contains("at most 16 clients"),
+        "{seen}"
+    );
+    assert_eq!(seen["extra_refusal"]["status"], 503, "{seen}");
+    // Once they left, their places are given back.
+    assert_eq!(seen["again_admitted"], true, "{seen}");
+    // The server's memory: 16 full queues at most, whatever the 984 others
+    // did (before: 79 MB idle, 218 MB with 1 000 idle connections, 658 MB
+    // with 300 that never read).
+    let kb = |v: &Value, key: &str| v[key].as_u64().unwrap() as f64;
+    let before = kb(&seen["memory_before_kb"], "VmRSS");
+    let peak = kb(&seen["memory_after_kb"], "VmHWM");
+    eprintln!(
+        "live server: {:.1} MB before, {:.1} MB at the peak, {:.1} MB during, {:.1} MB after",
+        before / 1024.0,
+        peak / 1024.0,
+        kb(&seen["memory_during_kb"], "VmRSS") / 1024.0,
+        kb(&seen["memory_after_kb"], "VmRSS") / 1024.0
+    );
+    assert!(
+        peak - before < 72.0 * 1024.0,
+        "the server grew from {before} kB to {peak} kB: {seen}"
+    );
+    // Counted and logged.
+    let summary = live_summary(&dir);
+    assert_eq!(summary["max_connections"], 16, "{summary}");
+    assert_eq!(summary["most_connections"], 16, "{summary}");
+    assert!(
+        // The 984 of the flood and the one more while they held every place.
+        summary["refused_connections"].as_u64().unwrap() > 1000 - 16,
+        "{summary}"
+    );
+    let log = live_log(&dir);
+    assert!(
+        log.contains("refused") && log.contains("16 clients are connected"),
+        "{log}"
+    );
+    assert_clean(&dir);
+}
+
+#[test]
+fn live_token_guesses_are_throttled_and_a_large_set_is_refused_before_it_costs_memory() {
+    let dir = temp_dir("live-guard");
+    let tokens = temp_dir("live-guard-token");
+    let file = token_file(&tokens, "token", TOKEN);
+    let (mut up, prefix) = start(
+        &dir,
+        "lecture-double-integrator",
+        &[
+            "--rate",
+            "1000",
+            "--live",
+            "127.0.0.1:0",
+            "--live-token-file",
+            file.to_str().unwrap(),
+        ],
+    );
+    let url = live_url(&dir, &mut up);
+    let pid = live_pid(&dir, &mut up);
+    let big = client("bigset", &url, "20", Some(&pid));
+    let brute = client("brute", &url, "3", Some(TOKEN));
+    stop(&prefix, up);
+    eprintln!("bigset: {big}\nbrute: {brute}");
+
+    // A set just under the 64 KiB a client may send, without the token:
+    // refused for the token (its value never converted).
+    assert!(statuses(&big["under"]).contains("live.token"), "{big}");
+    // 15 MB: the connection is closed at the frame's header; no answer.
+    assert!(big["big_closed"].is_string(), "{big}");
+    assert_eq!(big["big_answered"], false, "{big}");
+    assert!(big["still_served"].is_array(), "{big}");
+    let kb = |v: &Value, key: &str| v[key].as_u64().unwrap() as f64;
+    let (before, after) = (&big["memory_before_kb"], &big["memory_after_kb"]);
+    eprintln!(
+        "live server: {:.1} MB before, {:.1} MB after (peak {:.1} -> {:.1} MB)",
+        kb(before, "VmRSS") / 1024.0,
+        kb(after, "VmRSS") / 1024.0,
+        kb(before, "VmHWM") / 1024.0,
+        kb(after, "VmHWM") / 1024.0
+    );
+    // (Before: the 15 MB message peaked at 274 MB.)
+    assert!(
+        kb(after, "VmHWM") - kb(before, "VmHWM").max(kb(before, "VmRSS")) < 4.0 * 1024.0,
+        "{big}"
+    );
+    assert!(
+        kb(after, "VmRSS") - kb(before, "VmRSS") < 4.0 * 1024.0,
+        "{big}"
+    );
+
+    // Wrong tokens: a handful compared, the rest refused unexamined, by the
+    // server's own counts; the right one is refused while the lockout
+    // holds and taken after it.
+    let summary = live_summary(&dir);
+    let failures = summary["token_failures"].as_u64().unwrap();
+    let throttled = summary["token_throttled"].as_u64().unwrap();
+    let wall_s = summary["wall_s"].as_f64().unwrap();
+    eprintln!(
+        "{} guesses sent in {:.1} s; {failures} compared, {throttled} refused unexamined \
+         over the server's {wall_s:.1} s",
+        brute["sent"], brute["elapsed_s"]
+    );
+    assert!(failures >= 5, "{summary}");
+    // 5 free, then one after each lockout (1, 2, 4, ... s): at most
+    // 6 + log2(1 + T) in the server's T seconds.
+    let bound = 6.0 + (1.0 + wall_s).log2();
+    assert!(
+        (failures as f64) <= bound,
+        "{failures} wrong tokens compared in {wall_s} s: {summary}"
+    );
+    let sent = brute["sent"].as_u64().unwrap();
+    assert!(sent > 100, "{brute}");
+    assert!(failures + throttled >= sent, "{summary} {brute}");
+    assert!(brute["throttled"].as_u64().unwrap() > 0, "{brute}");
+    let during = brute["right_during"]["statuses"].as_array().unwrap();
+    assert!(
+        during.len() == 2 && during[1].to_string().contains("too many wrong tokens"),
+        "{brute}"
+    );
+    assert!(
+        !statuses(&brute["right_after"]).contains("live.token"),
+        "{brute}"
+    );
+    // Logged, and counted in the summary.
+    let log = live_log(&dir);
+    assert!(log.contains("a wrong live.token"), "{log}");
+    assert!(log.contains("refused unexamined"), "{log}");
+    assert!(log.contains("at most 65536 bytes"), "{log}");
+    assert!(
+        summary["oversized_messages"].as_u64().unwrap() >= 1,
+        "{summary}"
+    );
+    assert!(events(&dir).iter().all(|e| e["kind"] != "set"));
+    assert_clean(&dir);
 }

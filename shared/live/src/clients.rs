@@ -1,7 +1,9 @@
 //! What the server keeps of each client: the rate it asked for, the
 //! channels it is subscribed to and whether it gave the token. Pure
 //! bookkeeping, keyed by any client id, so that it is tested without a
-//! socket.
+//! socket. A client is known from its admission (the gate's mark, the first
+//! message of a connection that came through the gate) until its
+//! connection ends; nothing is kept of one that was never admitted.
 //!
 //! A client's rate is `live.rate_hz`, a parameter of its own: 10 kHz cannot
 //! be drawn in a browser, so a client names the rate it wants and gets
@@ -75,23 +77,50 @@ impl<K: Eq + Hash + Copy, S: Copy> ClientTable<K, S> {
         }
     }
 
-    /// `client` subscribed to `channel`; its messages go to `sink`.
-    pub fn subscribed(&mut self, client: K, sink: S, channel: u64) {
-        let state = self.clients.entry(client).or_default();
-        state.sink = Some(sink);
-        state.channels.insert(channel);
+    /// `client` is one of the server's (its connection came through the gate).
+    pub fn admit(&mut self, client: K) {
+        self.clients.entry(client).or_default();
         self.version += 1;
     }
 
+    pub fn admitted(&self, client: K) -> bool {
+        self.clients.contains_key(&client)
+    }
+
+    /// `client`'s connection ended: its rate, token and subscriptions go.
+    pub fn forget(&mut self, client: K) {
+        if self.clients.remove(&client).is_some() {
+            self.version += 1;
+        }
+    }
+
+    /// Clients admitted and not yet gone.
+    pub fn len(&self) -> usize {
+        self.clients.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.clients.is_empty()
+    }
+
+    /// `client` subscribed to `channel`; its messages go to `sink`. Nothing
+    /// for a client that was not admitted (or has gone).
+    pub fn subscribed(&mut self, client: K, sink: S, channel: u64) -> bool {
+        let Some(state) = self.clients.get_mut(&client) else {
+            return false;
+        };
+        state.sink = Some(sink);
+        state.channels.insert(channel);
+        self.version += 1;
+        true
+    }
+
     /// `client` unsubscribed from `channel` (also when it disconnects: the
-    /// server unsubscribes a leaving client from everything). A client
-    /// without subscriptions is forgotten, its rate and token with it.
+    /// server unsubscribes a leaving client from everything). Its rate and
+    /// token stay while it is connected.
     pub fn unsubscribed(&mut self, client: K, channel: u64) {
         if let Some(state) = self.clients.get_mut(&client) {
             state.channels.remove(&channel);
-            if state.channels.is_empty() {
-                self.clients.remove(&client);
-            }
             self.version += 1;
         }
     }
@@ -100,7 +129,11 @@ impl<K: Eq + Hash + Copy, S: Copy> ClientTable<K, S> {
     /// Returns the rate it gets.
     pub fn set_rate(&mut self, client: K, rate_hz: f64) -> Result<f64, String> {
         let every = decimation(self.loop_rate_hz, rate_hz)?;
-        self.clients.entry(client).or_default().every = every;
+        let state = self
+            .clients
+            .get_mut(&client)
+            .ok_or_else(|| format!("{RATE_PARAMETER}: not a client of this server"))?;
+        state.every = every;
         self.version += 1;
         Ok(self.loop_rate_hz / every as f64)
     }
@@ -112,7 +145,9 @@ impl<K: Eq + Hash + Copy, S: Copy> ClientTable<K, S> {
     }
 
     pub fn give_token(&mut self, client: K) {
-        self.clients.entry(client).or_default().token_given = true;
+        if let Some(state) = self.clients.get_mut(&client) {
+            state.token_given = true;
+        }
     }
 
     pub fn token_given(&self, client: K) -> bool {
@@ -129,7 +164,8 @@ impl<K: Eq + Hash + Copy, S: Copy> ClientTable<K, S> {
     pub fn routes(&self, out: &mut Vec<Route<S>>) {
         out.clear();
         out.extend(self.clients.values().filter_map(|c| {
-            c.sink.map(|sink| Route {
+            let sink = c.sink.filter(|_| !c.channels.is_empty());
+            sink.map(|sink| Route {
                 sink,
                 every: c.every,
                 channels: c.channels.clone(),
@@ -198,6 +234,8 @@ mod tests {
     #[test]
     fn each_client_gets_its_own_rate_on_the_same_samples() {
         let mut table = ClientTable::<u32, char>::new(10_000.0);
+        table.admit(1);
+        table.admit(2);
         table.subscribed(1, 'a', 7);
         table.subscribed(2, 'b', 7);
         table.subscribed(2, 'b', 8);
@@ -221,6 +259,7 @@ mod tests {
     #[test]
     fn a_rate_named_before_subscribing_holds_and_a_leaving_client_is_forgotten() {
         let mut table = ClientTable::<u32, char>::new(10_000.0);
+        table.admit(3);
         table.set_rate(3, 100.0).unwrap();
         table.give_token(3);
         let before = table.version();
@@ -235,15 +274,39 @@ mod tests {
         assert_eq!(out, ['c']);
         assert!(table.token_given(3));
         assert_eq!(table.subscribed_clients(), 1);
+        // Unsubscribed from all: no route, its rate and token kept while
+        // it is connected.
         table.unsubscribed(3, 7);
         assert_eq!(table.subscribed_clients(), 0);
+        table.routes(&mut routes);
+        assert!(routes.is_empty());
+        assert!(table.token_given(3));
+        assert_eq!(table.rate_hz(3), 100.0);
+        // Gone: forgotten.
+        table.forget(3);
+        assert!(!table.admitted(3));
         assert!(!table.token_given(3));
         assert_eq!(table.rate_hz(3), 10_000.0);
+        assert!(table.is_empty());
+    }
+
+    #[test]
+    fn nothing_is_kept_of_a_client_that_was_not_admitted() {
+        let mut table = ClientTable::<u32, char>::new(10_000.0);
+        assert!(!table.subscribed(9, 'z', 7));
+        assert!(table.set_rate(9, 100.0).is_err());
+        table.give_token(9);
+        assert!(!table.token_given(9));
+        let mut routes = Vec::new();
+        table.routes(&mut routes);
+        assert!(routes.is_empty());
+        assert_eq!(table.len(), 0);
     }
 
     #[test]
     fn a_refused_rate_leaves_the_old_one() {
         let mut table = ClientTable::<u32, char>::new(10_000.0);
+        table.admit(1);
         table.set_rate(1, 500.0).unwrap();
         assert!(table.set_rate(1, 333.0).is_err());
         assert_eq!(table.rate_hz(1), 500.0);

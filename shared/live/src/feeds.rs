@@ -1,6 +1,7 @@
 //! What the JSON channels carry: `/latency` from the logger's telemetry,
 //! `/events` from the run's `events.jsonl`, `/scenario` as it stands.
 
+use crate::gate::GateCounts;
 use crate::server::{Counts, LiveError};
 use crate::tuning::Tuner;
 use flexloop_protocol::Telemetry;
@@ -30,6 +31,7 @@ impl LatencyFeed {
         &mut self,
         counts: &Counts,
         clients: usize,
+        gate: &GateCounts,
     ) -> Result<Option<serde_json::Value>, LiveError> {
         let mut newest = None;
         while let Some(t) = self.inlet.receive()? {
@@ -66,6 +68,8 @@ impl LatencyFeed {
             "tick_lateness_us": percentiles(t.tick_lateness),
             "live": {
                 "clients": clients,
+                "connections": gate.connected(),
+                "refused_connections": gate.refused(),
                 "sent": counts.sent(),
                 "lost_by_reader": {
                     "measurement": counts.lost[0],

@@ -9,6 +9,9 @@
 //! `flexloop set` (docs/live.md).
 //!
 //! - [`options`]: what is exposed and to whom (loopback, token, read-only).
+//! - [`gate`]: the public address: the connection cap, the size of what a
+//!   client may send, and the mark of a connection that came through it.
+//! - [`token`]: the token compared in constant time, wrong ones throttled.
 //! - [`clients`]: each client's rate, subscriptions and token.
 //! - [`parameters`]: tunables as Foxglove parameters and back.
 //! - [`tuning`]: what the server asks of the loop ([`Tuner`]).
@@ -18,12 +21,16 @@
 
 pub mod clients;
 mod feeds;
+pub mod gate;
 pub mod options;
 pub mod parameters;
 mod reader;
 pub mod server;
+pub mod token;
 pub mod tuning;
 
-pub use options::{DEFAULT_ADDRESS, LiveOptions, OptionsError};
+pub use options::{
+    DEFAULT_ADDRESS, HOW_TO_GIVE_A_TOKEN, LiveOptions, MIN_TOKEN_CHARS, OptionsError, TOKEN_ENV,
+};
 pub use server::{LiveError, LoopSide, endpoint, serve};
 pub use tuning::{SetOutcome, Tuner};

@@ -9,12 +9,22 @@
 //! dropped from its own queue (the crate keeps the newest
 //! `BACKLOG` messages per client); the loop, the logger and the other
 //! clients never wait for it.
+//!
+//! Clients reach the crate's server (on loopback, a port of the system's
+//! choosing) through the [`gate`](crate::gate) on the public address: at
+//! most 16 at once, no message over 64 KiB, and each marked, so that the
+//! server serves only those (a connection made straight to the crate's port
+//! gets the channels' advertisements and nothing else). Of a set, the token
+//! is looked at first; nothing else of it is converted or handed on unless
+//! the client may change the loop.
 
 use crate::clients::{ClientTable, RATE_PARAMETER, Route, TOKEN_PARAMETER, targets};
 use crate::feeds::{EventsTail, LatencyFeed, ScenarioWatch};
+use crate::gate::{Admissions, Gate, GateCounts, Limits, MARK_PARAMETER, MAX_CLIENTS, Mark};
 use crate::options::LiveOptions;
 use crate::parameters;
 use crate::reader::LoopReader;
+use crate::token::{self, Attempt, Throttle};
 use crate::tuning::{SetOutcome, Tuner};
 use flexloop_components::sample_file::{
     COMMAND_TOPIC, ESTIMATE_TOPIC, EVENT_SCHEMA, EVENT_SCHEMA_NAME, EVENTS_TOPIC, MEASUREMENT_TOPIC,
@@ -36,17 +46,26 @@ use foxglove::{
 };
 use std::collections::HashMap;
 use std::fmt;
+use std::net::{Ipv4Addr, SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 pub const LATENCY_TOPIC: &str = "/latency";
 pub const SCENARIO_TOPIC: &str = "/scenario";
 
-/// Messages queued per client before the oldest are dropped: 0.4 s of
-/// every channel at 10 kHz.
-const BACKLOG: usize = 8192;
+/// Messages queued per client before the oldest are dropped (and, apart,
+/// control messages: statuses and parameter answers, a client that lets
+/// those fill is disconnected by the crate). A queued sample message costs
+/// its bytes and 13 of header, and the three differ: `/measurement` 360,
+/// `/command` 456, `/estimate` 4 352 bytes, 5.2 KB for one tick of every
+/// channel. 1 024 of them: 34 ms of every channel at
+/// 10 kHz, 3.4 s at the 100 Hz a browser would name; a client that never
+/// reads holds about 2 MB subscribed to everything, 4.5 MB to `/estimate`
+/// alone, so the gate's 16 clients at most 72 MB (8 192, as before: 15 MB
+/// each subscribed to everything, 240 MB for 16).
+pub const BACKLOG: usize = 1024;
 /// The reader's poll: as the logger's, well inside the queues' 51 ms.
 const POLL: Duration = Duration::from_millis(2);
 const EVENTS_EVERY: Duration = Duration::from_millis(100);
@@ -67,7 +86,7 @@ const LATENCY_SCHEMA: &str = r#"{
     "log_gaps": {"type": "integer"},
     "round_trip_us": {"type": "object", "description": "p50, p90, p99, p99.9, p99.99, max"},
     "tick_lateness_us": {"type": "object"},
-    "live": {"type": "object", "description": "clients subscribed, messages sent, samples the live reader lost per channel; you.handed: the messages the server handed to this client before this one (less those it received: what its queue dropped)"}
+    "live": {"type": "object", "description": "clients subscribed, connections open and refused (beyond the 16 served), messages sent, samples the live reader lost per channel; you.handed: the messages the server handed to this client before this one (less those it received: what its queue dropped)"}
   }
 }"#;
 
@@ -132,6 +151,11 @@ impl From<flexloop_transport::TransportError> for LiveError {
 /// What the server's callbacks share with the reader.
 struct Shared {
     table: Mutex<ClientTable<ClientId, SinkId>>,
+    /// The gate's open connections, and the client each turned out to be
+    /// once its mark arrived.
+    connections: Mutex<HashMap<u64, Option<ClientId>>>,
+    mark: Arc<Mark>,
+    throttle: Mutex<Throttle>,
     /// Clients that subscribed to `/scenario` and wait for it.
     scenario_wanted: Mutex<Vec<SinkId>>,
     scenario_topic_id: Mutex<Option<u64>>,
@@ -148,6 +172,9 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
+/// Told to a client that did not come through the gate.
+const NOT_ADMITTED: &str = "not a client of this server: connect to the address in live.json";
+
 struct Listener(Arc<Shared>);
 
 impl ServerListener for Listener {
@@ -156,7 +183,9 @@ impl ServerListener for Listener {
             return;
         };
         let id = u64::from(channel.id());
-        lock(&self.0.table).subscribed(client.id(), sink, id);
+        if !lock(&self.0.table).subscribed(client.id(), sink, id) {
+            return;
+        }
         if *lock(&self.0.scenario_topic_id) == Some(id) {
             lock(&self.0.scenario_wanted).push(sink);
         }
@@ -167,20 +196,60 @@ impl ServerListener for Listener {
     }
 }
 
+/// The gate's connections, told to the server.
+struct Doorman(Arc<Shared>);
+
+impl Admissions for Doorman {
+    fn opened(&self, n: u64) {
+        lock(&self.0.connections).insert(n, None);
+    }
+
+    fn closed(&self, n: u64) {
+        if let Some(Some(client)) = lock(&self.0.connections).remove(&n) {
+            lock(&self.0.table).forget(client);
+        }
+    }
+}
+
 struct Parameters(Arc<Shared>);
 
 impl Shared {
-    /// Every parameter this client sees: the loop's tunables and its own rate.
-    fn parameters(&self, client: ClientId) -> (Vec<Parameter>, Option<String>) {
-        let (mut out, error) = match self.tuner.values() {
-            Ok(values) => (
+    /// The gate's mark (the first message of a connection through it):
+    /// `client` is the connection it names, if that is open and not yet
+    /// claimed and the secret is the gate's.
+    fn admit(&self, client: ClientId, value: Option<&ParameterValue>) {
+        let Some(ParameterValue::String(value)) = value else {
+            return;
+        };
+        let Some(n) = self.mark.connection(value) else {
+            return;
+        };
+        let mut connections = lock(&self.connections);
+        if let Some(slot) = connections.get_mut(&n)
+            && slot.is_none()
+        {
+            *slot = Some(client);
+            lock(&self.table).admit(client);
+        }
+    }
+
+    fn admitted(&self, client: ClientId) -> bool {
+        lock(&self.table).admitted(client)
+    }
+
+    /// Every parameter this client sees: the loop's tunables (when
+    /// `tunables`) and its own rate.
+    fn parameters(&self, client: ClientId, tunables: bool) -> (Vec<Parameter>, Option<String>) {
+        let (mut out, error) = match tunables.then(|| self.tuner.values()) {
+            None => (Vec::new(), None),
+            Some(Ok(values)) => (
                 values
                     .iter()
                     .map(|(field, value)| parameters::parameter(field, value.as_ref()))
                     .collect(),
                 None,
             ),
-            Err(reason) => (Vec::new(), Some(reason)),
+            Some(Err(reason)) => (Vec::new(), Some(reason)),
         };
         out.push(Parameter {
             name: RATE_PARAMETER.to_string(),
@@ -190,21 +259,65 @@ impl Shared {
         (out, error)
     }
 
-    /// Handles one set request of `client` (on a thread of its own: a
-    /// change of the loop takes as long as its hand-over).
-    fn set(&self, client: &AnyClient, requested: Vec<Parameter>) -> Vec<Parameter> {
+    /// The token of a set request, looked at before anything else of it:
+    /// compared in constant time unless wrong ones lock attempts out; a
+    /// wrong one logged.
+    fn take_token(&self, client: &AnyClient, value: Option<&ParameterValue>) {
+        let Some(token) = &self.options.token else {
+            client.send_warning(format!("{TOKEN_PARAMETER}: this server takes no token"));
+            return;
+        };
+        let given = match value {
+            Some(ParameterValue::String(given)) => given.as_bytes(),
+            _ => &[],
+        };
+        let attempt = lock(&self.throttle).attempt(Instant::now(), || token::matches(token, given));
+        match attempt {
+            Attempt::Accepted => lock(&self.table).give_token(client.id()),
+            Attempt::Wrong { failures, lockout } => {
+                let then = if lockout.is_zero() {
+                    String::new()
+                } else {
+                    format!(
+                        "; every token is refused unexamined for {} s",
+                        lockout.as_secs()
+                    )
+                };
+                eprintln!(
+                    "flexloop-live: a wrong {TOKEN_PARAMETER} ({failures} wrong so far{then})"
+                );
+                client.send_error(format!("{TOKEN_PARAMETER}: not the server's token{then}"));
+            }
+            Attempt::Throttled { left } => client.send_error(format!(
+                "{TOKEN_PARAMETER}: too many wrong tokens; none is examined for another {:.1} s",
+                left.as_secs_f64()
+            )),
+        }
+    }
+
+    /// A set request of `client`: its token first, then its own rate, then
+    /// the loop's fields, converted only if the client may change the loop
+    /// (read-only or without the token: refused unlooked-at). The changes
+    /// of the loop it asks for, as `flexloop set` takes them.
+    fn screen(&self, client: &AnyClient, requested: &[Parameter]) -> Vec<(String, String)> {
         let id = client.id();
+        for p in requested.iter().filter(|p| p.name == TOKEN_PARAMETER) {
+            self.take_token(client, p.value.as_ref());
+        }
+        let may_change = if self.options.read_only {
+            Err("this live server is read-only (--live-read-only)".to_string())
+        } else if self.options.token.is_some() && !lock(&self.table).token_given(id) {
+            Err(format!(
+                "set {TOKEN_PARAMETER} to the token the server was started with first"
+            ))
+        } else {
+            Ok(())
+        };
         let mut changes = Vec::new();
-        for p in &requested {
+        let mut refused = false;
+        for p in requested {
             match p.name.as_str() {
-                TOKEN_PARAMETER => match (&self.options.token, &p.value) {
-                    (Some(token), Some(ParameterValue::String(given))) if given == token => {
-                        lock(&self.table).give_token(id);
-                    }
-                    (None, _) => client
-                        .send_warning(format!("{TOKEN_PARAMETER}: this server takes no token")),
-                    _ => client.send_error(format!("{TOKEN_PARAMETER}: not the server's token")),
-                },
+                TOKEN_PARAMETER => {}
                 RATE_PARAMETER => {
                     let named = parameters::number(&p.name, p.value.as_ref())
                         .and_then(|rate| lock(&self.table).set_rate(id, rate));
@@ -212,34 +325,54 @@ impl Shared {
                         client.send_error(reason);
                     }
                 }
-                field => match parameters::toml_text(field, p.value.as_ref()) {
-                    Ok(text) => changes.push((field.to_string(), text)),
-                    Err(reason) => client.send_error(format!("set refused: {reason}")),
-                },
-            }
-        }
-        if !changes.is_empty() {
-            match self.change_loop(id, &changes) {
-                Ok(outcome) => {
-                    client.send_info(outcome.summary.clone());
-                    if let Some(server) = lock(&self.server).as_ref() {
-                        let (all, _) = self.parameters(id);
-                        let changed = all
-                            .into_iter()
-                            .filter(|p| outcome.fields.contains(&p.name))
-                            .collect::<Vec<_>>();
-                        if !changed.is_empty() {
-                            server.publish_parameter_values(changed);
-                        }
+                MARK_PARAMETER => {
+                    client.send_error(format!("{MARK_PARAMETER}: not a parameter one sets"));
+                }
+                field if may_change.is_ok() => {
+                    match parameters::toml_text(field, p.value.as_ref()) {
+                        Ok(text) => changes.push((field.to_string(), text)),
+                        Err(reason) => client.send_error(format!("set refused: {reason}")),
                     }
                 }
-                Err(reason) => client.send_error(format!("set refused: {reason}")),
+                _ => refused = true,
             }
         }
-        let names: Vec<&str> = requested.iter().map(|p| p.name.as_str()).collect();
-        let (all, _) = self.parameters(id);
+        if let (true, Err(reason)) = (refused, may_change) {
+            client.send_error(format!("set refused: {reason}"));
+        }
+        changes
+    }
+
+    /// Changes the loop (on a thread of its own: a change takes as long as
+    /// its hand-over), and tells every client of the new values.
+    fn change(&self, client: &AnyClient, changes: &[(String, String)]) {
+        match self.change_loop(client.id(), changes) {
+            Ok(outcome) => {
+                client.send_info(outcome.summary.clone());
+                if let Some(server) = lock(&self.server).as_ref() {
+                    let (all, _) = self.parameters(client.id(), true);
+                    let changed = all
+                        .into_iter()
+                        .filter(|p| outcome.fields.contains(&p.name))
+                        .collect::<Vec<_>>();
+                    if !changed.is_empty() {
+                        server.publish_parameter_values(changed);
+                    }
+                }
+            }
+            Err(reason) => client.send_error(format!("set refused: {reason}")),
+        }
+    }
+
+    /// The answer to a set: the values of the parameters it named as they
+    /// now stand (the loop's tunables asked of the loop only if it named
+    /// any).
+    fn answer(&self, client: ClientId, names: &[String]) -> Vec<Parameter> {
+        let own = [TOKEN_PARAMETER, RATE_PARAMETER, MARK_PARAMETER];
+        let tunables = names.iter().any(|n| !own.contains(&n.as_str()));
+        let (all, _) = self.parameters(client, tunables);
         all.into_iter()
-            .filter(|p| names.contains(&p.name.as_str()))
+            .filter(|p| names.contains(&p.name))
             .collect()
     }
 
@@ -273,7 +406,12 @@ impl ParameterHandler for Parameters {
         _request_id: Option<String>,
         responder: GetParametersResponder,
     ) {
-        let (all, error) = self.0.parameters(client.id());
+        if !self.0.admitted(client.id()) {
+            client.send_error(NOT_ADMITTED);
+            responder.respond(Vec::new());
+            return;
+        }
+        let (all, error) = self.0.parameters(client.id(), true);
         if let Some(reason) = error {
             client.send_error(reason);
         }
@@ -291,12 +429,31 @@ impl ParameterHandler for Parameters {
         _request_id: Option<String>,
         responder: SetParametersResponder,
     ) {
-        let shared = Arc::clone(&self.0);
+        let shared = &self.0;
+        if let [only] = parameters.as_slice()
+            && only.name == MARK_PARAMETER
+        {
+            shared.admit(client.id(), only.value.as_ref());
+            responder.respond(Vec::new());
+            return;
+        }
+        if !shared.admitted(client.id()) {
+            client.send_error(NOT_ADMITTED);
+            responder.respond(Vec::new());
+            return;
+        }
+        let changes = shared.screen(&client, &parameters);
+        let names: Vec<String> = parameters.into_iter().map(|p| p.name).collect();
+        if changes.is_empty() {
+            responder.respond(shared.answer(client.id(), &names));
+            return;
+        }
+        let shared = Arc::clone(shared);
         let spawned = std::thread::Builder::new()
             .name("live-set".into())
             .spawn(move || {
-                let values = shared.set(&client, parameters);
-                responder.respond(values);
+                shared.change(&client, &changes);
+                responder.respond(shared.answer(client.id(), &names));
             });
         if let Err(e) = spawned {
             // The responder went with the closure: the crate answers the
@@ -363,10 +520,20 @@ pub fn serve(
     side: &LoopSide,
     tuner: Arc<dyn Tuner>,
 ) -> Result<(), LiveError> {
+    let address = options.address;
+    let start_error = |reason: String| LiveError::Start {
+        address: address.to_string(),
+        reason,
+    };
+    let mark = Arc::new(Mark::new().map_err(|e| start_error(format!("no random secret: {e}")))?);
+    let listener = TcpListener::bind(address).map_err(|e| start_error(e.to_string()))?;
     let ctx = Context::new();
     let channels = Channels::new(&ctx)?;
     let shared = Arc::new(Shared {
         table: Mutex::new(ClientTable::new(side.rate_hz)),
+        connections: Mutex::new(HashMap::new()),
+        mark: Arc::clone(&mark),
+        throttle: Mutex::new(Throttle::default()),
         scenario_wanted: Mutex::new(Vec::new()),
         scenario_topic_id: Mutex::new(Some(u64::from(channels.scenario.id()))),
         options: options.clone(),
@@ -374,27 +541,32 @@ pub fn serve(
         server: Mutex::new(None),
         setting: AtomicBool::new(false),
     });
-    let address = options.address;
+    // The crate's server, on loopback: clients reach it through the gate.
     let handle = WebSocketServer::new()
         .context(&ctx)
         .name(format!("flexloop {}", side.prefix))
-        .bind(address.ip().to_string(), address.port())
+        .bind(Ipv4Addr::LOCALHOST.to_string(), 0)
         .capabilities([Capability::Parameters])
         .message_backlog_size(BACKLOG)
         .listener(Arc::new(Listener(Arc::clone(&shared))))
         .parameter_handler(Arc::new(Parameters(Arc::clone(&shared))))
         .start_blocking()
-        .map_err(|e| LiveError::Start {
-            address: address.to_string(),
-            reason: e.to_string(),
-        })?;
-    let bound = std::net::SocketAddr::new(address.ip(), handle.port());
+        .map_err(|e| start_error(e.to_string()))?;
+    let inner = SocketAddr::new(Ipv4Addr::LOCALHOST.into(), handle.port());
     *lock(&shared.server) = Some(handle);
+    let mut gate = Gate::start(
+        listener,
+        inner,
+        Limits::default(),
+        mark,
+        Arc::new(Doorman(Arc::clone(&shared))),
+    )
+    .map_err(|e| start_error(e.to_string()))?;
     let run_dir = RunDir::new(&side.run_dir);
     write_json_atomically(
         &run_dir.live(),
         &LiveEndpoint {
-            address: bound.to_string(),
+            address: gate.address().to_string(),
             pid: std::process::id(),
             read_only: options.read_only,
             token_required: options.token.is_some(),
@@ -403,12 +575,24 @@ pub fn serve(
     .map_err(LiveError::RunFile)?;
     let started = std::time::Instant::now();
     let mut counts = Counts::default();
-    let result = feed(side, &channels, &shared, &mut counts);
+    let result = feed(side, &channels, &shared, gate.counts(), &mut counts);
+    gate.stop();
     if let Some(handle) = lock(&shared.server).take() {
         // Dropping the shutdown handle closes every connection now: a
         // client that never reads must not hold up the end of the run.
         drop(handle.stop());
     }
+    let (token_failures, token_throttled) = {
+        let throttle = lock(&shared.throttle);
+        (throttle.failures(), throttle.throttled())
+    };
+    if token_throttled > 0 {
+        eprintln!(
+            "flexloop-live: {token_throttled} {TOKEN_PARAMETER} attempt(s) refused unexamined \
+             after wrong ones ({token_failures} wrong tokens compared)"
+        );
+    }
+    let gate_counts = gate.counts();
     write_json_atomically(
         &run_dir.live_summary(),
         &LiveSummary {
@@ -417,6 +601,12 @@ pub fn serve(
             messages_sent: counts.sent(),
             lost_by_reader: counts.lost,
             most_clients: counts.most_clients,
+            max_connections: MAX_CLIENTS,
+            most_connections: gate_counts.most_connected(),
+            refused_connections: gate_counts.refused(),
+            oversized_messages: gate_counts.oversized(),
+            token_failures,
+            token_throttled,
         },
     )
     .map_err(LiveError::RunFile)?;
@@ -429,6 +619,7 @@ fn feed(
     side: &LoopSide,
     channels: &Channels,
     shared: &Shared,
+    gate: &GateCounts,
     counts: &mut Counts,
 ) -> Result<(), LiveError> {
     let domain = Domain::new(&side.prefix)?;
@@ -450,6 +641,7 @@ fn feed(
                 table.routes(&mut routes);
                 routes_version = table.version();
                 counts.most_clients = counts.most_clients.max(table.subscribed_clients());
+                counts.forget_gone(&routes);
             }
         }
         reader.drain(&mut |k, seq, published_ns, bytes| {
@@ -466,7 +658,7 @@ fn feed(
                 counts.handed(*sink);
             }
         })?;
-        if let Some(mut json) = latency.poll(counts, routes.len())? {
+        if let Some(mut json) = latency.poll(counts, routes.len(), gate)? {
             // Each client's own copy says how many messages the server
             // handed to it before this one: what it received less that is
             // what its queue dropped.
@@ -505,22 +697,45 @@ fn feed(
 /// got (its queue overflowed: it was not scheduled for 51 ms).
 #[derive(Debug, Default)]
 pub(crate) struct Counts {
-    /// Messages handed to each client (kept for the server's life: one
-    /// number per connection).
+    /// Messages handed to each client (of clients no longer subscribed to
+    /// anything, kept until there are more than [`KEPT_GONE`]).
     handed_to: HashMap<SinkId, u64>,
+    /// Messages handed to clients forgotten since.
+    handed_to_gone: u64,
     last_seq: [Option<u64>; 3],
     pub(crate) lost: [u64; 3],
     most_clients: usize,
 }
+
+/// Counts of clients without a route kept before they are forgotten: the
+/// count of each connection the server ever served would grow without end
+/// under clients that connect again and again.
+const KEPT_GONE: usize = 4 * MAX_CLIENTS;
 
 impl Counts {
     fn handed(&mut self, sink: SinkId) {
         *self.handed_to.entry(sink).or_insert(0) += 1;
     }
 
+    /// Forgets the counts of clients without a route once there are many.
+    fn forget_gone(&mut self, routes: &[Route<SinkId>]) {
+        if self.handed_to.len() <= routes.len() + KEPT_GONE {
+            return;
+        }
+        let mut gone = 0;
+        self.handed_to.retain(|sink, n| {
+            let keep = routes.iter().any(|r| r.sink == *sink);
+            if !keep {
+                gone += *n;
+            }
+            keep
+        });
+        self.handed_to_gone += gone;
+    }
+
     /// Messages handed to all clients.
     pub(crate) fn sent(&self) -> u64 {
-        self.handed_to.values().sum()
+        self.handed_to_gone + self.handed_to.values().sum::<u64>()
     }
 
     fn handed_to(&self, sink: SinkId) -> u64 {

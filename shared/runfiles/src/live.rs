@@ -28,4 +28,22 @@ pub struct LiveSummary {
     pub lost_by_reader: [u64; 3],
     /// The most clients subscribed at once.
     pub most_clients: usize,
+    /// The connections the server serves at once (one more is refused), and
+    /// the most it had.
+    #[serde(default)]
+    pub max_connections: usize,
+    #[serde(default)]
+    pub most_connections: usize,
+    /// Connections refused because `max_connections` were open.
+    #[serde(default)]
+    pub refused_connections: u64,
+    /// Connections closed for a message longer than a client may send.
+    #[serde(default)]
+    pub oversized_messages: u64,
+    /// Wrong `live.token`s compared, and attempts refused unexamined while
+    /// wrong ones locked them out.
+    #[serde(default)]
+    pub token_failures: u64,
+    #[serde(default)]
+    pub token_throttled: u64,
 }

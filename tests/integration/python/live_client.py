@@ -6,19 +6,33 @@ prints what they saw as one JSON object for the Rust test to check.
 Messages are decoded with the schema the server advertised, through the
 MCAP Python package's ROS1 decoder (genpy), as a recording is.
 
-usage: live_client.py SCENE URL SECONDS [TOKEN]
+usage: live_client.py SCENE URL SECONDS [TOKEN | PID]
   observe: one client subscribed to everything at the loop's rate, one at
            live.rate_hz = rate/10 on /measurement and /command, one that
            never reads, one that drops its connection, one that sends garbage
   tune:    parameters: get, set with and without the token, a refused set,
            a refused rate
   readonly: a set on a read-only server
+  flood PID: 1000 connections at once; those admitted subscribe to
+           everything and never read; the server's memory (PID: the live
+           server's) meanwhile and after
+  bigset PID: a set just under the size a client may send and one of 15 MB,
+           without the token; the server's memory before and after
+  bypass PID: a client straight to the crate's own port (on loopback),
+           not through the server's address: it is served nothing
+  brute TOKEN: wrong tokens from four connections as fast as the server
+           answers, for SECONDS; then the right one, during and after the
+           lockout
 """
 import asyncio
 import json
+import re
+import resource
 import struct
 import sys
 import time
+
+from websockets.exceptions import InvalidStatus
 
 from mcap.records import Schema
 from mcap_ros1.decoder import DecoderFactory
@@ -321,6 +335,213 @@ async def readonly(url, seconds):
     return out
 
 
+def memory(pid):
+    """The process's resident memory now and at its peak, in kB (from /proc)."""
+    out = {}
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            if key in ("VmRSS", "VmHWM", "RssAnon", "RssShmem"):
+                out[key] = int(value.split()[0])
+    return out
+
+
+async def attempt(url, **kwargs):
+    """One connection: the client, or how it was refused."""
+    try:
+        return await Client.open(url, **kwargs), None
+    except InvalidStatus as e:
+        return None, {"status": e.response.status_code, "body": e.response.body.decode(errors="replace")}
+    except Exception as e:  # reset, closed before the answer, timed out
+        return None, {"error": type(e).__name__}
+
+
+async def flood(url, seconds, pid, count=1000):
+    # Room for the sockets (the hard limit is the machine's).
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, min(hard, count + 200)), hard))
+    before = memory(pid)
+    attempts = await asyncio.gather(*[attempt(url, max_queue=1) for _ in range(count)])
+    admitted = [c for c, _ in attempts if c is not None]
+    refusals = [r for _, r in attempts if r is not None]
+    # Those admitted subscribe to everything and never read again.
+    for c in admitted:
+        await c.advertised(ALL_TOPICS)
+        await c.subscribe(ALL_TOPICS)
+    samples = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        await asyncio.sleep(0.5)
+        samples.append(memory(pid)["VmRSS"])
+    during = memory(pid)
+    # One more while they hold every place.
+    extra, extra_refusal = await attempt(url)
+    if extra is not None:
+        await extra.ws.close()
+    for c in admitted:
+        c.ws.transport.abort()
+    await asyncio.sleep(2)
+    after = memory(pid)
+    # The places are given back.
+    again, again_refusal = await attempt(url)
+    if again is not None:
+        await again.advertised(["/measurement"])
+        await again.ws.close()
+    return {
+        "memory_before_kb": before,
+        "memory_during_kb": during,
+        "rss_samples_kb": samples,
+        "memory_after_kb": after,
+        "admitted": len(admitted),
+        "refused_503": sum(1 for r in refusals if r.get("status") == 503),
+        "refused_otherwise": [r for r in refusals if r.get("status") != 503][:20],
+        "refusal_body": next((r["body"] for r in refusals if "body" in r), None),
+        "extra_refusal": extra_refusal,
+        "again_admitted": again is not None,
+        "again_refusal": again_refusal,
+    }
+
+
+async def bigset(url, seconds, pid):
+    c = await Client.open(url)
+    await c.advertised(["/measurement"])
+    await c.get_parameters("all")
+    before = memory(pid)
+    # Just under the 64 KiB a client may send: parsed by the crate, then
+    # refused by the token before its value is looked at.
+    under = await c.set_parameters(
+        "under", [{"name": "controller.bandwidth_hz", "value": "9" * 60_000}], seconds=30
+    )
+    after_under = memory(pid)
+    big = await Client.open(url)
+    await big.advertised(["/measurement"])
+    message = json.dumps(
+        {"op": "setParameters", "id": "big",
+         "parameters": [{"name": "controller.bandwidth_hz", "value": "9" * 15_000_000}]}
+    )
+    sent = None
+    try:
+        await asyncio.wait_for(big.ws.send(message), timeout=30)
+        sent = "sent"
+    except Exception as e:
+        sent = type(e).__name__
+    await big.until(lambda: False, seconds)
+    await asyncio.sleep(1)
+    after = memory(pid)
+    # The first client is still served.
+    still = await c.get_parameters("still", ["live.rate_hz"])
+    await c.ws.close()
+    return {
+        "memory_before_kb": before,
+        "memory_after_under_kb": after_under,
+        "memory_after_kb": after,
+        "under": under,
+        "big_sent": sent,
+        "big_closed": big.closed,
+        "big_answered": "big" in big.parameter_values,
+        "still_served": still,
+    }
+
+
+async def brute(url, seconds, token, clients=4):
+    cs = [await Client.open(url) for _ in range(clients)]
+    for c in cs:
+        await c.advertised(["/measurement"])
+    sent = [0] * clients
+
+    async def guess(i, c):
+        end = time.monotonic() + seconds
+        n = 0
+        while time.monotonic() < end:
+            # Eight requests in flight, then their answers.
+            ids = []
+            for _ in range(8):
+                rid = f"g{i}-{n}"
+                n += 1
+                ids.append(rid)
+                await c.ws.send(json.dumps({
+                    "op": "setParameters", "id": rid,
+                    "parameters": [{"name": "live.token", "value": f"guess-{i}-{n:012d}"}],
+                }))
+            sent[i] += len(ids)
+            await c.until(lambda: all(r in c.parameter_values for r in ids), 30)
+
+    started = time.monotonic()
+    await asyncio.gather(*[guess(i, c) for i, c in enumerate(cs)])
+    elapsed = time.monotonic() - started
+    statuses = [s["message"] for c in cs for s in c.statuses]
+    # One more wrong guess (compared, it starts a lockout; or refused in
+    # one), then the right token at once: refused unexamined while the
+    # lockout holds.
+    during = await cs[0].set_parameters(
+        "right-during",
+        [{"name": "live.token", "value": "one-more-guess"}, {"name": "live.token", "value": token}],
+    )
+    # After the lockout it says: taken (no error).
+    text = json.dumps(during["statuses"])
+    left = [float(m) for m in re.findall(r"(?:another|for) ([0-9.]+) s", text)]
+    waited = min(max(left, default=0.0) + 0.5, 70.0)
+    await cs[0].pump(waited)
+    after = await cs[0].set_parameters("right-after", [{"name": "live.token", "value": token}])
+    for c in cs:
+        await c.ws.close()
+    return {
+        "elapsed_s": elapsed,
+        "sent": sum(sent),
+        "answered": sum(len(c.parameter_values) for c in cs),
+        "wrong": sum(1 for m in statuses if "not the server's token" in m),
+        "throttled": sum(1 for m in statuses if "too many wrong tokens" in m),
+        "first_statuses": statuses[:8],
+        "right_during": during,
+        "waited_s": waited,
+        "right_after": after,
+    }
+
+
+def listening_ports(pid):
+    """The TCP ports process `pid` listens on (its sockets' inodes in /proc/net/tcp)."""
+    import os
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    ports = set()
+    with open("/proc/net/tcp") as f:
+        for line in list(f)[1:]:
+            fields = line.split()
+            if fields[3] == "0A" and fields[9] in inodes:
+                ports.add(int(fields[1].split(":")[1], 16))
+    return ports
+
+
+async def bypass(url, seconds, pid):
+    public = int(url.rsplit(":", 1)[1])
+    inner = sorted(listening_ports(pid) - {public})
+    if len(inner) != 1:
+        raise SystemExit(f"the crate's port: {inner}")
+    c = await Client.open(f"ws://127.0.0.1:{inner[0]}")
+    await c.advertised(ALL_TOPICS)
+    await c.subscribe(ALL_TOPICS)
+    await c.pump(seconds)
+    got = await c.get_parameters("get", [])
+    sets = await c.set_parameters(
+        "set", [{"name": "live.rate_hz", "value": 100.0},
+                {"name": "live.gate", "value": "00000000000000000000000000000000:1"}]
+    )
+    await c.ws.close()
+    return {
+        "inner_port": inner[0],
+        "received": c.total(),
+        "get": got,
+        "set": sets,
+        "statuses": c.statuses,
+    }
+
+
 def main():
     scene, url, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
     token = sys.argv[4] if len(sys.argv) > 4 else ""
@@ -330,6 +551,14 @@ def main():
         result = asyncio.run(tune(url, seconds, token))
     elif scene == "readonly":
         result = asyncio.run(readonly(url, seconds))
+    elif scene == "flood":
+        result = asyncio.run(flood(url, seconds, int(token)))
+    elif scene == "bigset":
+        result = asyncio.run(bigset(url, seconds, int(token)))
+    elif scene == "bypass":
+        result = asyncio.run(bypass(url, seconds, int(token)))
+    elif scene == "brute":
+        result = asyncio.run(brute(url, seconds, token))
     else:
         raise SystemExit(f"unknown scene {scene}")
     print(json.dumps(result))
