@@ -305,6 +305,7 @@ pub fn supervise(
             .unwrap_or_else(|_| prepared.plan.run_dir.clone()),
         scenario: prepared.scenario.name.clone(),
         cpus: pinned_cpus(&prepared.scenario),
+        owner: None,
         design: pid_words(&prepared.design),
     };
     warn_about_shared_cpus(&entry);
@@ -398,6 +399,9 @@ fn run_to_the_end(
         }
         outcome
     });
+    if matches!(outcome, Outcome::Interrupted) {
+        conductor.note_stop();
+    }
     let switches = std::mem::take(&mut conductor.switches);
     // Our own nodes go first: cleanup removes every file of the prefix.
     drop(progress);

@@ -135,6 +135,9 @@ pub fn down(args: DownArgs) -> anyhow::Result<i32> {
         return Ok(0);
     }
     let loops = loops_to_stop(loops, &args)?;
+    for entry in &loops {
+        crate::conductor::note_stop_request(&entry.run_dir);
+    }
     let mut code = 0;
     for entry in loops {
         if registry::stop(&entry, Duration::from_secs(15)) {
@@ -151,16 +154,46 @@ pub fn down(args: DownArgs) -> anyhow::Result<i32> {
     Ok(code)
 }
 
-/// The running `loops` (those `--prefix` matched) that `down` stops: with
-/// several and neither `--prefix` nor `--all`, none but an error that names
-/// them (stopping someone else's loop by accident costs a run).
+/// The running `loops` (those `--prefix` matched) that `down` stops: the
+/// caller's own only (another user's loop is theirs to stop); with several
+/// of the caller's and neither `--prefix` nor `--all`, none but an error that
+/// names them (stopping a loop by accident costs a run).
 fn loops_to_stop(
     loops: Vec<registry::Entry>,
     args: &DownArgs,
 ) -> anyhow::Result<Vec<registry::Entry>> {
-    if loops.len() <= 1 || args.prefix.is_some() || args.all {
+    let caller = registry::caller();
+    if args.all {
+        // Every loop of the caller's; another user's are theirs to stop.
+        let (mine, theirs): (Vec<_>, Vec<_>) = loops
+            .into_iter()
+            .partition(|e| e.owner.is_none_or(|o| o == caller));
+        for e in &theirs {
+            eprintln!(
+                "flexloop: left {} running: started by another user (uid {})",
+                e.prefix,
+                e.owner.unwrap_or(u32::MAX)
+            );
+        }
+        return Ok(mine);
+    }
+    // The loops `--prefix` chose, if all are the caller's.
+    if args.prefix.is_some() {
+        for e in &loops {
+            registry::to_change(std::slice::from_ref(e), Some(&e.prefix), caller)?;
+        }
         return Ok(loops);
     }
+    // One loop: the caller's only one.
+    match registry::to_change(&loops, None, caller) {
+        Ok(one) => return Ok(vec![one]),
+        Err(registry::NotYours::Several(_)) => {}
+        Err(e) => bail!(e),
+    }
+    let loops: Vec<registry::Entry> = loops
+        .into_iter()
+        .filter(|e| e.owner.is_none_or(|o| o == caller))
+        .collect();
     let running: Vec<String> = loops
         .iter()
         .map(|e| {
@@ -210,12 +243,11 @@ fn say_finished_dead_loops(command: &str) {
 
 pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
     let role = args.role.name();
-    let loops = registry::matching(args.which.prefix.as_deref());
-    let entry = match loops.as_slice() {
-        [] => bail!("no loop running"),
-        [one] => one.clone(),
-        _ => bail!("several loops are running: name one with --prefix"),
-    };
+    let entry = registry::to_change(
+        &registry::list(),
+        args.which.prefix.as_deref(),
+        registry::caller(),
+    )?;
     let scenario = match (args.scenario, args.exec) {
         (_, Some(exec)) => {
             let program_role = match args.role {
@@ -523,6 +555,7 @@ mod tests {
             scenario: "default".into(),
             cpus: Vec::new(),
             design: None,
+            owner: None,
         }
     }
 

@@ -21,6 +21,80 @@ pub struct Entry {
     /// ("PID f_bw 43.5 Hz (auto)"), for `status`.
     #[serde(default)]
     pub design: Option<String>,
+    /// The user who started it: the owner of its registry file (which no
+    /// other user can forge), read with the entry, never written.
+    #[serde(skip)]
+    pub owner: Option<u32>,
+}
+
+/// The user this command runs as.
+pub fn caller() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// Why a loop may not be changed by this command.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum NotYours {
+    /// No loop of the caller's runs (`others`: how many of other users do).
+    None { others: usize },
+    /// Several of the caller's run: `--prefix` must name one.
+    Several(Vec<String>),
+    /// The loop `--prefix` named is another user's.
+    Foreign { prefix: String, owner: u32 },
+}
+
+impl std::fmt::Display for NotYours {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NotYours::None { others: 0 } => f.write_str("no loop running"),
+            NotYours::None { others } => write!(
+                f,
+                "no loop of yours running ({others} of other users: `flexloop status` reads \
+                 them; swap, set and down act only on your own)"
+            ),
+            NotYours::Several(prefixes) => write!(
+                f,
+                "several of your loops are running ({}): name one with --prefix",
+                prefixes.join(", ")
+            ),
+            NotYours::Foreign { prefix, owner } => write!(
+                f,
+                "loop {prefix} was started by another user (uid {owner}): swap, set and down act \
+                 only on your own loops (`flexloop status` may read it)"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for NotYours {}
+
+/// The loop a swap, set or down of user `caller` acts on: the one
+/// `prefix` names if it is the caller's, else the caller's only one.
+/// Another user's loop is refused, and without `--prefix` other users'
+/// loops are not counted (a foreign swap and a foreign stop were seen).
+pub fn to_change(loops: &[Entry], prefix: Option<&str>, caller: u32) -> Result<Entry, NotYours> {
+    let own = |e: &&Entry| e.owner.is_none_or(|o| o == caller);
+    if let Some(p) = prefix {
+        return match loops.iter().find(|e| e.prefix == p) {
+            None => Err(NotYours::None { others: 0 }),
+            Some(e) if own(&e) => Ok(e.clone()),
+            Some(e) => Err(NotYours::Foreign {
+                prefix: e.prefix.clone(),
+                owner: e.owner.unwrap_or(u32::MAX),
+            }),
+        };
+    }
+    let mine: Vec<&Entry> = loops.iter().filter(own).collect();
+    match mine.as_slice() {
+        [one] => Ok((*one).clone()),
+        [] => Err(NotYours::None {
+            others: loops.len(),
+        }),
+        several => Err(NotYours::Several(
+            several.iter().map(|e| e.prefix.clone()).collect(),
+        )),
+    }
 }
 
 /// The running loops among `others` whose processes are pinned to any of
@@ -81,9 +155,14 @@ fn entries() -> Vec<Entry> {
             continue;
         };
         // Half written (its supervisor is writing it now): skipped.
-        let Ok(entry) = serde_json::from_str::<Entry>(&text) else {
+        let Ok(mut entry) = serde_json::from_str::<Entry>(&text) else {
             continue;
         };
+        entry.owner = std::os::unix::fs::MetadataExt::uid(&match file.metadata() {
+            Ok(m) => m,
+            Err(_) => continue,
+        })
+        .into();
         entries.push(entry);
     }
     entries.sort_by(|a, b| a.prefix.cmp(&b.prefix));
@@ -185,7 +264,38 @@ mod tests {
             scenario: "s".into(),
             cpus: cpus.to_vec(),
             design: None,
+            owner: Some(1000),
         }
+    }
+
+    #[test]
+    fn changes_act_on_the_callers_own_loop_only() {
+        let mut theirs = entry("b_", &[]);
+        theirs.owner = Some(2000);
+        let loops = [entry("a_", &[]), theirs];
+        // Without --prefix: the caller's only loop, whatever others run.
+        assert_eq!(to_change(&loops, None, 1000).unwrap().prefix, "a_");
+        assert_eq!(to_change(&loops, None, 2000).unwrap().prefix, "b_");
+        // Another user's, named: refused with its owner.
+        assert_eq!(
+            to_change(&loops, Some("b_"), 1000).unwrap_err(),
+            NotYours::Foreign {
+                prefix: "b_".into(),
+                owner: 2000
+            }
+        );
+        // None of the caller's: said, with the others counted.
+        assert_eq!(
+            to_change(&loops, None, 3000).unwrap_err(),
+            NotYours::None { others: 2 }
+        );
+        let both = [entry("a_", &[]), entry("c_", &[])];
+        assert!(matches!(
+            to_change(&both, None, 1000),
+            Err(NotYours::Several(p)) if p == ["a_", "c_"]
+        ));
+        assert_eq!(to_change(&both, Some("c_"), 1000).unwrap().prefix, "c_");
+        assert!(to_change(&both, Some("z_"), 1000).is_err());
     }
 
     #[test]

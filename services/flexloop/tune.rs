@@ -57,7 +57,13 @@ fn refused(reason: impl fmt::Display) -> Refused {
     }
 }
 
-/// The one running loop `prefix` names.
+/// The one running loop `prefix` names, to change: the caller's own
+/// (`registry::to_change`).
+fn loop_to_change(prefix: Option<&str>) -> Result<registry::Entry, Refused> {
+    registry::to_change(&registry::list(), prefix, registry::caller()).map_err(refused)
+}
+
+/// The one running loop `prefix` names (to read: anyone's).
 fn running_loop(prefix: Option<&str>) -> Result<registry::Entry, Refused> {
     match registry::matching(prefix).as_slice() {
         [] => Err(refused("no loop running")),
@@ -74,7 +80,7 @@ pub fn set(prefix: Option<&str>, changes: &[(String, String)]) -> Result<SetOutc
     for (field, value) in changes {
         tune::parse_value(field, value).map_err(refused)?;
     }
-    let entry = running_loop(prefix)?;
+    let entry = loop_to_change(prefix)?;
     let request = SetRequest {
         changes: changes
             .iter()

@@ -147,3 +147,67 @@ fn down_stops_a_running_loop_cleanly_and_status_sees_it() {
     assert!(dir.join("summary.json").is_file());
     assert_clean(&dir);
 }
+
+/// A loop belongs to the user who started it: every swap and stop names
+/// who sent it (pid, uid), and another user's swap, set or down is refused
+/// while `status` reads the loop. (Another user is played by giving the
+/// loop's registry file to uid 65534, which needs root: this machine's CI
+/// runs as root; as another user the ownership refusal is covered by the
+/// registry's unit test.)
+#[test]
+fn swaps_and_stops_name_their_sender_and_another_users_are_refused() {
+    let dir = temp_dir("loop-owner");
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
+    wait_for_ticks(&dir, 500);
+    let on_loop = |args: &[&str]| {
+        let mut c = flexloop();
+        c.args(args).args(["--prefix", &prefix]);
+        run_bounded(c, std::time::Duration::from_secs(150))
+    };
+    let swap = on_loop(&[
+        "swap",
+        "controller",
+        scenario("lecture-double-integrator").to_str().unwrap(),
+    ]);
+    assert!(swap.status.success(), "{}", describe(&swap));
+    // SAFETY: geteuid has no preconditions.
+    let uid = unsafe { libc::geteuid() };
+    let swapped = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "swap")
+        .unwrap();
+    assert_eq!(swapped["detail"]["sender"]["uid"], uid, "{swapped}");
+    assert!(swapped["detail"]["sender"]["pid"].as_u64().unwrap() > 0);
+    let registry = std::path::Path::new("/tmp/flexloop/loops").join(format!("{prefix}.json"));
+    if uid == 0 {
+        std::os::unix::fs::chown(&registry, Some(65534), None).unwrap();
+        for args in [
+            &["swap", "controller", "x.toml"][..],
+            &["set", "controller.bandwidth_hz=40"],
+            &["down"],
+        ] {
+            let out = on_loop(args);
+            assert!(!out.status.success(), "{args:?}: {}", describe(&out));
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(
+                err.contains("started by another user (uid 65534)"),
+                "{args:?}: {err}"
+            );
+        }
+        let status = on_loop(&["status"]);
+        assert!(
+            String::from_utf8_lossy(&status.stdout).contains(&prefix),
+            "{}",
+            describe(&status)
+        );
+        std::os::unix::fs::chown(&registry, Some(0), None).unwrap();
+    }
+    stop(&prefix, up);
+    let stopped = events(&dir)
+        .into_iter()
+        .find(|e| e["kind"] == "stop")
+        .unwrap_or_else(|| panic!("no stop event: {:?}", events(&dir)));
+    assert_eq!(stopped["detail"]["by"], "flexloop down", "{stopped}");
+    assert_eq!(stopped["detail"]["sender"]["uid"], uid, "{stopped}");
+    assert_clean(&dir);
+}

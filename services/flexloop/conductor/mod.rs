@@ -26,6 +26,6 @@ mod shell;
 mod switch;
 mod tuning;
 
-pub use requests::{request_set, request_swap};
+pub use requests::{note_stop_request, request_set, request_swap};
 pub use shell::Conductor;
 pub use switch::Switch;

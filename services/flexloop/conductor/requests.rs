@@ -27,6 +27,61 @@ pub struct SwapRequest {
 /// The extension of a `flexloop set` request.
 const SET_EXTENSION: &str = "set";
 
+/// The extension of `flexloop down`'s note that it asked the loop to stop.
+const STOP_EXTENSION: &str = "stop";
+
+/// Who sent a request: the pid its file is named by and the user who owns
+/// the file (which no other user can forge).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Sender {
+    pub pid: Option<u32>,
+    pub uid: u32,
+}
+
+/// The sender of the request file at `path` (None if it is gone).
+pub fn sender(path: &Path) -> Option<Sender> {
+    let uid = std::os::unix::fs::MetadataExt::uid(&std::fs::metadata(path).ok()?);
+    // `<stamp>-<pid>.<extension>` (see `ask`).
+    let pid = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .and_then(|s| s.rsplit_once('-'))
+        .and_then(|(_, pid)| pid.parse().ok());
+    Some(Sender { pid, uid })
+}
+
+/// `flexloop down` leaves a note that it asks the loop to stop (before its
+/// signal, which says nothing of who sent it), so that the supervisor's
+/// `stop` event names the sender (best effort: the stop goes ahead
+/// without it).
+pub fn note_stop_request(run_dir: &Path) {
+    let dir = run_dir.join(REQUESTS_DIR);
+    let _ = std::fs::create_dir_all(&dir);
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let _ = std::fs::write(
+        dir.join(format!("{stamp}-{}.{STOP_EXTENSION}", std::process::id())),
+        b"",
+    );
+}
+
+/// The newest stop note's sender, the notes removed.
+pub fn take_stop_sender(run_dir: &Path) -> Option<Sender> {
+    let mut notes: Vec<PathBuf> = std::fs::read_dir(run_dir.join(REQUESTS_DIR))
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == STOP_EXTENSION))
+        .collect();
+    notes.sort();
+    let newest = notes.last().and_then(|p| sender(p));
+    for note in notes {
+        let _ = std::fs::remove_file(note);
+    }
+    newest
+}
+
 /// Whether a pending request file is a set (else a swap).
 pub fn is_set(path: &Path) -> bool {
     path.extension().is_some_and(|x| x == SET_EXTENSION)

@@ -67,6 +67,9 @@ pub struct Conductor {
     dead_nodes: bool,
     /// The scenario as it stands after requested swaps and sets.
     tuning: Tuning,
+    /// Who sent the request being served: its `swap` and `set` events name
+    /// them.
+    sender: Option<requests::Sender>,
 }
 
 impl Conductor {
@@ -97,6 +100,7 @@ impl Conductor {
             switches: Vec::new(),
             dead_nodes: false,
             tuning: Tuning::default(),
+            sender: None,
         })
     }
 
@@ -158,9 +162,26 @@ impl Conductor {
         }
     }
 
-    fn record(&mut self, record: Record) {
+    fn record(&mut self, mut record: Record) {
         self.dead_nodes |= record.clean_dead_nodes;
+        if let (Some(sender), "swap" | "set") = (self.sender, record.kind)
+            && let Some(detail) = record.detail.as_object_mut()
+        {
+            detail.insert("sender".into(), json!(sender));
+        }
         self.files.append(&record);
+    }
+
+    /// The loop is stopping because it was asked to (a signal): the `stop`
+    /// event, naming who asked when `flexloop down` left its note.
+    pub fn note_stop(&mut self) {
+        let sender = requests::take_stop_sender(self.files.run_dir());
+        let detail = match sender {
+            Some(sender) => json!({"by": "flexloop down", "sender": sender}),
+            None => json!({"by": "a signal (Ctrl-C, or SIGTERM from elsewhere)"}),
+        };
+        self.record_action(self.core.note("stop", Role::Plant, None, detail));
+        self.publish_files();
     }
 
     /// Removes dead nodes' shared memory if a process died since the last
@@ -277,6 +298,31 @@ impl Conductor {
             }
         }
         for request in requests::pending(self.files.run_dir()) {
+            // A request from another user is refused: the loop is its
+            // starter's to change (a foreign swap and stop were seen).
+            self.sender = requests::sender(&request);
+            let own = self
+                .sender
+                .is_none_or(|s| s.uid == crate::registry::caller());
+            if !own {
+                let refusal = format!(
+                    "the loop belongs to uid {}; a request from uid {} is refused",
+                    crate::registry::caller(),
+                    self.sender.map_or(u32::MAX, |s| s.uid)
+                );
+                if requests::is_set(&request) {
+                    requests::answer(
+                        &request,
+                        &SetAnswer {
+                            outcome: None,
+                            error: Some(refusal),
+                        },
+                    );
+                } else {
+                    requests::answer(&request, &SwapAnswer::refused(refusal));
+                }
+                continue;
+            }
             if requests::is_set(&request) {
                 let answer = match requests::read_set(&request).and_then(|r| self.set(running, &r))
                 {
