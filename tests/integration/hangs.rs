@@ -1,4 +1,4 @@
-//! A hung component is a fault like a dead one (issue 31): the controller
+//! A hung component is a fault like a dead one (docs/architecture.md): the controller
 //! or the observer stopped (SIGSTOP) or a program whose law sleeps is
 //! found from what the loop shows (the plant's held ticks, the estimates
 //! falling behind), killed, and brought back as after a crash: a `silent`

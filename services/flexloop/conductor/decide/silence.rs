@@ -1,4 +1,5 @@
-//! A hung component is a fault like a dead one (issue 31): a process that
+//! A hung component is a fault like a dead one (docs/architecture.md,
+//! "Standby, watchdogs and guards"): a process that
 //! is alive but sends nothing (a deadlock, an endless loop, a stopped
 //! process, a law that sleeps) is detected from what the loop shows, not
 //! from an exit report that never comes.
