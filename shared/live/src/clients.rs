@@ -196,6 +196,13 @@ pub fn decimation(loop_rate_hz: f64, rate_hz: f64) -> Result<u64, String> {
             "{RATE_PARAMETER}: {rate_hz} Hz is faster than the loop's {loop_rate_hz} Hz"
         ));
     }
+    // At least one sample a minute: a rate of 1e-300 Hz was accepted and
+    // sent nothing, ever.
+    if rate_hz < 1.0 / 60.0 {
+        return Err(format!(
+            "{RATE_PARAMETER}: {rate_hz} Hz is slower than one sample a minute"
+        ));
+    }
     let every = (loop_rate_hz / rate_hz).round();
     if ((loop_rate_hz / every) - rate_hz).abs() > 1e-9 * loop_rate_hz {
         return Err(format!(
@@ -211,6 +218,13 @@ pub fn decimation(loop_rate_hz: f64, rate_hz: f64) -> Result<u64, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rate_slower_than_one_sample_a_minute_is_refused() {
+        assert!(decimation(10_000.0, 1e-300).is_err());
+        assert!(decimation(10_000.0, 0.01).is_err());
+        assert_eq!(decimation(10_000.0, 1.0), Ok(10_000));
+    }
 
     #[test]
     fn a_rate_must_divide_the_loops() {
