@@ -2,7 +2,9 @@
 //! timing), falls back with one clear line where it cannot spin, and the
 //! setting is refused where the plant does not wait on its clock.
 
-use crate::util::{describe, flexloop, processes_mentioning, run_bounded, temp_dir};
+use crate::util::{
+    assert_bench_ran, describe, flexloop, processes_mentioning, run_bounded, temp_dir,
+};
 use flexloop_components::LogReader;
 use serde_json::Value;
 use std::path::Path;
@@ -14,7 +16,7 @@ fn json(path: &Path) -> Value {
 }
 
 /// `flexloop bench thesis-mc --tick sleep-then-spin ARGS` for half a second
-/// at 2 kHz (1000 ticks); it must succeed.
+/// at 2 kHz (1000 ticks); it must run (its verdict is this machine's).
 fn bench_spinning(args: &[&str], run_dir: &Path) -> String {
     let mut cmd = flexloop();
     cmd.args(["bench", "thesis-mc", "--duration", "0.5", "--rate", "2000"])
@@ -23,7 +25,7 @@ fn bench_spinning(args: &[&str], run_dir: &Path) -> String {
         .arg("--run-dir")
         .arg(run_dir);
     let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
+    assert_bench_ran(&out);
     assert!(processes_mentioning(&run_dir.display().to_string()).is_empty());
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
