@@ -255,8 +255,9 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
                 SwapRole::Observer => ProgramRole::Observer,
             };
             let params = program_params(&args.params)?;
+            // The loop chosen above (the caller's), named: others may run.
             with_program(
-                args.which.prefix.as_deref(),
+                Some(&entry.prefix),
                 &entry.run_dir,
                 program_role,
                 &exec,
