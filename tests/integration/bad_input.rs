@@ -781,3 +781,51 @@ fn a_signal_ends_a_long_design_at_once() {
         assert_eq!(out.status.signal(), Some(signal), "{}", describe(&out));
     }
 }
+
+/// A scenario path that is no regular file (/dev/zero, a FIFO, a
+/// directory) or a file beyond the size a scenario may have is refused at
+/// once, naming the file: before, /dev/zero was read until memory ran out
+/// and a FIFO blocked `design` forever.
+#[test]
+fn a_scenario_that_is_no_regular_file_or_too_large_is_refused_at_once() {
+    let dir = temp_dir("bad-scenario-file");
+    let fifo = dir.join("fifo.toml");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let huge = dir.join("huge.toml");
+    std::fs::File::create(&huge)
+        .unwrap()
+        .set_len(1 << 30)
+        .unwrap();
+    for path in [
+        std::path::PathBuf::from("/dev/zero"),
+        fifo,
+        dir.to_path_buf(),
+        huge,
+    ] {
+        for command in ["design", "up"] {
+            let mut cmd = flexloop();
+            cmd.arg(command).arg(&path);
+            if command == "up" {
+                cmd.args(["--run-dir"]).arg(dir.join("run"));
+            }
+            let out = run_bounded(cmd, Duration::from_secs(30));
+            assert_eq!(
+                out.status.code(),
+                Some(2),
+                "{command} {path:?}: {}",
+                describe(&out)
+            );
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(
+                err.contains(&path.display().to_string())
+                    && (err.contains("not a regular file") || err.contains("beyond the")),
+                "{command} {path:?}: {err}"
+            );
+        }
+    }
+    assert!(!dir.join("run").exists());
+}

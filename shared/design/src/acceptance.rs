@@ -19,8 +19,7 @@ pub fn accept(
     overrides: &Overrides,
     online_cpus: usize,
 ) -> Result<Accepted, ScenarioError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| ScenarioError::new(path, None, format!("cannot read: {e}")))?;
+    let text = flexloop_scenario::load::read_scenario_text(path)?;
     accept_text(path, &text, overrides, online_cpus)
 }
 

@@ -17,7 +17,7 @@
 
 pub mod error;
 pub mod limits;
-mod load;
+pub mod load;
 pub mod plant_description;
 pub mod program;
 pub mod schema;

@@ -5,13 +5,75 @@
 use crate::ScenarioError;
 use crate::schema::{Overrides, Scenario};
 use std::collections::BTreeSet;
+use std::io::Read;
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
+
+/// The largest scenario file read: a scenario is kilobytes, inline model
+/// arrays of the largest model the loop takes (128 states) a few hundred.
+pub const MAX_SCENARIO_BYTES: u64 = 4 * 1024 * 1024;
+
+/// The text of the scenario file at `path`: a regular file (or a link to
+/// one) of at most [`MAX_SCENARIO_BYTES`], checked before it is read and
+/// opened without blocking, so that /dev/zero, a FIFO or a huge file named
+/// as a scenario is refused at once rather than read until memory runs out
+/// or waited on forever.
+pub fn read_scenario_text(path: &Path) -> Result<String, ScenarioError> {
+    let refuse = |reason: String| Err(ScenarioError::new(path, None, reason));
+    let check = |meta: &std::fs::Metadata| -> Result<(), String> {
+        if !meta.is_file() {
+            return Err(
+                "is not a regular file (a directory, a FIFO or a device): give a scenario's \
+                 TOML file"
+                    .into(),
+            );
+        }
+        if meta.len() > MAX_SCENARIO_BYTES {
+            return Err(format!(
+                "is {} bytes, beyond the {MAX_SCENARIO_BYTES} a scenario may have",
+                meta.len()
+            ));
+        }
+        Ok(())
+    };
+    let meta = match std::fs::metadata(path) {
+        Ok(m) => m,
+        Err(e) => return refuse(format!("cannot read: {e}")),
+    };
+    if let Err(why) = check(&meta) {
+        return refuse(why);
+    }
+    let file = match std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(path)
+    {
+        Ok(f) => f,
+        Err(e) => return refuse(format!("cannot read: {e}")),
+    };
+    // The file opened may not be the one looked at (replaced in between).
+    match file.metadata() {
+        Ok(m) => {
+            if let Err(why) = check(&m) {
+                return refuse(why);
+            }
+        }
+        Err(e) => return refuse(format!("cannot read: {e}")),
+    }
+    let mut text = String::new();
+    match file.take(MAX_SCENARIO_BYTES + 1).read_to_string(&mut text) {
+        Ok(n) if n as u64 > MAX_SCENARIO_BYTES => refuse(format!(
+            "is longer than the {MAX_SCENARIO_BYTES} bytes a scenario may have"
+        )),
+        Ok(_) => Ok(text),
+        Err(e) => refuse(format!("cannot read: {e}")),
+    }
+}
 
 impl Scenario {
     /// Reads, parses, applies `overrides` and validates `path`.
     pub fn load(path: &Path, overrides: &Overrides) -> Result<Self, ScenarioError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ScenarioError::new(path, None, format!("cannot read: {e}")))?;
+        let text = read_scenario_text(path)?;
         Self::from_text(path, &text, overrides)
     }
 
