@@ -34,7 +34,6 @@ from . import realtime, transport
 from .launch import RESTART
 from .observer import Estimated
 from .process import (
-    WAKEUP_TIMEOUT_S,
     ActivationView,
     HandoverRing,
     LawError,
@@ -45,6 +44,7 @@ from .process import (
     main_for,
     make_law,
     saved_state,
+    serve_wakeups,
     stop_requested,
 )
 
@@ -354,22 +354,9 @@ class _Process:
         self._publish_state(caught.last_seq)
 
     def _loop(self):
-        measurements = self.measurements
-        while (
-            not self.end_of_run
-            and self.standing.duty != Standing.RETIRING
-            and not stop_requested()
-        ):
-            if measurements.has_samples():
-                measurements.clear_events()
-            else:
-                try:
-                    measurements.wait(WAKEUP_TIMEOUT_S)
-                except Exception:
-                    if stop_requested():
-                        return
-                    raise
-            self._on_wakeup()
+        serve_wakeups(
+            self.measurements, self.standing, self._on_wakeup, lambda: self.end_of_run
+        )
 
     def _report(self):
         if self.stepped:

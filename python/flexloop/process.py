@@ -56,6 +56,28 @@ def _request_stop(_signum, _frame):
     _stop = True
 
 
+def serve_wakeups(measurements, standing, on_wakeup, is_over):
+    """A process's loop, for both roles: wake on each measurement (or after
+    :data:`WAKEUP_TIMEOUT_S`, to look at the stop flag), call
+    ``on_wakeup()``, until ``is_over()``, the instance retires (``standing``)
+    or a stop is asked."""
+    while (
+        not is_over()
+        and standing.duty != Standing.RETIRING
+        and not stop_requested()
+    ):
+        if measurements.has_samples():
+            measurements.clear_events()
+        else:
+            try:
+                measurements.wait(WAKEUP_TIMEOUT_S)
+            except Exception:
+                if stop_requested():
+                    return
+                raise
+        on_wakeup()
+
+
 class Program:
     """The process's name on its stderr lines (``flexloop-controller: …``)."""
 

@@ -42,6 +42,7 @@ from .process import (
     main_for,
     make_law,
     saved_state,
+    serve_wakeups,
     stop_requested,
 )
 
@@ -234,22 +235,9 @@ class _Process:
 
     def _loop(self):
         self.cpu_at_start = time.process_time()
-        measurements = self.measurements
-        while (
-            not self.end_of_run
-            and self.standing.duty != Standing.RETIRING
-            and not stop_requested()
-        ):
-            if measurements.has_samples():
-                measurements.clear_events()
-            else:
-                try:
-                    measurements.wait(WAKEUP_TIMEOUT_S)
-                except Exception:
-                    if stop_requested():
-                        return
-                    raise
-            self._on_wakeup()
+        serve_wakeups(
+            self.measurements, self.standing, self._on_wakeup, lambda: self.end_of_run
+        )
 
     def _report(self):
         if self.stepped:

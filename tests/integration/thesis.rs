@@ -68,7 +68,12 @@ fn measurement_compensation_with_active_damping_across_processes() {
 /// period is the one-sample loop again.
 #[test]
 fn a_command_applied_on_arrival_buys_bandwidth_and_scan_error() {
-    let one_sample = scan_rms_nm(&run_lockstep("thesis-mc-ad-redesigned"));
+    // A directory of its own: another test runs the same scenario at once,
+    // and the two runs shared one (one's check found the other's process).
+    let one_sample = scan_rms_nm(&run_lockstep_file(
+        "deadline-one-sample",
+        &scenario("thesis-mc-ad-redesigned"),
+    ));
     let at_30_us = run_lockstep("thesis-mc-ad-deadline-30us");
     let rms = scan_rms_nm(&at_30_us);
     // Lockstep is deterministic: this loop's own figure, and the issue's
