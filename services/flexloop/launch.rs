@@ -306,7 +306,15 @@ pub fn supervise(
         scenario: prepared.scenario.name.clone(),
         cpus: pinned_cpus(&prepared.scenario),
         owner: None,
-        design: pid_words(&prepared.design),
+        // What serves each role, in the words `status` prints until a
+        // swap or set changes the loop (then it designs the scenario as it
+        // stands: a large model's design takes seconds, not worth redoing
+        // for every `status` of an unchanged loop).
+        design: Some(format!(
+            "controller: {}\nobserver: {}",
+            flexloop_analysis::loop_report::controller_words(&prepared.scenario, &prepared.design),
+            flexloop_analysis::loop_report::observer_words(&prepared.scenario, &prepared.design)
+        )),
     };
     warn_about_shared_cpus(&entry);
     registry::register(&entry).context("cannot register the loop")?;

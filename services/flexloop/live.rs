@@ -337,6 +337,19 @@ fn with_program(
 /// now, designed again: what `"auto"` chose included), or, when that
 /// cannot be read, what was chosen at start.
 fn design_now(entry: &registry::Entry) -> Vec<String> {
+    let at_start = || -> Vec<String> {
+        entry
+            .design
+            .iter()
+            .flat_map(|d| d.lines())
+            .map(String::from)
+            .collect()
+    };
+    // Unchanged since the start (no swap or set wrote the scenario as it
+    // stands): the words the start wrote.
+    if !RunDir::new(&entry.run_dir).scenario_now().is_file() {
+        return at_start();
+    }
     let now = crate::tune::current(Some(&entry.prefix))
         .ok()
         .and_then(|(path, text)| design_words(&path, &text).ok());
@@ -345,11 +358,7 @@ fn design_now(entry: &registry::Entry) -> Vec<String> {
             .into_iter()
             .map(|(part, words)| format!("{part}: {words}"))
             .collect(),
-        None => entry
-            .design
-            .iter()
-            .map(|d| format!("design at start: {d}"))
-            .collect(),
+        None => at_start(),
     }
 }
 
