@@ -43,6 +43,7 @@ from .process import (
     fingerprint,
     main_for,
     make_law,
+    freeze_collector,
     saved_state,
     serve_wakeups,
     stop_requested,
@@ -212,11 +213,7 @@ class _Process:
             lambda: "no measurement publisher (plant)",
         ):
             return False
-        # No collector pauses inside the loop: everything long-lived exists
-        # now, and the per-sample path makes no cycles.
-        gc.collect()
-        gc.freeze()
-        gc.disable()
+        freeze_collector()
         # Opened only now: the controller takes the first estimate as the
         # sign that the observer is connected and ready.
         self.estimates = transport.Outlet(self.node, _ESTIMATE, msg.Estimate)

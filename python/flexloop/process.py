@@ -8,6 +8,7 @@ The roles' own parts are in :mod:`flexloop.runner` (the controller) and
 :mod:`flexloop.observer_runner` (the observer).
 """
 
+import gc
 import hashlib
 import inspect
 import os
@@ -54,6 +55,15 @@ def stop_requested():
 def _request_stop(_signum, _frame):
     global _stop
     _stop = True
+
+
+def freeze_collector():
+    """No collector pauses inside the loop: everything long-lived exists
+    now, and the per-sample path makes no cycles (both roles call this
+    once, before the port whose appearance lets the loop start)."""
+    gc.collect()
+    gc.freeze()
+    gc.disable()
 
 
 def serve_wakeups(measurements, standing, on_wakeup, is_over):

@@ -41,6 +41,7 @@ from .process import (
     fingerprint,
     main_for,
     make_law,
+    freeze_collector,
     saved_state,
     serve_wakeups,
     stop_requested,
@@ -179,12 +180,8 @@ class _Process:
             "no first estimate yet",
         ):
             return False
-        # No collector pauses inside the loop: everything long-lived exists
-        # now, and the per-sample path makes no cycles. Done before the
-        # command port opens: the plant's tick 0 follows it by 2 ms.
-        gc.collect()
-        gc.freeze()
-        gc.disable()
+        # Before the command port opens: the plant's tick 0 follows it by 2 ms.
+        freeze_collector()
         # The command port opens last: its appearance tells the plant that
         # the chain is ready for tick 0.
         self.commands = transport.Outlet(self.node, _COMMAND, msg.Command)
