@@ -109,7 +109,51 @@ pub fn remove_leftovers(prefix: &str) {
         } else {
             std::fs::remove_file(&path)
         };
+        // A node's directory is named by its id, not by the prefix: it goes
+        // with its last file (it stayed behind, empty, after every incident).
+        if let Some(node_dir) = path.parent()
+            && in_nodes_dir(node_dir)
+        {
+            let _ = std::fs::remove_dir(node_dir);
+        }
     }
+}
+
+/// Whether `dir` is one node's directory under iceoryx2's `nodes/`.
+fn in_nodes_dir(dir: &Path) -> bool {
+    dir.parent()
+        .and_then(Path::file_name)
+        .is_some_and(|name| name == "nodes")
+}
+
+/// How old an empty node directory must be to be someone's leftover: a
+/// node being created makes its directory and fills it within
+/// microseconds.
+const EMPTY_NODE_DIR_AGE: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// Removes the empty node directories older than a minute (left, before
+/// [`remove_leftovers`] removed them too, by every run that lost a
+/// process); returns how many.
+fn remove_stale_node_dirs() -> usize {
+    let mut removed = 0;
+    for root in [Path::new(ROOT_PATH), Path::new(DEFAULT_ROOT_PATH)] {
+        let Ok(entries) = std::fs::read_dir(root.join("nodes")) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let old = entry
+                .metadata()
+                .and_then(|m| m.modified())
+                .ok()
+                .and_then(|t| t.elapsed().ok())
+                .is_some_and(|age| age > EMPTY_NODE_DIR_AGE);
+            // `remove_dir` refuses a directory that is not empty.
+            if old && std::fs::remove_dir(entry.path()).is_ok() {
+                removed += 1;
+            }
+        }
+    }
+    removed
 }
 
 /// Removes the files of every run prefix (`flx<pid>_`, `flxsweep<pid>_`)
@@ -122,6 +166,7 @@ pub fn remove_dead_prefixes() -> Vec<String> {
     for prefix in &dead {
         remove_leftovers(prefix);
     }
+    remove_stale_node_dirs();
     dead
 }
 
@@ -192,7 +237,31 @@ fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: u
 
 #[cfg(test)]
 mod tests {
-    use super::run_prefix;
+    use super::*;
+
+    /// The node directories holding a file of `prefix`.
+    fn node_dirs_of(prefix: &str) -> Vec<PathBuf> {
+        leftover_files_for_prefix(prefix)
+            .into_iter()
+            .filter_map(|p| p.parent().map(Path::to_path_buf))
+            .filter(|d| in_nodes_dir(d))
+            .collect()
+    }
+
+    #[test]
+    fn a_dead_nodes_directory_goes_with_its_files() {
+        let prefix = format!("flxtest{}nodedir_", std::process::id());
+        let domain = Domain::new(&prefix).unwrap();
+        // A node whose process "died": its files stay.
+        std::mem::forget(domain.node("lost").unwrap());
+        let dirs = node_dirs_of(&prefix);
+        assert!(!dirs.is_empty(), "the node has a directory of its own");
+        remove_leftovers(&prefix);
+        assert!(leftover_files_for_prefix(&prefix).is_empty());
+        for dir in dirs {
+            assert!(!dir.exists(), "{} is left", dir.display());
+        }
+    }
 
     #[test]
     fn run_prefixes_are_recognised_and_nothing_else() {
