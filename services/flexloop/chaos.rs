@@ -429,6 +429,7 @@ fn inject(args: &ChaosArgs, loop_dir: &RunDir, up: &mut UpProcess) -> Injected {
             at_ns,
             seq: None,
             held_ticks: None,
+            held_stalled_ticks: None,
             missing_samples: 0,
             replaced,
         });
@@ -500,6 +501,7 @@ fn recorded_ticks(loop_dir: &RunDir) -> Result<Recorded> {
             // going on, not a held input.
             safe_action: (m.flags & flags::FALLBACK != 0 && m.flags & flags::STANDBY == 0)
                 || without_estimate.contains(&m.seq),
+            stalled: m.flags & flags::STALLED_TICK != 0,
         }));
     }
     ticks.sort_by_key(|t| t.seq);
@@ -529,6 +531,7 @@ fn summarise(
         let before = ticks.partition_point(|t| t.tick_ns < kill.at_ns);
         kill.seq = before.checked_sub(1).map(|i| ticks[i].seq);
         kill.held_ticks = fault_recovery::held_ticks(ticks, kill.at_ns);
+        kill.held_stalled_ticks = fault_recovery::held_stalled_ticks(ticks, kill.at_ns);
         kill.missing_samples = fault_recovery::missing_after(ticks, kill.at_ns, window);
     }
     let mut roles = Vec::new();
@@ -538,12 +541,18 @@ fn summarise(
             continue;
         }
         let held: Vec<u64> = of_role.iter().filter_map(|k| k.held_ticks).collect();
+        let unstalled: Vec<u64> = of_role
+            .iter()
+            .filter_map(|k| Some(k.held_ticks? - k.held_stalled_ticks?))
+            .collect();
         roles.push(RoleFaults {
             role: target.name().into(),
             kills: of_role.len() as u32,
             held_p50: fault_recovery::percentile(&held, 50.0),
             held_p99: fault_recovery::percentile(&held, 99.0),
             held_max: held.iter().copied().max().unwrap_or(0),
+            unstalled_p50: fault_recovery::percentile(&unstalled, 50.0),
+            unstalled_p99: fault_recovery::percentile(&unstalled, 99.0),
             unrecovered: of_role.iter().filter(|k| k.held_ticks.is_none()).count() as u32,
             not_replaced: of_role.iter().filter(|k| !k.replaced).count() as u32,
             missing_samples: of_role.iter().map(|k| k.missing_samples).sum(),
@@ -572,24 +581,26 @@ fn print_table(file: &ChaosFile) {
         println!("stopped after {} kills: {why}", file.kills.len());
     }
     println!(
-        "{:<11} {:>5}  {:>13} {:>13} {:>13}  {:>11}  {:>12}  {:>8}",
+        "{:<11} {:>5}  {:>13} {:>13} {:>13}  {:>15}  {:>11}  {:>12}  {:>8}",
         "role",
         "kills",
         "held p50",
         "held p99",
         "held max",
+        "unstalled p50/99",
         "unrecovered",
         "not replaced",
         "missing"
     );
     for r in &file.roles {
         println!(
-            "{:<11} {:>5}  {:>7} ticks {:>7} ticks {:>7} ticks  {:>11}  {:>12}  {:>8}",
+            "{:<11} {:>5}  {:>7} ticks {:>7} ticks {:>7} ticks  {:>15}  {:>11}  {:>12}  {:>8}",
             r.role,
             r.kills,
             r.held_p50,
             r.held_p99,
             r.held_max,
+            format!("{} / {}", r.unstalled_p50, r.unstalled_p99),
             r.unrecovered,
             r.not_replaced,
             r.missing_samples

@@ -384,7 +384,8 @@ fn run_to_the_end(
     let mut live_server: Option<crate::live_view::LiveServer> = None;
     let mut running = supervisor::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
-    let outcome = running.watch(limit, |running| {
+    let wake_fds = conductor.wake_fds();
+    let outcome = running.watch(limit, &wake_fds, |running| {
         progress.show(rate_hz);
         let outcome = conductor
             .tick(running)

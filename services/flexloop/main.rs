@@ -25,6 +25,7 @@ mod live_view;
 mod logging_cost;
 mod positions;
 mod probes;
+mod process_state;
 mod progress;
 mod registry;
 mod report;

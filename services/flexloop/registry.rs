@@ -126,18 +126,14 @@ pub fn unregister(prefix: &str) {
     let _ = std::fs::remove_file(path(prefix));
 }
 
-/// Alive and not a zombie (an exited supervisor whose parent has not reaped
-/// it yet has stopped all the same).
+/// Alive and not on its way out (an exited supervisor whose parent has not
+/// reaped it yet has stopped all the same).
 pub fn alive(pid: i32) -> bool {
     // SAFETY: signal 0 only checks that the process exists.
     if pid <= 0 || unsafe { libc::kill(pid, 0) } != 0 {
         return false;
     }
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let state = stat
-        .rsplit_once(") ")
-        .and_then(|(_, rest)| rest.chars().next());
-    state != Some('Z')
+    crate::process_state::of(pid) != crate::process_state::ProcessState::Exiting
 }
 
 /// Every registered loop, its supervisor alive or not.

@@ -11,7 +11,7 @@ use flexloop_protocol::Joining;
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{ComponentProgram, ProgramRole, Scenario};
 use flexloop_transport::{Domain, cleanup_dead_nodes};
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -335,8 +335,9 @@ impl RunningLoop {
         Ok(pid)
     }
 
-    /// Sleeps until a child exits, a signal arrives or `limit` passes.
-    fn wait_for_an_exit(&mut self, limit: Duration) {
+    /// Sleeps until a child exits, one of `wake_fds` is readable, a signal
+    /// arrives or `limit` passes.
+    fn wait_for_an_exit(&mut self, limit: Duration, wake_fds: &[RawFd]) {
         let ended: Vec<i32> = self
             .children
             .iter()
@@ -348,8 +349,10 @@ impl RunningLoop {
         let mut fds: Vec<libc::pollfd> = self
             .exits
             .iter()
-            .map(|(_, fd)| libc::pollfd {
-                fd: fd.as_raw_fd(),
+            .map(|(_, fd)| fd.as_raw_fd())
+            .chain(wake_fds.iter().copied())
+            .map(|fd| libc::pollfd {
+                fd,
                 events: libc::POLLIN,
                 revents: 0,
             })
@@ -392,12 +395,14 @@ impl RunningLoop {
 
     /// Watches until the run ends by itself, a child fails, `limit` passes (from
     /// tick 0, start-up aside) or a termination signal arrives; the caller then stops and cleans up.
-    /// `tick` is called every 20 ms and as soon as a child exits, after
-    /// reaping and before judging exits:
-    /// it may settle a child's exit (a restart) or end the run.
+    /// `tick` is called every 20 ms, as soon as a child exits and when one
+    /// of `wake_fds` (the plant's silence alarm) is readable, after reaping
+    /// and before judging exits: it may settle a child's exit (a restart)
+    /// or end the run, and it must consume what made a wake fd readable.
     pub fn watch(
         &mut self,
         limit: Option<Duration>,
+        wake_fds: &[RawFd],
         mut tick: impl FnMut(&mut RunningLoop) -> Option<Outcome>,
     ) -> Outcome {
         loop {
@@ -415,7 +420,7 @@ impl RunningLoop {
             if let Some(ended) = verdict(&self.children, timed_out) {
                 return ended;
             }
-            self.wait_for_an_exit(Duration::from_millis(20));
+            self.wait_for_an_exit(Duration::from_millis(20), wake_fds);
         }
     }
 

@@ -1,7 +1,8 @@
 //! A hung component is a fault like a dead one (docs/architecture.md): the controller
-//! or the observer stopped (SIGSTOP) or a program whose law sleeps is
-//! found from what the loop shows (the plant's held ticks, the estimates
-//! falling behind), killed, and brought back as after a crash: a `silent`
+//! or the observer stopped (SIGSTOP) is found from the kernel's view of it
+//! (at the plant's silence alarm), a program whose law sleeps from what
+//! the loop shows (the plant's held ticks, the estimates falling behind);
+//! either is killed and brought back as after a crash: a `silent`
 //! event, a `crash` of cause "silent", a restart (a program rolled back to
 //! the built-in design that served before it); the loop runs on and
 //! nothing is left. (How many ticks that costs is a timing figure: `flexloop
@@ -71,7 +72,7 @@ fn a_stopped_controller_is_found_silent_killed_and_restarted() {
     let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
     wait_for_ticks(&dir, 2_000);
     let silent = hang_is_handled(&dir, &prefix, up, "controller");
-    assert!(silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200);
+    assert_eq!(silent["detail"]["stopped"], true, "{silent}");
 }
 
 #[test]
@@ -79,7 +80,8 @@ fn a_stopped_observer_is_found_silent_killed_and_restarted() {
     let dir = temp_dir("hang-observer");
     let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
     wait_for_ticks(&dir, 2_000);
-    hang_is_handled(&dir, &prefix, up, "observer");
+    let silent = hang_is_handled(&dir, &prefix, up, "observer");
+    assert_eq!(silent["detail"]["stopped"], true, "{silent}");
 }
 
 #[test]
@@ -130,6 +132,11 @@ fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
     let program = pid_on_duty(&dir, "controller", "active");
     let silent = await_event(&dir, "silent", "controller");
     assert_eq!(silent["detail"]["pid"], program, "{silent}");
+    // Alive and asleep, not stopped: found by the loop's silence.
+    assert!(
+        silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200,
+        "{silent}"
+    );
     let restart = await_event(&dir, "restart", "controller");
     assert!(
         restart["detail"]["rolled_back_from"].is_string(),

@@ -24,6 +24,7 @@ use super::measure::{AppliedHistory, BEFORE_SWITCH, Pace};
 use super::per_role::PerRole;
 use super::roster::{Duty, Roster};
 use super::switch::Switch;
+use crate::process_state::ProcessState;
 use crate::supervisor::Outcome;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
@@ -213,6 +214,7 @@ impl Core {
                 self.silence.polled(now);
                 Vec::new()
             }
+            Event::ProcessState { pid, state, now } => self.process_state(pid, state, now),
             Event::Tick { now, stage } => match stage {
                 Stage::Silence => self.check_silence(now),
                 Stage::Restarts => self.due_restarts(now),
@@ -280,7 +282,7 @@ impl Core {
         let crashed: Vec<i32> = self
             .roster
             .iter()
-            .filter(|m| !m.settled && !m.fatal_recorded && m.exit.is_some_and(|code| code != 0))
+            .filter(|m| !m.settled && !m.fatal_recorded && m.crashed())
             .map(|m| m.pid)
             .collect();
         let mut actions = Vec::new();
@@ -288,7 +290,8 @@ impl Core {
             let Some(m) = self.roster.get(pid) else {
                 continue;
             };
-            let (role, generation, code) = (m.role, m.generation, m.exit.unwrap_or(-1));
+            // Unknown while the exit report has not come (found exiting or killed).
+            let (role, generation, code, found) = (m.role, m.generation, m.exit, m.found);
             let cause = if m.silenced { "silent" } else { "crashed" };
             if m.spare() || m.standby() {
                 let duty = if m.spare() { "spare" } else { "standby" };
@@ -302,7 +305,7 @@ impl Core {
                 actions.push(self.crash_record(
                     role,
                     generation,
-                    json!({"exit": code, duty: true}),
+                    json!({"exit": code, "found": found, duty: true}),
                 ));
                 continue;
             }
@@ -336,7 +339,7 @@ impl Core {
                 actions.push(self.crash_record(
                     role,
                     generation,
-                    json!({"exit": code, "cause": cause, "fatal": reason}),
+                    json!({"exit": code, "found": found, "cause": cause, "fatal": reason}),
                 ));
                 continue;
             }
@@ -345,7 +348,7 @@ impl Core {
             actions.push(self.crash_record(
                 role,
                 generation,
-                json!({"exit": code, "cause": cause, "restart_in_ms": wait.as_millis() as u64}),
+                json!({"exit": code, "found": found, "cause": cause, "restart_in_ms": wait.as_millis() as u64}),
             ));
             self.pending.push(PendingRestart {
                 role,
@@ -356,10 +359,12 @@ impl Core {
     }
 
     /// A live controller or observer that left the loop without its output
-    /// for the policy's ticks (and wall time) is hung: it is killed, and its
-    /// exit is dealt with as a crash's (the standby, a restart, a program's
-    /// rollback), its `crash` event saying `"cause": "silent"`. Not while a
-    /// swap or restart is under way, nor once the run ends.
+    /// for the policy's ticks (and wall time) is hung: it is killed, and
+    /// dealt with at once as crashed (the standby, a restart, a program's
+    /// rollback: SIGKILL leaves it no further instruction, so its exit
+    /// report need not be waited for), its `crash` event saying
+    /// `"cause": "silent"`. Not while a swap or restart is under way, nor
+    /// once the run ends.
     fn check_silence(&mut self, now: Instant) -> Vec<Action> {
         if self.busy || self.run_ending {
             return Vec::new();
@@ -367,33 +372,91 @@ impl Core {
         let Some(silent) = self.silence.silent(&self.policy.silence, now) else {
             return Vec::new();
         };
-        let Some(m) = self
+        let Some(pid) = self
             .roster
             .serving(silent.role)
             .filter(|m| m.alive() && !m.silenced)
+            .map(|m| m.pid)
         else {
             return Vec::new();
         };
-        let (pid, generation) = (m.pid, m.generation);
-        if let Some(m) = self.roster.get_mut(pid) {
-            m.silenced = true;
+        let detail = json!({
+            "pid": pid,
+            "ticks_without_output": silent.ticks,
+            "seconds_without_output": silent.since.as_secs_f64(),
+            "action": "killed, then handled as a crash",
+        });
+        self.kill_hung(pid, "silent", detail, now)
+    }
+
+    /// What the kernel shows of a live, unsettled process of the loop (the
+    /// shell looks at every supervisor look and whenever the plant's silence
+    /// alarm wakes it): one in its exit is dealt with as crashed now, not
+    /// milliseconds later when the kernel reports the exit; a stopped one is
+    /// hung, killed and dealt with likewise (docs/architecture.md, "Standby,
+    /// watchdogs and guards").
+    fn process_state(&mut self, pid: i32, state: ProcessState, now: Instant) -> Vec<Action> {
+        if self.busy || self.run_ending {
+            return Vec::new();
         }
-        // Its replacement is judged from its own start.
-        self.silence.restart_clock(silent.role, now);
-        vec![
-            self.note(
-                "silent",
-                silent.role,
-                generation,
-                json!({
+        let Some(m) = self.roster.get_mut(pid).filter(|m| m.alive() && !m.settled) else {
+            return Vec::new();
+        };
+        match state {
+            ProcessState::Live => Vec::new(),
+            ProcessState::Exiting => {
+                m.exiting = true;
+                m.found = "exiting";
+                self.settle_crashes(now)
+            }
+            ProcessState::Stopped => {
+                let detail = json!({
                     "pid": pid,
-                    "ticks_without_output": silent.ticks,
-                    "seconds_without_output": silent.since.as_secs_f64(),
+                    "stopped": true,
+                    "ticks_without_output": self.silence.ticks_without(m.role),
                     "action": "killed, then handled as a crash",
-                }),
-            ),
+                });
+                self.kill_hung(pid, "stopped", detail, now)
+            }
+        }
+    }
+
+    /// Kills the hung `pid` and deals with it as crashed now.
+    fn kill_hung(
+        &mut self,
+        pid: i32,
+        found: &'static str,
+        detail: Value,
+        now: Instant,
+    ) -> Vec<Action> {
+        let Some(m) = self.roster.get_mut(pid) else {
+            return Vec::new();
+        };
+        m.silenced = true;
+        m.exiting = true;
+        m.found = found;
+        let (role, generation) = (m.role, m.generation);
+        // Its replacement is judged from its own start.
+        self.silence.restart_clock(role, now);
+        let mut actions = vec![
+            self.note("silent", role, generation, detail),
             Action::Kill(pid),
-        ]
+        ];
+        actions.extend(self.settle_crashes(now));
+        actions
+    }
+
+    /// The live processes of the loop whose state the shell is to look at
+    /// (see [`Core::handle`] with [`Event::ProcessState`]).
+    pub fn watched_processes(&self) -> Vec<i32> {
+        if self.busy || self.run_ending {
+            return Vec::new();
+        }
+        self.roster
+            .iter()
+            .filter(|m| m.alive() && !m.settled && m.role != Role::Plant)
+            .map(|m| m.pid)
+            .collect()
     }
 
     fn crash_record(&self, role: Role, generation: Option<u32>, detail: Value) -> Action {

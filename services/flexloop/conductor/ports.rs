@@ -9,15 +9,18 @@ use anyhow::Result;
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
     ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT,
-    MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, PLANT_SETTINGS, SPARE_ORDER, SPARE_STATUS,
-    TELEMETRY,
+    MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, PLANT_SETTINGS, SILENCE_ALARM,
+    SPARE_ORDER, SPARE_STATUS, TELEMETRY,
 };
 use flexloop_protocol::handover::CATCHING_UP;
 use flexloop_protocol::{
     Activation, Command, Estimate, Handover, Measurement, PlantSettings, SpareOrder, SpareStatus,
     Telemetry, flags,
 };
-use flexloop_transport::{ChannelHold, Domain, Inlet, LoopNode, Outlet, cleanup_dead_nodes};
+use flexloop_transport::{
+    ChannelHold, Domain, Inlet, LoopNode, Outlet, WakeupListener, cleanup_dead_nodes,
+};
+use std::os::fd::RawFd;
 use std::time::Instant;
 
 pub struct Ports {
@@ -37,6 +40,8 @@ pub struct Ports {
     replay_out: Outlet<Measurement>,
     spare_orders: Outlet<SpareOrder>,
     spare_status: Inlet<SpareStatus>,
+    /// The plant's silence alarm: the supervisor's wait wakes on it.
+    silence_alarm: WakeupListener,
     /// Every loop channel, made before any process starts (see `ChannelHold`).
     _holds: Vec<ChannelHold>,
     node: LoopNode,
@@ -81,6 +86,7 @@ impl Ports {
                 &SPARE_STATUS,
                 SPARE_STATUS.qos.loop_buffer_size,
             )?,
+            silence_alarm: WakeupListener::open(&node, &SILENCE_ALARM)?,
             _holds: holds,
             node,
             domain,
@@ -93,6 +99,8 @@ impl Ports {
     /// is ready), states, idle spares; and the replay its measurements.
     /// Observations: the core answers them with no action.
     pub fn poll(&mut self, core: &mut Core, replay: &mut Replay) {
+        // Whatever woke the supervisor, this look answers it.
+        let _ = self.silence_alarm.clear();
         // A publisher hands its history to a new subscriber only when it
         // updates its connections: a replacement must learn the activation.
         let _ = self.activation_out.connect();
@@ -148,6 +156,11 @@ impl Ports {
         core.handle(Event::Polled {
             now: Instant::now(),
         });
+    }
+
+    /// Readable while the plant's silence alarm is pending.
+    pub fn alarm_fd(&self) -> RawFd {
+        self.silence_alarm.fd()
     }
 
     /// Publishes the activation, stamped now.

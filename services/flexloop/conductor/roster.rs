@@ -61,11 +61,24 @@ pub struct Member {
     pub followed: bool,
     /// Judged hung (silent) and killed: its exit is a fault of that cause.
     pub silenced: bool,
+    /// Known to be on its way out (killed by the supervisor, or the kernel
+    /// shows it exiting) before its exit report came: it sends nothing
+    /// more, and is dealt with as ended.
+    pub exiting: bool,
+    /// How its end was found: `"exit report"`, `"exiting"` (the kernel
+    /// showed it in its exit), `"stopped"` or `"silent"` (judged hung).
+    pub found: &'static str,
 }
 
 impl Member {
     pub fn alive(&self) -> bool {
-        self.exit.is_none()
+        self.exit.is_none() && !self.exiting
+    }
+
+    /// Ended other than by a clean exit (an exit found before its report
+    /// is a kill or a crash).
+    pub fn crashed(&self) -> bool {
+        self.exit.map_or(self.exiting, |code| code != 0)
     }
 
     pub fn spare(&self) -> bool {
@@ -114,6 +127,8 @@ impl Roster {
             program,
             followed: false,
             silenced: false,
+            exiting: false,
+            found: "exit report",
         });
     }
 

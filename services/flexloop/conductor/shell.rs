@@ -26,6 +26,7 @@ use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
 use flexloop_scenario::{Overrides, Scenario};
 use serde_json::json;
+use std::os::fd::RawFd;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -125,8 +126,15 @@ impl Conductor {
                 });
             }
             if let Some(exit) = c.exit
-                && self.core.roster().get(c.pid).is_none_or(|m| m.alive())
+                && self
+                    .core
+                    .roster()
+                    .get(c.pid)
+                    .is_none_or(|m| m.exit.is_none())
             {
+                // Its node is dead now (not before: a process found exiting
+                // and dealt with early may still hold its ports).
+                self.dead_nodes = true;
                 events.push(Event::Exited {
                     pid: c.pid,
                     code: exit.code,
@@ -270,7 +278,13 @@ impl Conductor {
         running.terminate(pid);
     }
 
-    /// Called by the supervisor every 20 ms and when a child exits: crashes,
+    /// What the supervisor's wait also wakes on: the plant's silence alarm.
+    pub fn wake_fds(&self) -> Vec<RawFd> {
+        vec![self.ports.alarm_fd()]
+    }
+
+    /// Called by the supervisor every 20 ms, when a child exits and when the
+    /// plant's silence alarm rings: crashes,
     /// restarts, spares,
     /// the standby, requests. The run's files are up to date after it.
     pub fn tick(&mut self, running: &mut RunningLoop) -> Option<Outcome> {
@@ -288,6 +302,18 @@ impl Conductor {
         // The supervisor reaped just now.
         self.track(running);
         self.poll();
+        // After the poll: a process that exits because the run ended is
+        // then known to (the poll saw the plant's last sample).
+        for pid in self.core.watched_processes() {
+            let actions = self.core.handle(Event::ProcessState {
+                pid,
+                state: crate::process_state::of(pid),
+                now: Instant::now(),
+            });
+            if let Some(outcome) = self.execute(running, actions) {
+                return Some(outcome);
+            }
+        }
         for stage in Stage::IN_ORDER {
             let actions = self.core.handle(Event::Tick {
                 now: Instant::now(),
@@ -544,8 +570,13 @@ impl Conductor {
     ) -> Result<(i32, bool)> {
         let own_program = crate::supervisor::own_program(role, scenario)?.is_some();
         let since = Instant::now();
+        // The first decision on what is known already: an idle spare is
+        // ordered at once (a restart's every look costs held ticks).
+        let mut first = true;
         loop {
-            self.observe(running);
+            if !std::mem::take(&mut first) {
+                self.observe(running);
+            }
             match self
                 .core
                 .engagement(role, since.elapsed() > SPARE_START_WAIT, own_program)
@@ -628,9 +659,11 @@ impl Conductor {
                     role.name()
                 );
             }
-            // 1 ms, not 5: a restarted observer waits for the state handed
-            // on here, and a restart's every millisecond is 10 held ticks.
-            std::thread::sleep(Duration::from_millis(1));
+            // 0.2 ms, not 5: a restarted observer waits for the state and
+            // the replayed measurements handed on here, and a restart's every
+            // millisecond is 10 held ticks (this runs off the loop's CPU,
+            // for the few milliseconds a restart takes).
+            std::thread::sleep(Duration::from_micros(200));
         }
     }
 

@@ -12,6 +12,10 @@ pub struct Tick {
     /// command from the active controller in time) or the controller's (a
     /// command computed without a fresh estimate).
     pub safe_action: bool,
+    /// The plant woke late for it (the machine's stall: on a kernel
+    /// without preemption, the killed process's memory freed on the loop's
+    /// CPU is one).
+    pub stalled: bool,
 }
 
 /// The loop counts as recovered at the first run of this many commanded
@@ -25,12 +29,23 @@ pub const RECOVERED_AFTER: usize = 10;
 /// recording are not counted (see [`missing_ticks`]). `None` if the
 /// recording does not reach a recovery after the kill.
 pub fn held_ticks(ticks: &[Tick], kill_ns: u64) -> Option<u64> {
+    held_span(ticks, kill_ns).map(|held| held.len() as u64)
+}
+
+/// Of the [`held_ticks`], those the plant marked stalled: the machine's
+/// part of what the fault cost, the rest is the hand-over's.
+pub fn held_stalled_ticks(ticks: &[Tick], kill_ns: u64) -> Option<u64> {
+    held_span(ticks, kill_ns).map(|held| held.iter().filter(|t| t.stalled).count() as u64)
+}
+
+/// The ticks on the safe action from the kill to the recovery.
+fn held_span(ticks: &[Tick], kill_ns: u64) -> Option<Vec<&Tick>> {
     let first = ticks.partition_point(|t| t.tick_ns < kill_ns);
-    let mut held = 0;
+    let mut held = Vec::new();
     let mut commanded_in_a_row = 0;
     for tick in &ticks[first..] {
         if tick.safe_action {
-            held += 1;
+            held.push(tick);
             commanded_in_a_row = 0;
         } else {
             commanded_in_a_row += 1;
@@ -88,6 +103,7 @@ mod tests {
                 seq: i as u64,
                 tick_ns: i as u64 * 1_000_000,
                 safe_action: h,
+                stalled: false,
             })
             .collect()
     }
@@ -106,6 +122,22 @@ mod tests {
         assert_eq!(held_ticks(&ticks, 20_000_000), Some(0));
         // No recovery recorded after the kill.
         assert_eq!(held_ticks(&ticks, 35_000_000), None);
+    }
+
+    #[test]
+    fn the_stalled_among_the_held_ticks_are_counted_apart() {
+        let mut held = vec![false; 40];
+        for i in [6, 7, 8, 10, 11] {
+            held[i] = true;
+        }
+        let mut ticks = ticks(&held);
+        // The plant woke late for ticks 6 and 7 (held) and 9 (answered).
+        for i in [6, 7, 9] {
+            ticks[i].stalled = true;
+        }
+        assert_eq!(held_ticks(&ticks, 5_000_000), Some(5));
+        assert_eq!(held_stalled_ticks(&ticks, 5_000_000), Some(2));
+        assert_eq!(held_stalled_ticks(&ticks, 35_000_000), None);
     }
 
     #[test]

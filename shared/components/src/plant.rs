@@ -101,6 +101,12 @@ pub struct PlantCore {
     held: [f64; MAX_INPUTS],
     /// The on-time command for the next tick, once accepted.
     next: Option<(u64, [f64; MAX_INPUTS])>,
+    /// Whether that command was computed without a fresh estimate.
+    next_without_observer: bool,
+    /// Whether the last command applied was.
+    without_observer: bool,
+    /// A role fell silent at this tick: the supervisor is to be woken.
+    alarm: bool,
     /// The standby controller's command for the next tick, if any.
     standby_next: Option<(u64, [f64; MAX_INPUTS])>,
     /// [u; w] as the model's input vector.
@@ -142,6 +148,9 @@ impl PlantCore {
             safe_action: SafeAction::Hold,
             held: [0.0; MAX_INPUTS],
             next: None,
+            next_without_observer: false,
+            without_observer: false,
+            alarm: false,
             standby_next: None,
             model_input: [0.0; 2 * MAX_INPUTS],
             y_true: [0.0; MAX_OUTPUTS],
@@ -202,6 +211,7 @@ impl PlantCore {
                 *dst = clamped;
             }
             self.next = Some((cmd.seq, u));
+            self.next_without_observer = cmd.flags & flags::OBSERVER_FALLBACK != 0;
             CommandVerdict::Accepted
         }
     }
@@ -227,6 +237,14 @@ impl PlantCore {
         }
         self.standby_next = Some((cmd.seq, u));
         CommandVerdict::Standby
+    }
+
+    /// Whether a role fell silent at the last tick (once per silence): the
+    /// controller, the tick the watchdog first applied the safe action; the
+    /// observer, the first command computed without its estimate. Cleared
+    /// by the call.
+    pub fn take_alarm(&mut self) -> bool {
+        std::mem::take(&mut self.alarm)
     }
 
     /// Whether the command due for tick `k` has been accepted.
@@ -258,12 +276,16 @@ impl PlantCore {
             Some((seq, u)) if seq.wrapping_add(1) == k => {
                 arriving_seq = seq;
                 self.silent_ticks = 0;
+                // The observer's silence, as the controller saw it first.
+                self.alarm |= self.next_without_observer && !self.without_observer;
+                self.without_observer = self.next_without_observer;
                 u
             }
             _ if k == 0 => [0.0; MAX_INPUTS],
             _ if self.silent_ticks.saturating_add(1) >= self.watchdog_ticks => {
                 // The controller has been silent too long: the safe action.
                 self.silent_ticks = self.silent_ticks.saturating_add(1);
+                self.alarm |= self.silent_ticks == self.watchdog_ticks;
                 self.count_miss();
                 self.counters.fallback_ticks += 1;
                 tick_flags |= flags::HELD_INPUT | flags::FALLBACK;

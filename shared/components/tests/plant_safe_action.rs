@@ -133,3 +133,56 @@ fn the_plant_times_the_active_instances_commands_only() {
     assert_eq!(l.tick_to_command.histogram().max(), 160);
     assert_eq!(l.tick_lateness.histogram().max(), 7);
 }
+
+/// Ticks 0..ticks where the active controller answers sample k when
+/// `answers(k)`, its command flagged `flags_of(k)`; returns the ticks at
+/// which the plant raised its silence alarm.
+fn alarms(ticks: u64, answers: impl Fn(u64) -> bool, flags_of: impl Fn(u64) -> u32) -> Vec<u64> {
+    let mut plant = plant(SafeAction::Hold);
+    let mut raised = Vec::new();
+    for k in 0..ticks {
+        let mut m = Measurement::default();
+        plant.tick(k, 0, 0, false, &mut m);
+        if plant.take_alarm() {
+            raised.push(k);
+        }
+        plant.advance();
+        if answers(k) {
+            let mut c = command(k, 0, 1.0, false);
+            c.flags = flags_of(k);
+            plant.offer(&c, k + 1, u64::MAX);
+        }
+    }
+    raised
+}
+
+#[test]
+fn the_alarm_rings_once_when_the_watchdog_first_acts_and_again_after_a_recovery() {
+    // Silent for samples 5..=9 and 15..: the watchdog (2 ticks) acts at
+    // ticks 7 and 17; the held tick before it and the later silent ticks
+    // raise nothing.
+    let raised = alarms(30, |k| !(5..10).contains(&k) && k < 15, |_| 0);
+    assert_eq!(raised, vec![7, 17]);
+    // A single miss is no alarm.
+    assert!(alarms(30, |k| k != 12, |_| 0).is_empty());
+}
+
+#[test]
+fn the_alarm_rings_when_commands_first_come_without_the_observer() {
+    // Commands for samples 8..=11 say the observer's estimate was missing:
+    // applied at ticks 9..=12, the alarm at the first of them only; again
+    // at the next such spell.
+    let without = |k: u64| (8..12).contains(&k) || k >= 20;
+    let raised = alarms(
+        30,
+        |_| true,
+        |k| {
+            if without(k) {
+                flags::OBSERVER_FALLBACK
+            } else {
+                0
+            }
+        },
+    );
+    assert_eq!(raised, vec![9, 21]);
+}

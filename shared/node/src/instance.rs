@@ -206,6 +206,9 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs, spares: Spares) -> Result<()
     let prepared = is_spare.then(|| PreparedDesign::new(args, &scenario, &design));
     let mut next = (!is_spare).then(|| (args.clone(), Some((scenario, design)), clock));
     let mut served = args.generation;
+    // Whether this process's private memory is populated and locked already
+    // (a spare does it before its first idle spell: see `serve`).
+    let mut prefaulted = false;
     loop {
         let (serve_args, loaded, clock) = match next.take() {
             Some(order) => order,
@@ -213,6 +216,14 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs, spares: Spares) -> Result<()
                 let Some(duty) = ports.spare.as_mut() else {
                     return Ok(());
                 };
+                if !prefaulted && rt.lock_memory {
+                    let prefault = RealtimeSettings {
+                        prefault_private: true,
+                        ..RealtimeSettings::default()
+                    };
+                    let _ = realtime::apply(C::ROLE.name(), &prefault);
+                    prefaulted = true;
+                }
                 match duty.idle(args, served, &ports.measurements)? {
                     Some(order) => (order, None, StartupClock::start()),
                     None => return Ok(()),
@@ -224,7 +235,14 @@ pub(crate) fn run<C: Component>(args: &ServiceArgs, spares: Spares) -> Result<()
             None => PreparedDesign::for_order(prepared.as_ref(), &serve_args)?,
         };
         served = serve_args.generation;
-        let ended = serve::<C>(&serve_args, &scenario, &design, &mut ports, &clock)?;
+        let ended = serve::<C>(
+            &serve_args,
+            &scenario,
+            &design,
+            &mut ports,
+            &clock,
+            prefaulted,
+        )?;
         if ended == Served::Ended || ports.spare.is_none() {
             return Ok(());
         }
@@ -239,6 +257,7 @@ fn serve<C: Component>(
     design: &LoopDesign,
     ports: &mut Ports<C::Own>,
     clock: &StartupClock,
+    prefaulted: bool,
 ) -> Result<Served, NodeError> {
     let mut instance = Instance::new(C::ROLE, args, scenario);
     let mut core = C::design(design, scenario, args)?;
@@ -254,10 +273,15 @@ fn serve<C: Component>(
     // must not run at real-time priority on the loop's CPU (measured: each
     // controller swap stalled the plant 1–25 ms). See
     // `RealtimeSettings::scheduling_part`.
-    let _scheduling = realtime::apply(
-        C::ROLE.name(),
-        &shadow_scheduling(&instance.rt, args.joining),
-    );
+    // A restart on a spare whose memory was populated while it idled skips
+    // it: walking and locking every private mapping again took 1.5–2.5 ms,
+    // held ticks every one (measured with `flexloop chaos`). A page the
+    // new design touches first in the loop costs a minor fault then.
+    let mut scheduling = shadow_scheduling(&instance.rt, args.joining);
+    if prefaulted && args.joining == Joining::Restart {
+        scheduling.prefault_private = false;
+    }
+    let _scheduling = realtime::apply(C::ROLE.name(), &scheduling);
     if !core.enter(&mut instance, ports)? {
         return Ok(Served::Ended);
     }

@@ -5,7 +5,7 @@ use crate::handover::ActivationView;
 use crate::{NodeError, await_peers};
 use flexloop_components::PlantCore;
 use flexloop_protocol::channels::{
-    COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP, PLANT_SETTINGS,
+    COMMAND, LOGGER_PROGRESS, MEASUREMENT, OBSERVER_WAKEUP, PLANT_SETTINGS, SILENCE_ALARM,
 };
 use flexloop_protocol::plant_settings::{SAFE_HOLD, SAFE_STANDBY, SAFE_ZERO};
 use flexloop_protocol::{Activation, Command, Measurement, PlantSettings, flags};
@@ -34,6 +34,8 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     let node = domain.node("plant")?;
     let measurements = Outlet::<Measurement>::open(&node, &MEASUREMENT)?;
     let observer_wakeup = Wakeup::open(&node, &OBSERVER_WAKEUP)?;
+    // Wakes the supervisor when a role falls silent (see `PlantCore::take_alarm`).
+    let silence_alarm = Wakeup::open(&node, &SILENCE_ALARM)?;
     let commands = Inlet::<Command>::open(&node, &COMMAND, COMMAND.qos.loop_buffer_size)?;
     // Lockstep only: how far the logger has drained (see `LoggerPace`).
     let logger_progress = Inlet::<u64>::open_polling(
@@ -156,6 +158,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         // before the next tick); the model update after both.
         measurements.notify()?;
         observer_wakeup.wake()?;
+        if core.take_alarm() {
+            silence_alarm.wake()?;
+        }
         core.advance();
         if last {
             break;

@@ -175,6 +175,26 @@ pub const PLANT_SETTINGS: Channel = Channel {
     },
 };
 
+/// The plant's silence alarm (only its event service is used): the plant
+/// wakes the supervisor the tick its watchdog first applies the safe action
+/// (the active controller silent), and the first tick a command says the
+/// controller ran without a fresh estimate (the observer silent), so that a
+/// dead or stopped process is replaced within ticks, not at the
+/// supervisor's next look or the kernel's exit report (docs/architecture.md,
+/// "Standby, watchdogs and guards").
+pub const SILENCE_ALARM: Channel = Channel {
+    name: "flexloop/silence-alarm",
+    qos: ChannelQos {
+        max_publishers: 2,
+        max_subscribers: 2,
+        max_nodes: 8,
+        history_size: 0,
+        subscriber_max_buffer_size: 1,
+        loop_buffer_size: 1,
+        logger_buffer_size: 1,
+    },
+};
+
 const SPARE_QOS: ChannelQos = ChannelQos {
     max_publishers: 12,
     max_subscribers: 12,
@@ -186,7 +206,7 @@ const SPARE_QOS: ChannelQos = ChannelQos {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 13] = [
+pub const ALL: [Channel; 14] = [
     MEASUREMENT,
     MEASUREMENT_REPLAY,
     OBSERVER_WAKEUP,
@@ -200,6 +220,7 @@ pub const ALL: [Channel; 13] = [
     SPARE_ORDER,
     SPARE_STATUS,
     PLANT_SETTINGS,
+    SILENCE_ALARM,
 ];
 
 /// Event ids on the event service paired with each channel.

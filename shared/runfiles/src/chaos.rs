@@ -46,6 +46,9 @@ pub struct Kill {
     /// Ticks on the plant's safe action until the loop recovered; `None`
     /// if the recording shows no recovery.
     pub held_ticks: Option<u64>,
+    /// Of those, the ticks the plant marked stalled (the machine's part).
+    #[serde(default)]
+    pub held_stalled_ticks: Option<u64>,
     /// Samples the recording lacks in the second after it.
     pub missing_samples: u64,
     /// A replacement was seen serving before the next kill.
@@ -60,6 +63,12 @@ pub struct RoleFaults {
     pub held_p50: u64,
     pub held_p99: u64,
     pub held_max: u64,
+    /// The held ticks less those the plant marked stalled: what the
+    /// hand-over itself cost.
+    #[serde(default)]
+    pub unstalled_p50: u64,
+    #[serde(default)]
+    pub unstalled_p99: u64,
     /// Kills after which the recording shows no recovery.
     pub unrecovered: u32,
     /// Kills after which no replacement was seen serving.

@@ -19,4 +19,4 @@ pub use error::TransportError;
 pub type LoopNode = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;
 /// The bound every message type of an [`Inlet`] or [`Outlet`] carries.
 pub use iceoryx2::prelude::ZeroCopySend;
-pub use ports::{ChannelHold, Inlet, Outlet, Wakeup};
+pub use ports::{ChannelHold, Inlet, Outlet, Wakeup, WakeupListener};

@@ -196,6 +196,44 @@ impl Wakeup {
     }
 }
 
+/// The listening end of a [`Wakeup`] channel: an event without samples,
+/// for a reader that only needs to know that something happened (the
+/// supervisor, woken by the plant's silence alarm).
+pub struct WakeupListener {
+    channel: &'static str,
+    listener: Listener<ipc::Service>,
+}
+
+impl WakeupListener {
+    pub fn open(
+        node: &Node<ipc::Service>,
+        wakeup: &'static Channel,
+    ) -> Result<Self, TransportError> {
+        let listener = open_event(node, wakeup)?
+            .listener_builder()
+            .create()
+            .map_err(|e| TransportError::new(wakeup.name, "create listener", e))?;
+        Ok(Self {
+            channel: wakeup.name,
+            listener,
+        })
+    }
+
+    /// Readable while a wake-up is pending.
+    pub fn fd(&self) -> RawFd {
+        // SAFETY: the descriptor stays owned by the listener; we only poll it.
+        unsafe { self.listener.file_descriptor().native_handle() }
+    }
+
+    /// Consumes the pending wake-ups; returns whether there were any.
+    pub fn clear(&self) -> Result<bool, TransportError> {
+        self.listener
+            .try_wait(|_| {})
+            .map(|n| n > 0)
+            .map_err(|e| TransportError::new(self.channel, "read events", e))
+    }
+}
+
 /// Receives samples of `T` from a channel; its listener's fd signals arrivals.
 pub struct Inlet<T: Debug + ZeroCopySend + 'static> {
     channel: &'static str,

@@ -1,5 +1,6 @@
 //! What goes into the decision core (events) and what comes out (actions).
 
+use crate::process_state::ProcessState;
 use crate::supervisor::Outcome;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
@@ -49,6 +50,13 @@ pub enum Event<'a> {
     EndOfRun,
     /// The shell finished one look at the channels.
     Polled { now: Instant },
+    /// What the kernel shows of a live process of the loop (the shell looks
+    /// at those [`super::Core::watched_processes`] names).
+    ProcessState {
+        pid: i32,
+        state: ProcessState,
+        now: Instant,
+    },
     /// One stage of the supervisor's tick (every 20 ms).
     Tick { now: Instant, stage: Stage },
 }

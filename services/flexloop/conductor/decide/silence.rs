@@ -136,6 +136,16 @@ impl SilenceWatch {
         o.fresh = false;
     }
 
+    /// Unstalled ticks since `role`'s last output (0 before its first).
+    pub fn ticks_without(&self, role: Role) -> u64 {
+        let o = match role {
+            Role::Controller => &self.controller,
+            Role::Observer => &self.observer,
+            _ => return 0,
+        };
+        o.seq.map_or(0, |seq| self.unstalled_after(seq))
+    }
+
     /// Unstalled ticks after tick `seq` (all those seen, if it is older
     /// than those kept).
     fn unstalled_after(&self, seq: u64) -> u64 {

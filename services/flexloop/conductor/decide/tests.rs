@@ -2,6 +2,7 @@
 //! each test feeds events and checks the actions and the bookkeeping.
 
 use super::*;
+use crate::process_state::ProcessState;
 use flexloop_protocol::handover::FOLLOWING;
 use flexloop_protocol::{Handover, MAX_INPUTS};
 use std::path::{Path, PathBuf};
@@ -1057,15 +1058,113 @@ fn a_hung_controller_is_killed_and_restarted_as_after_a_crash() {
     assert_eq!(silent.detail["pid"], CONTROLLER);
     assert_eq!(silent.detail["ticks_without_output"], 30);
     assert!(actions.contains(&Action::Kill(CONTROLLER)));
-    // Judged once.
+    // Dealt with at once as a crash of cause "silent" (SIGKILL leaves it no
+    // instruction to run: its exit report is not waited for): a restart.
+    let crash = record(&actions, "crash");
+    assert_eq!(crash.detail["cause"], "silent");
+    assert_eq!(crash.detail["found"], "silent");
+    assert_eq!(crash.detail["exit"], Value::Null);
+    assert_eq!(crash.detail["restart_in_ms"], 0);
+    assert!(!f.member(CONTROLLER).alive());
+    assert_eq!(f.tick(4), [Action::Restart(Role::Controller)]);
+    // Judged once; its exit report, when it comes, changes nothing.
     f.ticks(130, 200, false, true, 6);
     assert!(f.silence_stage(6).is_empty());
-    // Its exit (SIGKILL) is a crash of cause "silent": a restart.
-    let crash = f.exit(CONTROLLER, 137, 7);
-    let crash = record(&crash, "crash");
-    assert_eq!(crash.detail["cause"], "silent");
-    assert_eq!(crash.detail["restart_in_ms"], 0);
-    assert_eq!(f.tick(8), [Action::Restart(Role::Controller)]);
+    assert!(f.exit(CONTROLLER, 137, 7).is_empty());
+    assert_eq!(f.member(CONTROLLER).exit, Some(137));
+    assert!(f.tick(8).is_empty());
+}
+
+impl Fixture {
+    fn process_state(&mut self, pid: i32, state: ProcessState, ms: u64) -> Vec<Action> {
+        let now = self.at(ms);
+        self.core.handle(Event::ProcessState { pid, state, now })
+    }
+}
+
+/// The kernel shows a killed or crashed process in its exit milliseconds
+/// before it reports the exit: it is dealt with as crashed from there.
+#[test]
+fn a_process_seen_exiting_is_a_crash_before_its_exit_report() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    assert!(
+        f.process_state(CONTROLLER, ProcessState::Live, 1)
+            .is_empty()
+    );
+    let actions = f.process_state(CONTROLLER, ProcessState::Exiting, 2);
+    assert!(!actions.contains(&Action::Kill(CONTROLLER)), "{actions:?}");
+    let crash = record(&actions, "crash");
+    assert_eq!(crash.detail["cause"], "crashed");
+    assert_eq!(crash.detail["found"], "exiting");
+    assert_eq!(crash.detail["exit"], Value::Null);
+    assert_eq!(f.tick(2), [Action::Restart(Role::Controller)]);
+    // Seen again, then reported: once only.
+    assert!(
+        f.process_state(CONTROLLER, ProcessState::Exiting, 3)
+            .is_empty()
+    );
+    assert!(f.exit(CONTROLLER, 137, 4).is_empty());
+    assert!(f.tick(5).is_empty());
+    // Watched: the live, unsettled processes but the plant.
+    let mut watched = f.core.watched_processes();
+    watched.sort();
+    assert_eq!(watched, [OBSERVER, LOGGER]);
+}
+
+/// A stopped process (SIGSTOP, a debugger) is hung whatever the loop's
+/// ticks say yet: killed and dealt with at once.
+#[test]
+fn a_stopped_process_is_killed_and_restarted_at_once() {
+    for (pid, role) in [
+        (OBSERVER, Role::Observer),
+        (CONTROLLER, Role::Controller),
+        (LOGGER, Role::Logger),
+    ] {
+        let mut f = Fixture::new(policy());
+        f.ticks(1, 100, true, true, 0);
+        f.ticks(100, 103, false, true, 1);
+        let actions = f.process_state(pid, ProcessState::Stopped, 1);
+        assert!(actions.contains(&Action::Kill(pid)), "{actions:?}");
+        let silent = record(&actions, "silent");
+        assert_eq!(silent.role, role);
+        assert_eq!(silent.detail["stopped"], true);
+        let crash = record(&actions, "crash");
+        assert_eq!(crash.detail["cause"], "silent");
+        assert_eq!(crash.detail["found"], "stopped");
+        assert_eq!(f.tick(1), [Action::Restart(role)]);
+    }
+}
+
+/// Not during a swap or restart (it may be the one that deals with it),
+/// nor once the run ends (its processes exit then), nor for a process whose
+/// exit is planned (replaced, stopped).
+#[test]
+fn process_states_are_not_judged_when_an_exit_is_expected() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    f.core.begin_operation();
+    assert!(f.core.watched_processes().is_empty());
+    assert!(
+        f.process_state(CONTROLLER, ProcessState::Exiting, 1)
+            .is_empty()
+    );
+    assert!(f.core.end_operation(f.at(2)).is_empty());
+    f.core.settle(OBSERVER);
+    assert!(
+        f.process_state(OBSERVER, ProcessState::Exiting, 3)
+            .is_empty()
+    );
+    assert!(
+        f.process_state(OBSERVER, ProcessState::Stopped, 3)
+            .is_empty()
+    );
+    f.core.handle(Event::EndOfRun);
+    assert!(f.core.watched_processes().is_empty());
+    assert!(
+        f.process_state(CONTROLLER, ProcessState::Exiting, 4)
+            .is_empty()
+    );
 }
 
 #[test]
@@ -1109,8 +1208,7 @@ fn a_hung_controller_with_a_standby_hands_the_loop_to_it() {
     f.ticks(100, 130, false, true, 3);
     let actions = f.silence_stage(3);
     assert!(actions.contains(&Action::Kill(CONTROLLER)), "{actions:?}");
-    f.exit(CONTROLLER, 137, 4);
-    assert_eq!(f.tick(5), [Action::Restart(Role::Controller)]);
+    assert_eq!(f.tick(3), [Action::Restart(Role::Controller)]);
     let is_program = |_: &Path| false;
     assert_eq!(
         f.core.plan_restart(Role::Controller, &is_program),
