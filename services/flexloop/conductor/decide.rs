@@ -723,7 +723,15 @@ impl Core {
     /// One look at the loop on its way past `from_seq` (and the samples
     /// measured after it), with `old` the instance it replaces.
     pub fn drain_step(&self, from_seq: u64, old: Option<i32>, shutting_down: bool) -> DrainStep {
-        let passed = self.last_seq.is_some_and(|s| s > from_seq + BEFORE_SWITCH);
+        // Measured once the plant applied the new owner's first command and
+        // the ticks after it (a restart after a hold applies it ticks past
+        // its boundary: measured at the boundary, its step was unknown);
+        // a second's samples without one are measured as they are.
+        let first = self
+            .applied
+            .first_applied_from(from_seq)
+            .unwrap_or(from_seq + self.policy.rate_hz.ceil() as u64);
+        let passed = self.last_seq.is_some_and(|s| s > first + BEFORE_SWITCH);
         let old_gone =
             old.is_none_or(|pid| self.roster.get(pid).is_none_or(|m| !m.alive() || m.spare()));
         if passed && old_gone {

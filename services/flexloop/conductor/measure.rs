@@ -109,6 +109,16 @@ impl AppliedHistory {
     /// The steps around the first sample on which a command of `from_seq`
     /// or later acts (the switch's first command; a held input until then
     /// is the safe action's, counted before it).
+    /// The first tick that applied a command for `from_seq` or later: the
+    /// switch as the plant saw it (a restart after a hold may come ticks
+    /// after its boundary).
+    pub fn first_applied_from(&self, from_seq: u64) -> Option<u64> {
+        self.recent
+            .iter()
+            .find(|a| a.command_seq != NO_SEQ && a.command_seq >= from_seq)
+            .map(|a| a.seq)
+    }
+
     pub fn steps_at(&self, from_seq: u64) -> Steps {
         let largest = |range: std::ops::Range<u64>| {
             let known: Vec<f64> = range.filter_map(|s| self.step(s)).collect();
@@ -118,12 +128,7 @@ impl AppliedHistory {
                 known.into_iter().fold(0.0, f64::max)
             }
         };
-        let Some(first) = self
-            .recent
-            .iter()
-            .find(|a| a.command_seq != NO_SEQ && a.command_seq >= from_seq)
-            .map(|a| a.seq)
-        else {
+        let Some(first) = self.first_applied_from(from_seq) else {
             return Steps {
                 at_switch: f64::NAN,
                 before: f64::NAN,

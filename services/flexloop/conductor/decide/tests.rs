@@ -627,12 +627,16 @@ fn the_loop_passes_a_boundary_once_measured_past_it_and_the_old_one_left() {
         f.core.drain_step(1000, Some(CONTROLLER), false),
         DrainStep::Waiting
     );
+    // The plant applies the new owner's command for 1000 at tick 1001.
+    f.applied(990..1102, 0);
     f.sample(1101);
     assert_eq!(
         f.core.drain_step(1000, Some(CONTROLLER), false),
         DrainStep::Waiting,
         "the old one still serves"
     );
+    f.applied(1102..1103, 0);
+    f.sample(1102);
     // With warm spares it becomes a spare instead of exiting.
     f.core.handle(Event::SpareIdle { pid: CONTROLLER });
     assert_eq!(
@@ -641,6 +645,50 @@ fn the_loop_passes_a_boundary_once_measured_past_it_and_the_old_one_left() {
     );
     assert_eq!(f.core.drain_step(1000, None, false), DrainStep::Passed);
     assert_eq!(f.core.drain_step(2000, None, true), DrainStep::RunEnded);
+}
+
+impl Fixture {
+    /// The plant's ticks `seqs`, each applying the command for the sample
+    /// before, or with `held` > 0 holding the command for `held`; the value
+    /// applied is the command's sample number.
+    fn applied(&mut self, seqs: std::ops::Range<u64>, held: u64) {
+        for seq in seqs {
+            let command_seq = if held > 0 { held } else { seq - 1 };
+            let mut u = [0.0; MAX_INPUTS];
+            u[0] = command_seq as f64;
+            self.core.handle(Event::Applied {
+                seq,
+                command_seq,
+                u,
+                fresh: command_seq + 1 == seq,
+                stalled: false,
+            });
+        }
+    }
+}
+
+/// A restart whose replacement comes ticks after its boundary (the plant
+/// held meanwhile) is measured where the plant first applied its command,
+/// not at the boundary, where nothing of it was applied yet.
+#[test]
+fn a_restart_after_a_hold_is_measured_where_its_first_command_applied() {
+    let mut f = Fixture::new(policy());
+    // The dead instance's last command was for 999; held until tick 1300,
+    // whose command (for 1299) is the replacement's first.
+    f.applied(900..1001, 0);
+    f.applied(1001..1300, 999);
+    f.sample(1299);
+    assert_eq!(f.core.drain_step(1000, None, false), DrainStep::Waiting);
+    f.applied(1300..1401, 0);
+    f.sample(1400);
+    assert_eq!(f.core.drain_step(1000, None, false), DrainStep::Waiting);
+    f.applied(1401..1402, 0);
+    f.sample(1401);
+    assert_eq!(f.core.drain_step(1000, None, false), DrainStep::Passed);
+    let switch = f.core.switch(Role::Controller, 1, 1000, 1000, true);
+    // From the held 999 to 1299 at tick 1300; 1 per tick before and after.
+    assert_eq!(switch.du_switch, 300.0);
+    assert_eq!(switch.du_after, 1.0);
 }
 
 #[test]
