@@ -12,6 +12,7 @@ use flexloop_analysis::verdict::{FigureFaults, GridCounts, invalid_reasons, judg
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_design::LoopDesign;
 use flexloop_design::reference::Reference;
+use flexloop_protocol::flags;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::metrics::{MetricsFile, MetricsTiming};
 use flexloop_runfiles::{RunDir, RunSummary};
@@ -86,6 +87,8 @@ pub struct RunReport {
     pub joined: Option<String>,
     /// The plant's counts of the run.
     pub grid: GridCounts,
+    /// Commands clamped at the input limit, and refused as not finite.
+    pub clamps: Clamps,
     /// Why the figures are not the design's; empty when they are.
     pub invalid_reasons: Vec<String>,
     /// What of the sample file could not be read (a torn or damaged tail).
@@ -138,6 +141,16 @@ impl RunReport {
         );
         let grid = grid_counts(run_dir, &summary);
         let invalid_reasons = invalid_reasons(&faults, &grid);
+        let plant = run_dir.read_plant_latency().ok();
+        let clamps = Clamps {
+            by_controller: joined
+                .log
+                .commands()
+                .filter(|c| c.flags & flags::CLAMPED != 0)
+                .count() as u64,
+            by_plant: plant.as_ref().map(|p| p.counters.clamped),
+            non_finite: plant.as_ref().map(|p| p.counters.non_finite),
+        };
         Ok(Self {
             scenario,
             design,
@@ -149,6 +162,7 @@ impl RunReport {
             files: joined.files,
             outages: joined.outages,
             grid,
+            clamps,
             invalid_reasons,
             unread,
         })
@@ -281,6 +295,18 @@ impl RunReport {
             m.held_ticks,
             m.stale_estimates
         );
+        let c = &self.clamps;
+        let plant_count = |n: Option<u64>| {
+            n.map_or("unknown (the plant wrote no counts)".into(), |n| {
+                n.to_string()
+            })
+        };
+        println!(
+            "  commands clamped at the input limit: {} by the controller, {} by the plant; refused as not finite: {}",
+            c.by_controller,
+            plant_count(c.by_plant),
+            plant_count(c.non_finite)
+        );
         for metric in [Metric::RoundTrip, Metric::TickToCommand] {
             let us = s
                 .latency(metric.name())
@@ -332,6 +358,17 @@ impl RunReport {
             incomplete_ticks: self.trace.incomplete_ticks,
         }
     }
+}
+
+/// Every clamp of the run, whoever's command it was: the built-in
+/// controller clamps its own (and flags them), the plant any other's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Clamps {
+    /// Recorded commands flagged clamped by the controller that sent them.
+    pub by_controller: u64,
+    /// The plant's own counts (`None`: it wrote none, it crashed).
+    pub by_plant: Option<u64>,
+    pub non_finite: Option<u64>,
 }
 
 /// The plant's own counts (`plant_latency.json`); the logger's view of

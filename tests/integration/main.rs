@@ -4,6 +4,7 @@
 //! its iceoryx2 prefix from its own pid, so tests run in parallel without
 //! seeing each other. No test asserts a timing threshold.
 
+mod accounting;
 mod bad_input;
 mod bench;
 mod chaos;

@@ -42,21 +42,30 @@ pub struct SignalStats {
 }
 
 impl SignalStats {
-    /// Mean, rms and peak of the finite values.
+    /// Mean, rms and peak of the finite values. Summed relative to the
+    /// peak, so that values near f64's range (a program's 1e300 N command)
+    /// give their finite rms, not an overflow to infinity.
     pub fn of(values: impl Iterator<Item = f64>) -> Self {
-        let (mut n, mut sum, mut sq, mut peak) = (0usize, 0.0, 0.0, 0.0f64);
-        for v in values.filter(|v| v.is_finite()) {
-            n += 1;
-            sum += v;
-            sq += v * v;
-            peak = peak.max(v.abs());
-        }
-        if n == 0 {
+        let finite: Vec<f64> = values.filter(|v| v.is_finite()).collect();
+        let peak = finite.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if finite.is_empty() {
             return Self::default();
         }
+        if peak == 0.0 {
+            return Self {
+                mean: 0.0,
+                rms: 0.0,
+                peak,
+            };
+        }
+        let n = finite.len() as f64;
+        let (sum, sq) = finite.iter().fold((0.0, 0.0), |(sum, sq), v| {
+            let scaled = v / peak;
+            (sum + scaled, sq + scaled * scaled)
+        });
         Self {
-            mean: sum / n as f64,
-            rms: (sq / n as f64).sqrt(),
+            mean: peak * (sum / n),
+            rms: peak * (sq / n).sqrt(),
             peak,
         }
     }
@@ -96,6 +105,8 @@ pub struct ControlMetrics {
     pub u_ff: SignalStats,
     pub u_d: SignalStats,
     pub innovation: InnovationStats,
+    /// Ticks on which the plant held its input: every recorded tick, with
+    /// its command or without (a silent controller's ticks have none).
     pub held_ticks: usize,
     pub stale_estimates: usize,
     /// Every output (the first is the one above), and the command of every
@@ -150,9 +161,19 @@ impl ControlMetrics {
             u_ff: SignalStats::of(rows.iter().map(|r| r.u_ff)),
             u_d: SignalStats::of(rows.iter().map(|r| r.u_d)),
             innovation: innovation_stats(rows.iter().map(|r| r.innovation)),
-            held_ticks: rows.iter().filter(|r| r.held).count(),
+            held_ticks: held_ticks(trace),
             stale_estimates: rows.iter().filter(|r| r.stale_estimate).count(),
         }
+    }
+}
+
+/// The held ticks among every tick the log holds (a trace simulated in
+/// process has rows only: every tick has its command there).
+fn held_ticks(trace: &RunTrace) -> usize {
+    if trace.timing.is_empty() {
+        trace.rows.iter().filter(|r| r.held).count()
+    } else {
+        trace.timing.iter().filter(|t| t.held).count()
     }
 }
 
@@ -246,7 +267,7 @@ fn innovation_stats(values: impl Iterator<Item = f64>) -> InnovationStats {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trace::TickRow;
+    use crate::trace::{TickRow, TickTiming};
 
     fn trace_of(e: &[f64]) -> RunTrace {
         let mut t = RunTrace::new(1e-3);
@@ -261,6 +282,34 @@ mod tests {
             })
             .collect();
         t
+    }
+
+    #[test]
+    fn signal_stats_of_values_near_the_range_of_f64_stay_finite() {
+        let s = SignalStats::of([1e300, -1e300, 1e300, -1e300, f64::NAN].into_iter());
+        assert_eq!(s.peak, 1e300);
+        assert!((s.rms / 1e300 - 1.0).abs() < 1e-12, "{s:?}");
+        assert_eq!(s.mean, 0.0);
+        let small = SignalStats::of([3.0, 4.0].into_iter());
+        assert!((small.rms - 12.5f64.sqrt()).abs() < 1e-12);
+        assert_eq!(small.mean, 3.5);
+        assert_eq!(SignalStats::of([0.0, 0.0].into_iter()).rms, 0.0);
+    }
+
+    #[test]
+    fn held_ticks_count_the_ticks_without_a_command_too() {
+        let mut t = trace_of(&[0.0; 4]);
+        t.rows[1].held = true;
+        assert_eq!(held_ticks(&t), 1, "rows only: a simulated trace");
+        // From a log: 10 ticks, 6 held, 5 of them without any command row.
+        t.timing = (0..10)
+            .map(|k| TickTiming {
+                seq: k,
+                held: k >= 4,
+                ..TickTiming::default()
+            })
+            .collect();
+        assert_eq!(held_ticks(&t), 6);
     }
 
     #[test]

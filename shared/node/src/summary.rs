@@ -62,6 +62,8 @@ pub fn plant_latency(
             late_commands: counters.late_commands,
             stalled_ticks: counters.stalled_ticks,
             stall_misses: counters.stall_misses,
+            clamped: counters.clamped,
+            non_finite: counters.non_finite,
         },
         latency: own
             .into_iter()

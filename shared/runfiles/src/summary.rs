@@ -261,4 +261,11 @@ pub struct PlantCounters {
     pub late_commands: u64,
     pub stalled_ticks: u64,
     pub stall_misses: u64,
+    /// Commands beyond the input limit that the plant clamped (a program's:
+    /// the built-in controller clamps its own and flags them).
+    #[serde(default)]
+    pub clamped: u64,
+    /// Commands the plant refused as not finite (NaN, infinite).
+    #[serde(default)]
+    pub non_finite: u64,
 }
