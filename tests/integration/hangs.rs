@@ -149,6 +149,56 @@ fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
     assert_clean(&dir);
 }
 
+/// A Python controller that sends NaN from its 500th sample: it answers
+/// every sample, but the plant refuses every command (not finite) and holds.
+/// Swapped into a running loop, it is found silent for that cause, killed
+/// and rolled back to the built-in controller that served before it.
+#[test]
+fn a_program_sending_non_finite_commands_is_diagnosed_and_rolled_back() {
+    let dir = temp_dir("hang-nan");
+    let law = dir.join("nan.py");
+    std::fs::write(
+        &law,
+        "import flexloop\n\n\
+         class NotANumber(flexloop.Controller):\n\
+         \x20   def __init__(self, setup):\n\
+         \x20       super().__init__(setup)\n\
+         \x20       self.steps = 0\n\n\
+         \x20   def step(self, m, estimate):\n\
+         \x20       self.steps += 1\n\
+         \x20       if self.steps > 500:\n\
+         \x20           return float(\"nan\")\n\
+         \x20       return -100.0 * m.y[0]\n\n\
+         flexloop.run(NotANumber)\n",
+    )
+    .unwrap();
+    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
+    wait_for_ticks(&dir, 1_000);
+    let python = python_with(&["flexloop", "iceoryx2"]);
+    let mut swap = flexloop();
+    swap.args(["swap", "--prefix", &prefix, "controller", "--exec"])
+        .arg(&python)
+        .arg(&law);
+    let out = run_bounded(swap, Duration::from_secs(150));
+    assert!(out.status.success(), "{}", describe(&out));
+    let program = pid_on_duty(&dir, "controller", "active");
+    let silent = await_event(&dir, "silent", "controller");
+    assert_eq!(silent["detail"]["pid"], program, "{silent}");
+    assert_eq!(silent["detail"]["cause"], "non-finite output", "{silent}");
+    let crash = await_event(&dir, "crash", "controller");
+    assert_eq!(crash["detail"]["cause"], "non-finite output", "{crash}");
+    let restart = await_event(&dir, "restart", "controller");
+    assert!(
+        restart["detail"]["rolled_back_from"].is_string(),
+        "a program is rolled back: {restart}"
+    );
+    let after = recorded_ticks_in(&dir, "samples.mcap");
+    wait_for_ticks(&dir, after + 500);
+    let out = stop(&prefix, up);
+    assert_ran(&out);
+    assert_clean(&dir);
+}
+
 /// The loop owns what it started: when its supervisor is killed (kill -9),
 /// a program of one's own that does not end on the SIGTERM its
 /// supervisor's death sends (here: a law asleep in its step, whose handler

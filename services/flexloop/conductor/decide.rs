@@ -87,6 +87,9 @@ pub struct Core {
     busy: bool,
     /// What the loop shows of the controller's and observer's output.
     silence: SilenceWatch,
+    /// The generation whose last commands were not finite (the plant
+    /// refuses them: a silence of that cause), and how many in a row.
+    non_finite: Option<(u32, u64)>,
 }
 
 impl Core {
@@ -110,6 +113,7 @@ impl Core {
             applied,
             busy: false,
             silence: SilenceWatch::default(),
+            non_finite: None,
         }
     }
 
@@ -163,8 +167,17 @@ impl Core {
                 }
                 Vec::new()
             }
-            Event::Command { seq } => {
+            Event::Command {
+                seq,
+                generation,
+                finite,
+            } => {
                 self.saw_sample(seq);
+                self.non_finite = match self.non_finite {
+                    _ if finite => None,
+                    Some((g, n)) if g == generation => Some((g, n + 1)),
+                    _ => Some((generation, 1)),
+                };
                 Vec::new()
             }
             Event::Applied {
@@ -292,7 +305,11 @@ impl Core {
             };
             // Unknown while the exit report has not come (found exiting or killed).
             let (role, generation, code, found) = (m.role, m.generation, m.exit, m.found);
-            let cause = if m.silenced { "silent" } else { "crashed" };
+            let cause = match (m.cause, m.silenced) {
+                (Some(cause), _) => cause,
+                (None, true) => "silent",
+                (None, false) => "crashed",
+            };
             if m.spare() || m.standby() {
                 let duty = if m.spare() { "spare" } else { "standby" };
                 let budget = if m.spare() {
@@ -372,20 +389,33 @@ impl Core {
         let Some(silent) = self.silence.silent(&self.policy.silence, now) else {
             return Vec::new();
         };
-        let Some(pid) = self
+        let Some((pid, generation)) = self
             .roster
             .serving(silent.role)
             .filter(|m| m.alive() && !m.silenced)
-            .map(|m| m.pid)
+            .map(|m| (m.pid, m.generation))
         else {
             return Vec::new();
         };
-        let detail = json!({
+        // A controller that sends, but only what the plant refuses (NaN,
+        // infinite), is silent for the loop: said so, with how many.
+        let non_finite = self
+            .non_finite
+            .filter(|&(g, _)| silent.role == Role::Controller && Some(g) == generation)
+            .map(|(_, n)| n);
+        let mut detail = json!({
             "pid": pid,
             "ticks_without_output": silent.ticks,
             "seconds_without_output": silent.since.as_secs_f64(),
             "action": "killed, then handled as a crash",
         });
+        if let Some(n) = non_finite {
+            detail["cause"] = json!("non-finite output");
+            detail["non_finite_commands_in_a_row"] = json!(n);
+            if let Some(m) = self.roster.get_mut(pid) {
+                m.cause = Some("non-finite output");
+            }
+        }
         self.kill_hung(pid, "silent", detail, now)
     }
 

@@ -151,7 +151,12 @@ impl Ports {
             });
         }
         while let Ok(Some(c)) = self.commands.receive() {
-            core.handle(Event::Command { seq: c.seq });
+            let n = (c.n_inputs as usize).min(c.u.len());
+            core.handle(Event::Command {
+                seq: c.seq,
+                generation: c.generation,
+                finite: c.u[..n].iter().all(|v| v.is_finite()),
+            });
         }
         core.handle(Event::Polled {
             now: Instant::now(),

@@ -61,6 +61,9 @@ pub struct Member {
     pub followed: bool,
     /// Judged hung (silent) and killed: its exit is a fault of that cause.
     pub silenced: bool,
+    /// Why it was judged hung, when more is known than its silence
+    /// (`"non-finite output"`: it sent only commands the plant refused).
+    pub cause: Option<&'static str>,
     /// Known to be on its way out (killed by the supervisor, or the kernel
     /// shows it exiting) before its exit report came: it sends nothing
     /// more, and is dealt with as ended.
@@ -127,6 +130,7 @@ impl Roster {
             program,
             followed: false,
             silenced: false,
+            cause: None,
             exiting: false,
             found: "exit report",
         });

@@ -29,8 +29,13 @@ pub enum Event<'a> {
     /// A process reported itself an idle spare (a new spare, or an instance
     /// replaced at a boundary).
     SpareIdle { pid: i32 },
-    /// A command for sample `seq` on the loop's command channel.
-    Command { seq: u64 },
+    /// A command for sample `seq` on the loop's command channel, from
+    /// `generation`; `finite`: every input of it is a number.
+    Command {
+        seq: u64,
+        generation: u32,
+        finite: bool,
+    },
     /// The plant's sample `seq`: the command it applied over it and its
     /// value; `fresh`: a command made for it (the plant neither held its
     /// input nor applied its safe action); `stalled`: the plant woke late

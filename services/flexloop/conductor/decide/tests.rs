@@ -978,12 +978,20 @@ fn the_step_at_a_switch_is_the_one_the_plant_applied() {
         }
     };
     for seq in 1..10 {
-        f.core.handle(Event::Command { seq });
+        f.core.handle(Event::Command {
+            seq,
+            generation: 0,
+            finite: true,
+        });
         f.core.handle(applied(seq, seq - 1, 1.0));
     }
     // The new owner's first command (10) acts on sample 11.
     f.core.handle(applied(10, 9, 1.0));
-    f.core.handle(Event::Command { seq: 10 });
+    f.core.handle(Event::Command {
+        seq: 10,
+        generation: 1,
+        finite: true,
+    });
     f.core.handle(applied(11, 10, 3.0));
     assert_eq!(f.core.last_seq(), Some(10));
     let switch = f.core.switch(Role::Controller, 1, 5, 10, true);
@@ -1213,6 +1221,44 @@ fn process_states_are_not_judged_when_an_exit_is_expected() {
         f.process_state(CONTROLLER, ProcessState::Exiting, 4)
             .is_empty()
     );
+}
+
+/// A controller whose every command is NaN sends, but the plant refuses
+/// all of it: silent for the loop, and its silence's cause is said.
+#[test]
+fn a_controller_sending_only_non_finite_commands_is_silent_of_that_cause() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    for seq in 100..130 {
+        f.core.handle(Event::Command {
+            seq,
+            generation: 0,
+            finite: false,
+        });
+    }
+    f.ticks(100, 130, false, true, 4);
+    let actions = f.silence_stage(4);
+    let silent = record(&actions, "silent");
+    assert_eq!(silent.detail["cause"], "non-finite output");
+    assert_eq!(silent.detail["non_finite_commands_in_a_row"], 30);
+    assert_eq!(
+        record(&actions, "crash").detail["cause"],
+        "non-finite output"
+    );
+    assert_eq!(f.tick(4), [Action::Restart(Role::Controller)]);
+    // A finite command in between resets it: a plain silence.
+    let mut g = Fixture::new(policy());
+    g.ticks(1, 100, true, true, 0);
+    for (seq, finite) in [(100, false), (101, true)] {
+        g.core.handle(Event::Command {
+            seq,
+            generation: 0,
+            finite,
+        });
+    }
+    g.ticks(100, 130, false, true, 4);
+    let actions = g.silence_stage(4);
+    assert_eq!(record(&actions, "crash").detail["cause"], "silent");
 }
 
 #[test]
