@@ -25,10 +25,12 @@ pub fn finish_recording(run_dir: &RunDir) -> Vec<String> {
         None => false,
     };
     if complete {
+        said.extend(written.as_ref().and_then(stopped_recording));
         return said;
     }
     match joined_summary(run_dir.path()) {
         Ok(summary) => {
+            said.extend(stopped_recording(&summary));
             let path = run_dir.summary();
             match write_json_atomically(&path, &summary) {
                 Ok(()) => said.push(format!(
@@ -47,6 +49,25 @@ pub fn finish_recording(run_dir: &RunDir) -> Vec<String> {
         Err(e) => said.push(format!("cannot rebuild the run's summary: {e}")),
     }
     said
+}
+
+/// The recording stopped before the run ended (a write failed: a full
+/// disk): said, with how much of it the file holds, since the loop went on
+/// and `up` would otherwise end as if nothing happened.
+fn stopped_recording(summary: &flexloop_runfiles::RunSummary) -> Option<String> {
+    let file = &summary.recording.sample_file;
+    let stopped_generation = summary.generations.iter().find(|g| g.state == "stopped");
+    if !file.stopped() && stopped_generation.is_none() {
+        return None;
+    }
+    let name = stopped_generation.map_or(summary.recording.file.as_str(), |g| g.file.as_str());
+    Some(format!(
+        "the recording stopped before the run ended: {name} holds {} of the {} messages the logger \
+         received ({}); the loop ran on, and the summary's counts are the logger's, not the file's",
+        file.stored_messages,
+        file.messages,
+        file.error.as_deref().unwrap_or("a write failed"),
+    ))
 }
 
 /// Closes the sample files of a run whose logger was killed before it

@@ -316,7 +316,14 @@ fn a_full_disk_stops_the_recording_not_the_loop() {
     assert!(closed_len <= limit);
     // The loop goes on meanwhile.
     std::thread::sleep(Duration::from_millis(500));
-    stop(&prefix, child);
+    let out = stop(&prefix, child);
+    // `up` says so at its end: the loop ran on without a recording.
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains("the recording stopped before the run ended: samples.mcap holds"),
+        "{}",
+        describe(&out)
+    );
     let err = std::fs::read_to_string(dir.join("logger.stderr")).unwrap();
     assert!(
         err.contains("samples.mcap: File too large") && err.contains("recording stopped"),
