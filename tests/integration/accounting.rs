@@ -122,3 +122,64 @@ fn every_tick_the_plant_held_is_a_held_input_with_a_command_or_without() {
     assert_eq!(figure(&said, "held inputs"), held, "{said}");
     assert_clean(&run_dir);
 }
+
+/// A controller that stops sending for good (asleep in its law from sample
+/// 500, not restarted): the logger recorded every tick, so the commands
+/// missing from there on were never sent, and they are gaps all the same
+/// (samples + gaps = ticks on every channel). Before, the summary said 0
+/// command gaps, and `export` blamed a logger outage.
+#[test]
+fn commands_a_silent_controller_never_sent_are_gaps_of_that_cause_not_a_logger_outage() {
+    let dir = temp_dir("accounting-not-sent");
+    let file = program_scenario(
+        &dir,
+        "import time\nimport flexloop\n\n\
+         class Quitter(flexloop.Controller):\n\
+         \x20   def step(self, m, estimate):\n\
+         \x20       if m.seq >= 500:\n\
+         \x20           time.sleep(3600)\n\
+         \x20       return -100.0 * m.y[0]\n\n\
+         flexloop.run(Quitter)\n",
+    );
+    let mut table: toml::Table = toml::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    table
+        .entry("supervision")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .unwrap()
+        .insert("restart".into(), toml::Value::String("never".into()));
+    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
+    let run_dir = dir.join("run");
+    let mut up = flexloop();
+    up.arg("up")
+        .arg(&file)
+        .args([
+            "--no-realtime",
+            "--rate",
+            "1000",
+            "--duration",
+            "3",
+            "--run-dir",
+        ])
+        .arg(&run_dir);
+    // The silent program is killed and, not restarted, ends the run.
+    let out = run_bounded(up, Duration::from_secs(180));
+    assert!(!out.status.success(), "{}", describe(&out));
+    let s = summary(&run_dir);
+    let ticks = s["ticks"].as_u64().unwrap();
+    let commands = s["samples"]["command"].as_u64().unwrap();
+    assert!(commands < ticks, "{s}");
+    assert_eq!(
+        commands + s["gaps"]["command"].as_u64().unwrap(),
+        ticks,
+        "{s}"
+    );
+    let mut export = flexloop();
+    export.args(["export", "--csv"]).arg(&run_dir);
+    let out = run_bounded(export, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
+    let events = std::fs::read_to_string(run_dir.join("csv/events.csv")).unwrap();
+    assert!(!events.contains("logger-outage"), "{events}");
+    assert!(events.contains("not-sent"), "{events}");
+    assert_clean(&run_dir);
+}

@@ -38,6 +38,9 @@ fn error(path: &Path, reason: impl ToString) -> RunLogError {
     }
 }
 
+/// A run of sequence numbers: the first and how many.
+type Run = (u64, u64);
+
 /// Sequence numbers above this are no tick (`NO_SEQ`, a damaged message).
 const MAX_SEQ: u64 = 1 << 40;
 
@@ -117,10 +120,18 @@ impl Ledger {
     }
 
     /// The runs of numbers no file holds, from the run's first tick to
-    /// `end`, that no range of `reported` covers: (first, count).
-    fn unreported(&self, channel: usize, reported: &[(u64, u64)], end: u64) -> Vec<(u64, u64)> {
+    /// `end`, that no range of `reported` covers: (first, count), as
+    /// (unreported, not sent). An estimate or command is not sent when a
+    /// logger recorded its tick's measurement (its producer was silent or
+    /// dead); the rest is a killed logger's unwritten last.
+    fn unreported(
+        &self,
+        channel: usize,
+        reported: &[(u64, u64)],
+        end: u64,
+    ) -> (Vec<Run>, Vec<Run>) {
         let Some(lo) = self.run_start() else {
-            return Vec::new();
+            return (Vec::new(), Vec::new());
         };
         let mut covered = vec![false; (end.saturating_sub(lo) + 1) as usize];
         for (first, count) in reported {
@@ -128,17 +139,12 @@ impl Ledger {
                 covered[(seq - lo) as usize] = true;
             }
         }
-        let mut runs: Vec<(u64, u64)> = Vec::new();
-        for seq in lo..=end {
-            if covered[(seq - lo) as usize] || self.held(channel, seq) {
-                continue;
-            }
-            match runs.last_mut() {
-                Some((first, count)) if *first + *count == seq => *count += 1,
-                _ => runs.push((seq, 1)),
-            }
-        }
-        runs
+        let missing = |seq: u64| !covered[(seq - lo) as usize] && !self.held(channel, seq);
+        let not_sent = |seq: u64| channel != 0 && self.held(0, seq);
+        (
+            self.runs(lo..end + 1, |seq| missing(seq) && !not_sent(seq)),
+            self.runs(lo..end + 1, |seq| missing(seq) && not_sent(seq)),
+        )
     }
 
     fn held(&self, channel: usize, seq: u64) -> bool {
@@ -205,7 +211,36 @@ impl Ledger {
                 });
             }
         }
-        out
+        // An estimate or command missing at a tick whose measurement a
+        // logger recorded was never sent (its producer silent or dead),
+        // not lost for want of a logger: only the rest is an outage.
+        out.into_iter()
+            .flat_map(|o| {
+                if o.channel == PerChannel::NAMES[0] {
+                    return vec![o];
+                }
+                self.runs(o.seq..o.seq + o.count, |seq| !self.held(0, seq))
+                    .into_iter()
+                    .map(|(seq, count)| Outage {
+                        seq,
+                        count,
+                        ..o.clone()
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The runs of numbers in `range` for which `keep` holds: (first, count).
+    fn runs(&self, range: std::ops::Range<u64>, keep: impl Fn(u64) -> bool) -> Vec<Run> {
+        let mut runs: Vec<Run> = Vec::new();
+        for seq in range.filter(|&s| keep(s)) {
+            match runs.last_mut() {
+                Some((first, count)) if *first + *count == seq => *count += 1,
+                _ => runs.push((seq, 1)),
+            }
+        }
+        runs
     }
 }
 
@@ -236,6 +271,10 @@ pub struct JoinedLog {
     /// Missing samples no logger wrote a gap event for (a killed logger's
     /// last ones), now in `gap` events of cause `unreported`: per channel.
     pub unreported: PerChannel,
+    /// Estimates and commands missing at ticks a logger recorded, that no
+    /// logger wrote a gap event for: never sent (their producer silent or
+    /// dead), now in `gap` events of cause `not-sent`.
+    pub not_sent: PerChannel,
     /// Files that end without their footer, and where reading stopped.
     pub torn: Vec<(PathBuf, String)>,
 }
@@ -310,6 +349,7 @@ impl JoinedLog {
         // window, nor those in its torn last chunk: the join does, so that
         // every missing sample is in a gap event.
         let mut unreported = Vec::new();
+        let mut not_sent = Vec::new();
         for (channel, name) in PerChannel::NAMES.iter().enumerate() {
             let mut reported: Vec<(u64, u64)> = events
                 .iter()
@@ -333,8 +373,12 @@ impl JoinedLog {
                 continue;
             };
             let end = last_tick.map_or(hi, |t| t.max(hi));
-            for (first, count) in ledger.unreported(channel, &reported, end) {
+            let (lost, never_sent) = ledger.unreported(channel, &reported, end);
+            for (first, count) in lost {
                 unreported.push((*name, first, count));
+            }
+            for (first, count) in never_sent {
+                not_sent.push((*name, first, count));
             }
         }
         for o in &outages {
@@ -343,18 +387,20 @@ impl JoinedLog {
                 json: serde_json::from_str(&o.event_json()).expect("valid JSON"),
             });
         }
-        for (channel, first, count) in &unreported {
-            events.push(LogEvent {
-                log_time_ns: at(*first),
-                json: serde_json::json!({
-                    "source": "flexloop",
-                    "kind": "gap",
-                    "cause": "unreported",
-                    "channel": channel,
-                    "seq": first,
-                    "count": count,
-                }),
-            });
+        for (cause, runs) in [("unreported", &unreported), ("not-sent", &not_sent)] {
+            for (channel, first, count) in runs {
+                events.push(LogEvent {
+                    log_time_ns: at(*first),
+                    json: serde_json::json!({
+                        "source": "flexloop",
+                        "kind": "gap",
+                        "cause": cause,
+                        "channel": channel,
+                        "seq": first,
+                        "count": count,
+                    }),
+                });
+            }
         }
         events.sort_by_key(|e| e.log_time_ns);
         let log = LogReader {
@@ -365,9 +411,8 @@ impl JoinedLog {
             torn_tail: !torn.is_empty(),
             tail_error: torn.first().map(|(p, e)| format!("{}: {e}", p.display())),
         };
-        let unreported_count = |name: &str| {
-            unreported
-                .iter()
+        let count_of = |runs: &[(&str, u64, u64)], name: &str| -> u64 {
+            runs.iter()
                 .filter(|(c, _, _)| *c == name)
                 .map(|(_, _, n)| n)
                 .sum()
@@ -377,7 +422,8 @@ impl JoinedLog {
             files: paths.to_vec(),
             outages,
             gaps,
-            unreported: PerChannel::from_array(PerChannel::NAMES.map(unreported_count)),
+            unreported: PerChannel::from_array(PerChannel::NAMES.map(|n| count_of(&unreported, n))),
+            not_sent: PerChannel::from_array(PerChannel::NAMES.map(|n| count_of(&not_sent, n))),
             torn,
         })
     }
@@ -385,7 +431,11 @@ impl JoinedLog {
     /// What joining did, for the user: the files and the samples no logger
     /// recorded; none for one file and nothing lost between loggers.
     pub fn describe(&self) -> Option<String> {
-        if self.files.len() < 2 && self.outages.is_empty() && self.unreported.total() == 0 {
+        if self.files.len() < 2
+            && self.outages.is_empty()
+            && self.unreported.total() == 0
+            && self.not_sent.total() == 0
+        {
             return None;
         }
         let names = file_names(&self.files);
@@ -397,8 +447,16 @@ impl JoinedLog {
                 self.unreported.total()
             )
         };
+        let not_sent = if self.not_sent.total() == 0 {
+            String::new()
+        } else {
+            format!(
+                "; {} estimates and {} commands never sent at ticks the logger recorded (their producer silent or dead), added as gap events of cause not-sent",
+                self.not_sent.estimate, self.not_sent.command
+            )
+        };
         Some(format!(
-            "joined {} sample files ({}); {}{unreported}",
+            "joined {} sample files ({}); {}{unreported}{not_sent}",
             names.len(),
             names.join(", "),
             describe_outages(&self.outages)
@@ -726,16 +784,46 @@ mod tests {
             l.see(2, s);
         }
         assert_eq!(l.gaps(2, None), 4);
-        assert_eq!(l.unreported(2, &[], 9), vec![(0, 4)]);
+        // Their ticks' measurements are recorded: never sent.
+        assert_eq!(l.unreported(2, &[], 9), (vec![], vec![(0, 4)]));
+    }
+
+    /// The controller stopped at command 499 and the loop ran on to tick
+    /// 999 with its logger recording: 500 commands never sent, none lost
+    /// for want of a logger (it was "1 outage without a logger").
+    #[test]
+    fn commands_missing_while_the_logger_recorded_their_ticks_were_never_sent() {
+        let mut l = Ledger::default();
+        l.begin_file();
+        for s in 0..1000 {
+            l.see(0, s);
+            l.see(1, s + 1);
+        }
+        for s in 0..500 {
+            l.see(2, s);
+        }
+        assert!(l.outages(&[0], Some(999)).is_empty());
+        assert_eq!(l.gaps(2, Some(999)), 500);
+        assert_eq!(l.unreported(2, &[], 999), (vec![], vec![(500, 500)]));
+        // Ticks after the logger's last measurement are an outage on every
+        // channel alike.
+        let outages = l.outages(&[0], Some(1099));
+        let commands: Vec<_> = outages.iter().filter(|o| o.channel == "command").collect();
+        assert_eq!(commands.len(), 1, "{outages:?}");
+        assert_eq!((commands[0].seq, commands[0].count), (1000, 100));
     }
 
     #[test]
     fn missing_numbers_no_event_reports_are_found() {
         let l = ledger(&[&[0, 1, 3, 4, 8, 9], &[12]]);
         // 2 was reported by its logger, 10..=11 is the outage.
-        let runs = l.unreported(0, &[(2, 1), (10, 2)], 14);
+        let (runs, never_sent) = l.unreported(0, &[(2, 1), (10, 2)], 14);
         assert_eq!(runs, vec![(5, 3), (13, 2)]);
-        assert!(l.unreported(0, &[(2, 1), (5, 3), (10, 2)], 12).is_empty());
+        assert!(never_sent.is_empty(), "a measurement is always sent");
+        assert_eq!(
+            l.unreported(0, &[(2, 1), (5, 3), (10, 2)], 12),
+            (vec![], vec![])
+        );
     }
 
     #[test]

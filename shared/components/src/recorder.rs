@@ -277,17 +277,49 @@ impl<O: RecordSink> Recorder<O> {
         self.measurements.gaps() + self.estimates.gaps() + self.commands.gaps()
     }
 
+    /// Estimates and commands never received after the last of them, up to
+    /// the last tick (the estimate for tick k + 1 follows measurement k):
+    /// their producer stopped (silent, dead, not replaced) while the plant
+    /// ticked on. Gaps all the same: samples + gaps = ticks on every
+    /// channel. As (first, count) per channel, in [`Self::finish`]'s order.
+    pub fn never_sent(&self) -> [Option<(u64, u64)>; 3] {
+        let Some(last) = self.last_measurement.map(|m| m.seq) else {
+            return [None; 3];
+        };
+        let after = |count: &ChannelCount, end: u64| {
+            let first = count.last_seq.map_or(0, |s| s + 1);
+            (end >= first).then(|| (first, end - first + 1))
+        };
+        [
+            None,
+            after(&self.estimates, last + 1),
+            after(&self.commands, last),
+        ]
+    }
+
     /// At the end: writes the conditions still open and the gaps still in
     /// the reorder windows as events (no more samples will come).
     pub fn finish(&mut self, at_ns: u64) {
+        let never_sent = self.never_sent();
         let out = &mut self.out;
         self.events.finish(at_ns, |e| out.event(e.at_ns, &e.json()));
-        for (name, count) in [
+        for (i, (name, count)) in [
             ("measurement", &mut self.measurements),
             ("estimate", &mut self.estimates),
             ("command", &mut self.commands),
-        ] {
+        ]
+        .into_iter()
+        .enumerate()
+        {
             count.unsettled_gaps(|first, n| out.event(at_ns, &gap_json(name, first, n)));
+            if let Some((first, n)) = never_sent[i] {
+                out.event(
+                    at_ns,
+                    &format!(
+                        r#"{{"source":"logger","kind":"gap","cause":"not-sent","channel":"{name}","seq":{first},"count":{n}}}"#
+                    ),
+                );
+            }
         }
     }
 }
@@ -339,6 +371,21 @@ mod tests {
         assert!(kinds.contains(&r#""miss" 2 null"#.to_string()), "{kinds:?}");
         // The gap 3..=4 is still inside the reorder window at the end.
         assert!(kinds.contains(&r#""gap" 3 2"#.to_string()), "{kinds:?}");
+        // No command after 0, no estimate at all, up to the last tick (5):
+        // never sent, and gaps all the same.
+        assert_eq!(r.never_sent(), [None, Some((0, 7)), Some((1, 5))]);
+        let not_sent: Vec<String> = log
+            .events
+            .iter()
+            .filter(|e| e.json["cause"] == "not-sent")
+            .map(|e| {
+                format!(
+                    "{} {} {}",
+                    e.json["channel"], e.json["seq"], e.json["count"]
+                )
+            })
+            .collect();
+        assert_eq!(not_sent, [r#""estimate" 0 7"#, r#""command" 1 5"#]);
         // Log time: the message's publish stamp plus the offset.
         assert_eq!(
             log.events

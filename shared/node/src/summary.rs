@@ -107,10 +107,13 @@ pub fn run_summary<O: RecordSink>(
             estimate: recorder.estimates.samples,
             command: recorder.commands.samples,
         },
-        gaps: PerChannel {
-            measurement: recorder.measurements.gaps(),
-            estimate: recorder.estimates.gaps(),
-            command: recorder.commands.gaps(),
+        gaps: {
+            let never_sent = recorder.never_sent().map(|r| r.map_or(0, |(_, n)| n));
+            PerChannel {
+                measurement: recorder.measurements.gaps(),
+                estimate: recorder.estimates.gaps() + never_sent[1],
+                command: recorder.commands.gaps() + never_sent[2],
+            }
         },
         logger_cpu_ns,
         latency: latencies(&recorder.latencies, period_ns),
