@@ -54,7 +54,7 @@ pub struct ChaosArgs {
     )]
     pub roles: Vec<Target>,
     /// The fault: `kill` (SIGKILL) or `hang` (SIGSTOP: the process stays
-    /// alive and silent; controller and observer only)
+    /// alive and silent, and the supervisor must find it)
     #[arg(long, value_enum, default_value = "kill")]
     pub fault: Fault,
     /// Loop rate [default: the scenario's]
@@ -132,18 +132,6 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
     }
     if args.roles.is_empty() {
         bail!("--roles: at least one role");
-    }
-    if args.fault == Fault::Hang
-        && let Some(r) = args
-            .roles
-            .iter()
-            .find(|r| matches!(r, Target::Logger | Target::Spare))
-    {
-        bail!(
-            "--fault hang --roles {}: the supervisor judges a hung controller or observer from \
-             the loop's output; a hung logger or idle spare has none to judge it by",
-            r.name()
-        );
     }
     let scenario_path = resolve_scenario(args.scenario.clone())?;
     let overrides = Overrides {

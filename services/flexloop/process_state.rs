@@ -5,7 +5,7 @@
 //! "Standby, watchdogs and guards").
 
 use procfs_core::FromRead;
-use procfs_core::process::{ProcState, Stat, StatFlags};
+use procfs_core::process::{ProcState, Schedstat, Stat, StatFlags};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ProcessState {
@@ -16,6 +16,16 @@ pub enum ProcessState {
     Exiting,
     /// Stopped (SIGSTOP, a debugger's stop): it runs no more until continued.
     Stopped,
+}
+
+/// How long `pid`'s main thread has waited on a runqueue, ready to run but
+/// without a CPU, since it started (`/proc/PID/schedstat`): what tells a
+/// process starved on a busy machine from a hung one, which waits for
+/// nothing the scheduler could give it.
+pub fn runqueue_wait_ns(pid: i32) -> Option<u64> {
+    Schedstat::from_file(format!("/proc/{pid}/schedstat"))
+        .ok()
+        .map(|s| s.run_delay)
 }
 
 /// The state of `pid`, as the kernel has it now.
@@ -74,5 +84,14 @@ mod tests {
     #[test]
     fn this_process_is_live() {
         assert_eq!(of(std::process::id() as i32), ProcessState::Live);
+    }
+
+    #[test]
+    fn a_processs_runqueue_wait_is_read_and_a_gone_one_has_none() {
+        assert!(runqueue_wait_ns(std::process::id() as i32).is_some());
+        let mut child = Command::new("true").spawn().unwrap();
+        let pid = child.id() as i32;
+        child.wait().unwrap();
+        assert_eq!(runqueue_wait_ns(pid), None);
     }
 }

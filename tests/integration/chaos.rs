@@ -51,12 +51,11 @@ fn chaos_kills_every_role_asked_for_and_accounts_for_each_kill() {
     assert_clean(&dir.join("loop"));
 }
 
-/// `--fault hang`: the controller and the observer stopped (SIGSTOP),
-/// alive and silent; the supervisor finds each, kills it and replaces it,
-/// and the loop ends cleanly with nothing left. A hung logger or spare has
-/// no output the supervisor could judge: refused.
+/// `--fault hang`: any of the loop's processes stopped (SIGSTOP), alive and
+/// silent; the supervisor finds each from the kernel's view of it, kills it
+/// and replaces it, and the loop ends cleanly with nothing left.
 #[test]
-fn chaos_hangs_the_controller_and_observer_and_each_is_replaced() {
+fn chaos_hangs_every_role_and_each_is_replaced() {
     let dir = temp_dir("chaos-hang");
     let mut cmd = flexloop();
     cmd.args([
@@ -65,18 +64,18 @@ fn chaos_hangs_the_controller_and_observer_and_each_is_replaced() {
         "--fault",
         "hang",
         "--kills",
-        "3",
+        "4",
         "--seed",
         "5",
     ])
-    .args(["--roles", "controller,observer"])
+    .args(["--roles", "controller,observer,logger,spare"])
     .args(["--rate", "1000", "--no-realtime", "--run-dir"])
     .arg(&*dir);
     let out = run_bounded(cmd, Duration::from_secs(240));
     let text = std::fs::read_to_string(dir.join("chaos.json"))
         .unwrap_or_else(|e| panic!("no chaos.json ({e}): {}", describe(&out)));
     let chaos: ChaosFile = serde_json::from_str(&text).unwrap();
-    assert_eq!(chaos.kills.len(), 3, "{}", describe(&out));
+    assert_eq!(chaos.kills.len(), 4, "{}", describe(&out));
     assert!(chaos.kills.iter().all(|k| k.fault == "hang"), "{text}");
     assert!(chaos.kills.iter().all(|k| k.replaced), "{text}");
     assert_eq!(chaos.files_left, 0);
@@ -84,21 +83,9 @@ fn chaos_hangs_the_controller_and_observer_and_each_is_replaced() {
         .into_iter()
         .filter(|e| e["kind"] == "silent")
         .collect();
-    assert_eq!(silent.len(), 3, "{silent:?}");
+    assert_eq!(silent.len(), 4, "{silent:?}");
     for (kill, event) in chaos.kills.iter().zip(&silent) {
         assert_eq!(event["detail"]["pid"], kill.pid);
     }
     assert_clean(&dir.join("loop"));
-
-    let mut refused = flexloop();
-    refused
-        .args(["chaos", "--fault", "hang", "--roles", "logger", "--run-dir"])
-        .arg(dir.join("refused"));
-    let out = run_bounded(refused, Duration::from_secs(60));
-    assert!(!out.status.success());
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("hung logger"),
-        "{}",
-        describe(&out)
-    );
 }

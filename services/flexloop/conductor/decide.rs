@@ -227,7 +227,15 @@ impl Core {
                 self.silence.polled(now);
                 Vec::new()
             }
-            Event::ProcessState { pid, state, now } => self.process_state(pid, state, now),
+            Event::ProcessState {
+                pid,
+                state,
+                runqueue_wait_ns,
+                now,
+            } => {
+                self.note_runqueue_wait(pid, runqueue_wait_ns, now);
+                self.process_state(pid, state, now)
+            }
             Event::Tick { now, stage } => match stage {
                 Stage::Silence => self.check_silence(now),
                 Stage::Restarts => self.due_restarts(now),
@@ -392,7 +400,7 @@ impl Core {
         let Some((pid, generation)) = self
             .roster
             .serving(silent.role)
-            .filter(|m| m.alive() && !m.silenced)
+            .filter(|m| m.alive() && !m.silenced && !m.starved)
             .map(|m| (m.pid, m.generation))
         else {
             return Vec::new();
@@ -448,6 +456,26 @@ impl Core {
                 });
                 self.kill_hung(pid, "stopped", detail, now)
             }
+        }
+    }
+
+    /// Whether `pid` waited for a CPU for most of the time since the last
+    /// look: starved by a busy machine (no real-time priority), not hung. A
+    /// controller so starved for 2 s on a loaded test machine was killed as
+    /// silent; a hung process (asleep in its law, deadlocked, stopped)
+    /// waits for nothing the scheduler could give it.
+    fn note_runqueue_wait(&mut self, pid: i32, waited_ns: Option<u64>, now: Instant) {
+        let Some(m) = self.roster.get_mut(pid) else {
+            return;
+        };
+        let (Some(waited), Some((then, before))) = (waited_ns, m.runqueue_wait) else {
+            m.runqueue_wait = waited_ns.map(|w| (now, w));
+            return;
+        };
+        let span = now.saturating_duration_since(then).as_nanos() as u64;
+        if span > 0 {
+            m.starved = waited.saturating_sub(before) * 2 > span;
+            m.runqueue_wait = Some((now, waited));
         }
     }
 

@@ -68,6 +68,11 @@ pub struct Member {
     /// shows it exiting) before its exit report came: it sends nothing
     /// more, and is dealt with as ended.
     pub exiting: bool,
+    /// Its wait for a CPU at the last look (when, ns waited so far), and
+    /// whether it waited for most of the time since the look before: a
+    /// process starved on a busy machine is not judged hung.
+    pub runqueue_wait: Option<(std::time::Instant, u64)>,
+    pub starved: bool,
     /// How its end was found: `"exit report"`, `"exiting"` (the kernel
     /// showed it in its exit), `"stopped"` or `"silent"` (judged hung).
     pub found: &'static str,
@@ -131,6 +136,8 @@ impl Roster {
             followed: false,
             silenced: false,
             cause: None,
+            runqueue_wait: None,
+            starved: false,
             exiting: false,
             found: "exit report",
         });

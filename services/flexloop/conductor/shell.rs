@@ -308,6 +308,7 @@ impl Conductor {
             let actions = self.core.handle(Event::ProcessState {
                 pid,
                 state: crate::process_state::of(pid),
+                runqueue_wait_ns: crate::process_state::runqueue_wait_ns(pid),
                 now: Instant::now(),
             });
             if let Some(outcome) = self.execute(running, actions) {

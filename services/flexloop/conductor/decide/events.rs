@@ -60,6 +60,8 @@ pub enum Event<'a> {
     ProcessState {
         pid: i32,
         state: ProcessState,
+        /// How long it has waited for a CPU since it started (ns), if known.
+        runqueue_wait_ns: Option<u64>,
         now: Instant,
     },
     /// One stage of the supervisor's tick (every 20 ms).

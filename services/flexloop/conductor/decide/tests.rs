@@ -1133,8 +1133,23 @@ fn a_hung_controller_is_killed_and_restarted_as_after_a_crash() {
 
 impl Fixture {
     fn process_state(&mut self, pid: i32, state: ProcessState, ms: u64) -> Vec<Action> {
+        self.process_waited(pid, state, None, ms)
+    }
+
+    fn process_waited(
+        &mut self,
+        pid: i32,
+        state: ProcessState,
+        runqueue_wait_ns: Option<u64>,
+        ms: u64,
+    ) -> Vec<Action> {
         let now = self.at(ms);
-        self.core.handle(Event::ProcessState { pid, state, now })
+        self.core.handle(Event::ProcessState {
+            pid,
+            state,
+            runqueue_wait_ns,
+            now,
+        })
     }
 }
 
@@ -1259,6 +1274,25 @@ fn a_controller_sending_only_non_finite_commands_is_silent_of_that_cause() {
     g.ticks(100, 130, false, true, 4);
     let actions = g.silence_stage(4);
     assert_eq!(record(&actions, "crash").detail["cause"], "silent");
+}
+
+/// A controller silent because a busy machine gives it no CPU (it waited
+/// on a runqueue for most of the last look) is starved, not hung: not
+/// judged until it gets the CPU and still sends nothing.
+#[test]
+fn a_starved_controller_is_not_judged_silent() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    f.process_waited(CONTROLLER, ProcessState::Live, Some(0), 0);
+    f.ticks(100, 130, false, true, 20);
+    // 15 of the 20 ms waiting for a CPU.
+    f.process_waited(CONTROLLER, ProcessState::Live, Some(15_000_000), 20);
+    assert!(f.silence_stage(20).is_empty());
+    // 2 of the next 20 ms: it had the CPU, and sent nothing.
+    f.ticks(130, 160, false, true, 40);
+    f.process_waited(CONTROLLER, ProcessState::Live, Some(17_000_000), 40);
+    let actions = f.silence_stage(40);
+    assert!(actions.contains(&Action::Kill(CONTROLLER)), "{actions:?}");
 }
 
 #[test]
