@@ -41,6 +41,7 @@ class Flags:
     FALLBACK = 1 << 6
     OBSERVER_FALLBACK = 1 << 7
     STANDBY = 1 << 8
+    CONVERGING = 1 << 9
 
 
 class HandoverMark:

@@ -78,6 +78,15 @@ class Observer:
         skipped; keep it lean (no allocation needed)."""
         raise NotImplementedError("an Observer must implement step(measurement)")
 
+    def settling_samples(self):
+        """How many samples an estimate started from a wrong state takes to
+        converge, or None (the default). After a restart without its
+        predecessor's continuous state (none handed on, or a hole in the
+        replayed measurements), the next that many estimates are flagged
+        converging, and the built-in controller leaves their corrections
+        (``free``, ``direct``) out meanwhile, as for the built-in observer."""
+        return None
+
     def save_state(self):
         """The law's state after the measurement just stepped, as a
         sequence of at most 128 floats, for a successor of the same design

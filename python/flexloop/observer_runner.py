@@ -167,6 +167,11 @@ class _Process:
         self.handovers = HandoverRing()
         # Whether the law holds a state handed over (not its initial one).
         self.copied = False
+        # After a restart without a continuous state: estimates for ticks
+        # before this one are flagged converging (None: none are).
+        self.converging_until = None
+        self.converging_for = None
+        self.joined_running_loop = False
         # A restart (or a loop with warm spares, as the built-in observer)
         # queues what arrives while it catches up, and reads the replay.
         self.may_restart = self.restart or self.settings.warm_spares
@@ -295,6 +300,7 @@ class _Process:
                     break
                 if (not measured and waited >= 0.2) or stop_requested():
                     break
+        self.joined_running_loop = loop_running
         if loop_running:
             return True
         estimates, readers = self.estimates, self.expected_readers
@@ -324,6 +330,10 @@ class _Process:
             return
         h = self.handovers.newest()
         if h is None or not self._load(h):
+            # Nothing of its predecessor to go on from: its own initial
+            # state, on a loop that has moved since tick 0.
+            if self.joined_running_loop:
+                self._start_converging()
             return
         self.copied = True
         published = [False]
@@ -344,6 +354,8 @@ class _Process:
         self.standing.replaying()
         caught = self._catch_up(h.seq, None, stepped)
         self.program.say(str(caught))
+        if caught.incomplete is not None:
+            self._start_converging()
         self.standing.replayed(
             caught.last_seq, Standing.ACTIVE if published[0] else Standing.SHADOW
         )
@@ -430,6 +442,8 @@ class _Process:
                     self.standing.replaying()
                     caught = self._catch_up(h.seq, m, None)
                     self.program.say(str(caught))
+                    if caught.incomplete is not None:
+                        self._start_converging()
                     self.standing.replayed(caught.last_seq, Standing.SHADOW)
                     self.end_of_run |= caught.end_of_run
                     self._publish_state(caught.last_seq)
@@ -525,6 +539,28 @@ class _Process:
             self.program.say(f"generation {self.generation}: law stepped from measurement {m.seq}")
         self.stepped += 1
         self._write(self._call("step", m), e, m)
+        if self.converging_for is not None:
+            self.converging_until = e.seq + self.converging_for
+            self.converging_for = None
+        if self.converging_until is not None and e.seq >= self.converging_until:
+            self.converging_until = None
+        # The estimate is reused from sample to sample: the bit is set or cleared.
+        if self.converging_until is not None:
+            e.flags |= msg.Flags.CONVERGING
+        else:
+            e.flags &= ~msg.Flags.CONVERGING
+
+    def _start_converging(self):
+        """Its state is not the loop's: the estimates from the next on are
+        flagged converging for the law's settling samples (observer.rs
+        ``start_converging``)."""
+        n = self._call("settling_samples")
+        if n is not None:
+            self.converging_for = int(n)
+            self.program.say(
+                f"started without a continuous state: its next {int(n)} estimates are "
+                "flagged converging (the controller leaves out their corrections)"
+            )
 
     def _write(self, result, e, m):
         """What the law returned into ``e``, stamped."""

@@ -23,7 +23,7 @@ from flexloop.launch import (
     parse_args,
     write_params_record,
 )
-from flexloop.observer_runner import STASH, _CatchUp, write_estimate
+from flexloop.observer_runner import STASH, _CatchUp, _Process, write_estimate
 from flexloop.reference import Reference, Setpoint, SetpointError, SetpointParams
 from flexloop.runner import CommandParts
 
@@ -300,6 +300,44 @@ class CatchUp(unittest.TestCase):
         for seq in (11, 12):
             c.hold_live(self._m(seq))
         self.assertFalse(c.reached_live(), "held out of order: 13 first")
+
+    def test_a_restart_without_a_continuous_state_flags_its_next_settling_samples_estimates(self):
+        class Quick(flexloop.Observer):
+            def step(self, measurement):
+                return [0.0]
+
+            def settling_samples(self):
+                return 3
+
+        said = []
+
+        class Program:
+            def say(self, line):
+                said.append(line)
+
+        class Settings:
+            n_outputs, n_inputs = 1, 1
+
+        # The runner's bookkeeping of one estimate after another, without ports.
+        p = _Process.__new__(_Process)
+        p.law, p.program, p.settings = Quick.__new__(Quick), Program(), Settings()
+        p.generation, p.stepped, p.first_stepped = 1, 0, None
+        p.converging_until, p.converging_for = None, None
+        e = msg.Estimate()
+
+        def flags_of(seqs):
+            out = []
+            for seq in seqs:
+                p._step(self._m(seq), e)
+                out.append(bool(e.flags & msg.Flags.CONVERGING))
+            return out
+
+        self.assertEqual(flags_of([10, 11]), [False, False])
+        p._start_converging()
+        # The estimates for ticks 13, 14 and 15, then no more (the one
+        # estimate, reused, has its bit cleared again).
+        self.assertEqual(flags_of([12, 13, 14, 15, 16]), [True, True, True, False, False])
+        self.assertTrue(any("converging" in line for line in said), said)
 
 
 class Examples(unittest.TestCase):

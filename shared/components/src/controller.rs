@@ -332,7 +332,10 @@ impl ControllerCore {
         // An estimate a tick or two old (the observer was late) still serves;
         // older than the watchdog's ticks, the observer counts as silent.
         let age = m.seq.saturating_sub(estimate.seq);
-        let observer_dropped = age > u64::from(self.estimate_watchdog);
+        // A restarted observer's estimate still converging (docs/architecture.md,
+        // "Restarts") is left out too: its MC and AD act once it settled.
+        let observer_dropped =
+            age > u64::from(self.estimate_watchdog) || estimate.flags & flags::CONVERGING != 0;
         if observer_dropped {
             command_flags |= flags::OBSERVER_FALLBACK;
         }

@@ -34,6 +34,14 @@ pub trait EstimationLaw: Sized {
     fn load(&mut self, _from: &Handover) -> bool {
         false
     }
+
+    /// Samples an estimate started from a wrong state takes to converge:
+    /// after a restart without a continuous state, the estimates are
+    /// flagged `CONVERGING` this long and the built-in controller leaves
+    /// their corrections out. The default, `None`: no such wait.
+    fn settling_samples(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// The process's part of an estimate: the tick it is for and the

@@ -55,6 +55,24 @@ pub struct ObserverCore {
     /// observer's estimate at a swap. 0: its estimate cannot be continued
     /// (a scheduled observer, or a block without a leading x̂).
     model_hash: u64,
+    /// Samples for an error in the block's state to shrink a millionfold
+    /// (see [`settling_samples`]).
+    settling_samples: u64,
+}
+
+/// An error in an observer block's state decays as the block's state
+/// matrix's powers: by ρ(A)^k after k samples, so by a millionfold after
+/// ln(1e-6) / ln ρ(A). A millionfold, since a restart mid-scan starts
+/// thousands of newtons of u_d away from the loop's (the default scenario:
+/// 5 576 N) and must end below its ordinary fraction of a newton. Capped at
+/// `cap` (a block with a pole on or near the unit circle never settles).
+pub fn settling_samples(a: &nalgebra::DMatrix<f64>, cap: u64) -> u64 {
+    match flexloop_control::linalg::spectral_radius(a) {
+        // A nilpotent block forgets its state at once.
+        Ok(0.0) => 1,
+        Ok(rho) if rho < 1.0 => ((1e-6f64).ln() / rho.ln()).ceil().min(cap as f64) as u64,
+        _ => cap,
+    }
 }
 
 /// Why an observer block does not fit the protocol.
@@ -198,10 +216,17 @@ impl ObserverCore {
             }
             _ => 0,
         };
+        // At most a second of samples.
+        let cap = if sys.ts > 0.0 {
+            (1.0 / sys.ts).ceil() as u64
+        } else {
+            1
+        };
         Ok(Self {
             scheduled: None,
             design_hash,
             model_hash,
+            settling_samples: settling_samples(&sys.a, cap),
             x_hat: DVector::zeros(n_est),
             prediction: prediction.clone(),
             innovation: DVector::zeros(n_outputs),
@@ -430,5 +455,9 @@ impl EstimationLaw for ObserverCore {
 
     fn load(&mut self, from: &Handover) -> bool {
         ObserverCore::load(self, from)
+    }
+
+    fn settling_samples(&self) -> Option<u64> {
+        Some(self.settling_samples)
     }
 }

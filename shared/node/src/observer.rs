@@ -28,6 +28,8 @@ pub(crate) struct Observer<L> {
     copied: bool,
     /// The controller, its warm spare and the logger.
     expected_readers: usize,
+    /// It joined a loop already ticking (not a replacement before tick 0).
+    joined_running_loop: bool,
 }
 
 /// The observer's own ports.
@@ -107,9 +109,11 @@ impl<L: EstimationLaw> Component for Observer<L> {
                 law,
                 n_outputs: design.n_outputs,
                 n_inputs: design.n_inputs,
+                converging: Converging::No,
             },
             shadow_estimate: Box::default(),
             copied: false,
+            joined_running_loop: false,
             expected_readers: 1
                 + usize::from(scenario.supervision.warm_spares)
                 + usize::from(scenario.logger.enabled),
@@ -168,6 +172,7 @@ impl<L: EstimationLaw> Component for Observer<L> {
                 }
             }
         };
+        self.joined_running_loop = loop_running;
         if loop_running {
             return Ok(true);
         }
@@ -205,12 +210,19 @@ impl<L: EstimationLaw> Component for Observer<L> {
         let Some(replay) = restart_replay(instance, &ports.own) else {
             return Ok(());
         };
-        let Some(h) = instance.handovers.newest().copied() else {
+        let Some(h) = instance
+            .handovers
+            .newest()
+            .copied()
+            .filter(|h| self.core.load(h))
+        else {
+            // Nothing of its predecessor to go on from: its own initial
+            // state, on a loop that has moved since tick 0.
+            if self.joined_running_loop {
+                self.core.start_converging();
+            }
             return Ok(());
         };
-        if !self.core.load(&h) {
-            return Ok(());
-        }
         self.copied = true;
         let (generation, lockstep) = (instance.generation(), instance.lockstep);
         let (activation, estimates) = (&mut ports.activation, &ports.own.estimates);
@@ -241,6 +253,9 @@ impl<L: EstimationLaw> Component for Observer<L> {
             },
         )?;
         eprintln!("flexloop-observer: {caught}");
+        if caught.incomplete.is_some() {
+            self.core.start_converging();
+        }
         let duty = if published {
             Duty::Active
         } else {
@@ -343,6 +358,9 @@ impl<L: EstimationLaw> Observer<L> {
                     |_, _| Ok(()),
                 )?;
                 eprintln!("flexloop-observer: {caught}");
+                if caught.incomplete.is_some() {
+                    self.core.start_converging();
+                }
                 instance.replayed(caught.last_seq, Duty::Shadow, caught.end_of_run);
                 let core = &self.core;
                 return instance
@@ -520,6 +538,18 @@ struct Stamped<L> {
     law: L,
     n_outputs: usize,
     n_inputs: usize,
+    /// After a restart without a continuous state: its estimates are
+    /// flagged converging for the law's settling samples.
+    converging: Converging,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Converging {
+    No,
+    /// For this many samples from the next estimate on.
+    From(u64),
+    /// Until (not including) the estimate for this tick.
+    Until(u64),
 }
 
 impl<L: EstimationLaw> Stamped<L> {
@@ -531,6 +561,26 @@ impl<L: EstimationLaw> Stamped<L> {
     fn step(&mut self, m: &Measurement, out: &mut Estimate) {
         self.law.step(m, out);
         stamp_estimate(out, Some(m), self.n_outputs, self.n_inputs);
+        if let Converging::From(n) = self.converging {
+            self.converging = Converging::Until(out.seq + n);
+        }
+        match self.converging {
+            Converging::Until(until) if out.seq < until => out.flags |= flags::CONVERGING,
+            Converging::Until(_) => self.converging = Converging::No,
+            _ => {}
+        }
+    }
+
+    /// Its state is not the loop's (a restart took over nothing, or its
+    /// replay had a hole): the estimates from the next on converge first.
+    fn start_converging(&mut self) {
+        if let Some(n) = self.law.settling_samples() {
+            self.converging = Converging::From(n);
+            eprintln!(
+                "flexloop-observer: started without a continuous state: its next {n} estimates \
+                 are flagged converging (the controller leaves out their corrections)"
+            );
+        }
     }
 
     fn save(&self, out: &mut Handover) {
@@ -539,5 +589,59 @@ impl<L: EstimationLaw> Stamped<L> {
 
     fn load(&mut self, from: &Handover) -> bool {
         self.law.load(from)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flexloop_components::law_setup::SetupError;
+
+    /// A law that settles in 3 samples.
+    struct Quick;
+
+    impl EstimationLaw for Quick {
+        fn new(_setup: &ObserverSetup<'_>) -> Result<Self, SetupError> {
+            Ok(Quick)
+        }
+        fn initial(&mut self, _out: &mut Estimate) {}
+        fn step(&mut self, _m: &Measurement, _out: &mut Estimate) {}
+        fn settling_samples(&self) -> Option<u64> {
+            Some(3)
+        }
+    }
+
+    fn flags_of_estimates(core: &mut Stamped<Quick>, from: u64, to: u64) -> Vec<bool> {
+        (from..to)
+            .map(|seq| {
+                let mut e = Estimate::default();
+                core.step(
+                    &Measurement {
+                        seq,
+                        ..Measurement::default()
+                    },
+                    &mut e,
+                );
+                e.flags & flags::CONVERGING != 0
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_restart_without_a_continuous_state_flags_its_next_settling_samples_estimates() {
+        let mut core = Stamped {
+            law: Quick,
+            n_outputs: 1,
+            n_inputs: 1,
+            converging: Converging::No,
+        };
+        assert_eq!(flags_of_estimates(&mut core, 10, 12), [false, false]);
+        core.start_converging();
+        // The estimates for ticks 13, 14 and 15, then no more.
+        assert_eq!(
+            flags_of_estimates(&mut core, 12, 17),
+            [true, true, true, false, false]
+        );
+        assert_eq!(core.converging, Converging::No);
     }
 }

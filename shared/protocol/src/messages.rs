@@ -54,6 +54,11 @@ pub mod flags {
     /// Command: from the standby controller, for the plant's safe action
     /// only. Measurement: the safe action applied the standby's command.
     pub const STANDBY: u32 = 1 << 8;
+    /// Estimate: from an observer restarted without its predecessor's
+    /// continuous state (no state handed on, or a hole in the replayed
+    /// measurements), still converging: its corrections (ŷ_flex, u_d) are
+    /// not to act yet. Its law says for how many samples.
+    pub const CONVERGING: u32 = 1 << 9;
 }
 
 /// y(k) from the plant, published at tick k.
