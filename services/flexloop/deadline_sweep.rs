@@ -20,7 +20,7 @@ use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// The share of late commands a deadline may cost (issue 20): one miss in
+/// The share of late commands a deadline may cost (docs/deadline.md): one miss in
 /// 10⁴ samples, a held input once a second at 10 kHz.
 pub const MISS_RATE_BUDGET: f64 = 1e-4;
 

@@ -11,7 +11,7 @@ use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::{PlantLatency, RunDir};
 use std::path::Path;
 
-/// The goal for what logging may add at p99.99.
+/// The goal for what logging may add at p99.99 (docs/benchmarks.md).
 const GOAL_US: f64 = 5.0;
 
 /// The scenario with `[logger] enabled = false` and no other logger setting

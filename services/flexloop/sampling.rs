@@ -1,4 +1,4 @@
-//! What `flexloop bench` shows of the sampling instant (issue 23): when y(k)
+//! What `flexloop bench` shows of the sampling instant (docs/benchmarks.md): when y(k)
 //! was published against its tick, the interval between publications, and
 //! how busy the plant's CPU was (a spinning wait costs CPU there).
 

@@ -550,7 +550,7 @@ fn design_refuses_at_once(scenario: &std::path::Path, field: &str, reason: &[&st
         .arg(scenario)
         .env("RUST_BACKTRACE", "1");
     // 30 s: a bound against a hang, not a timing claim (each takes
-    // milliseconds; the issue measured 13.5 s, 226 s and forever).
+    // milliseconds; before the limits: 13.5 s, 226 s and forever).
     let m = run_measured(design, Duration::from_secs(30));
     let err = String::from_utf8_lossy(&m.out.stderr);
     assert_eq!(m.out.status.code(), Some(2), "{}", describe(&m.out));
@@ -576,7 +576,7 @@ fn design_refuses_at_once(scenario: &std::path::Path, field: &str, reason: &[&st
     m
 }
 
-/// Issue 31: model files that exhausted the machine (a FIFO blocked
+/// Model files that exhausted the machine (a FIFO blocked
 /// `design` forever, /dev/zero and zip bombs took gigabytes, a 1000-mass
 /// model minutes) are refused at once, each naming the file, the array and
 /// the reason, in bounded memory.

@@ -146,7 +146,7 @@ fn auto_bandwidth_is_resolved_once_and_shown() {
 }
 
 /// `design --deadline-sweep`: the largest f_bw against the command
-/// deadline, on y5 and, for a thesis case, on y1..y7 (issue 20's table at
+/// deadline, on y5 and, for a thesis case, on y1..y7 (docs/deadline.md's table at
 /// 30 µs and one sample); a lockstep run has no command times to judge a
 /// deadline by, and a deadline scenario's own report says when its
 /// commands act.

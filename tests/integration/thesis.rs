@@ -59,10 +59,10 @@ fn measurement_compensation_with_active_damping_across_processes() {
     assert!(original / rms > 3.5, "{original} / {rms}");
 }
 
-/// Issue 20, through the processes: each command applied on arrival, 30 µs
+/// docs/deadline.md, through the processes: each command applied on arrival, 30 µs
 /// after its tick, and the loop redesigned to the largest f_bw its 6 dB
-/// rule allows there (62.0 Hz against 43.5 at one sample). The issue's
-/// independent model scans at 2.233 nm; this loop at 2.04 nm (it is as far
+/// rule allows there (62.0 Hz against 43.5 at one sample). The
+/// independent model of docs/deadline.md scans at 2.233 nm; this loop at 2.04 nm (it is as far
 /// below that model at one sample and 77.5 Hz: docs/deadline.md), at least
 /// 10 % better than the one-sample loop. A deadline 0.01 µs short of the
 /// period is the one-sample loop again.
@@ -76,7 +76,7 @@ fn a_command_applied_on_arrival_buys_bandwidth_and_scan_error() {
     ));
     let at_30_us = run_lockstep("thesis-mc-ad-deadline-30us");
     let rms = scan_rms_nm(&at_30_us);
-    // Lockstep is deterministic: this loop's own figure, and the issue's
+    // Lockstep is deterministic: this loop's own figure, and the independent
     // model's within the gap docs/deadline.md explains.
     assert!((rms - 2.044).abs() < 0.02 * 2.044, "{rms} nm");
     assert!((rms - 2.233).abs() < 0.1 * 2.233, "{rms} nm");

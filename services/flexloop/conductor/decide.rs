@@ -45,8 +45,8 @@ const ANNOUNCE_AHEAD_MIN_SAMPLES: u64 = 50;
 /// A crash this soon after the role's last restart began (or a failed
 /// restart) continues a crash loop, and the back-off grows with each; a crash
 /// after its instance ran longer is a fault of its own, restarted at once. A
-/// back-off before every first restart held the plant's input 100 ms (issue
-/// 16); a crash loop still cannot spin the supervisor.
+/// back-off before every first restart held the plant's input 100 ms
+/// (docs/benchmarks.md, "Crash hand-over"); a crash loop still cannot spin the supervisor.
 const CRASH_LOOP_WINDOW: Duration = Duration::from_millis(250);
 
 struct PendingRestart {

@@ -29,14 +29,14 @@ use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// The issue's grid: rates in Hz, observer sizes in states, and the models
+/// The sweep's grid (docs/benchmarks.md): rates in Hz, observer sizes in states, and the models
 /// with one, two and three axes.
 const RATES_HZ: [f64; 6] = [1e3, 2e3, 5e3, 10e3, 20e3, 40e3];
 const STATES: [usize; 4] = [16, 32, 64, 128];
 const AXES: [(&str, &str); 2] = [("mimo-example", "2×2"), ("oat-like", "3-DOF OAT-like")];
 /// The rate of the size and axes series and of the floors.
 const BASE_RATE_HZ: f64 = 10e3;
-/// Loop misses per tick the issue accepts.
+/// Loop misses per tick the sweep accepts (docs/benchmarks.md).
 const MISS_GOAL: f64 = 1e-4;
 /// CPU is measured from this share of the run on, past start-up.
 const WARM_UP: f64 = 0.25;

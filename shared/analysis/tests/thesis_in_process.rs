@@ -133,7 +133,7 @@ fn without_active_damping_the_modes_keep_their_own_damping() {
     }
 }
 
-/// With each command applied on arrival (issue 20) the fit takes its
+/// With each command applied on arrival (docs/deadline.md) the fit takes its
 /// regressors at the instant the command acts, t_k + τ_d, as the
 /// controller does: fitted from the mass alone, the 30 µs MC case scans
 /// as with its shipped gains, and the fit finds the rigid mass.

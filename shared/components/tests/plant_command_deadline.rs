@@ -1,4 +1,4 @@
-//! The plant with a command deadline τ_d (issue 20, docs/deadline.md): a
+//! The plant with a command deadline τ_d (docs/deadline.md): a
 //! command sent by t_{k−1} + τ_d acts from then on, integrated in two pieces
 //! within its sample; one sent later is a miss and the plant holds.
 

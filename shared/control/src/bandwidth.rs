@@ -677,9 +677,9 @@ mod tests {
         );
     }
 
-    /// The command applied on arrival (issue 20): the plant integrated in
+    /// The command applied on arrival (docs/deadline.md): the plant integrated in
     /// two pieces around τ, no whole sample of delay. The original PID's
-    /// largest f_bw against τ, as the independent model of the issue has it.
+    /// largest f_bw against τ, as the independent model in docs/deadline.md has it.
     #[test]
     fn discrete_baseline_bandwidth_with_the_command_applied_on_arrival() {
         for (tau, want) in [(TS_10KHZ, 35.5), (30e-6, 35.0), (0.0, 35.5)] {

@@ -96,7 +96,7 @@ pub fn zoh(sys: &ContinuousStateSpace, ts: f64) -> Result<DiscreteStateSpace, Di
 /// One sample of a plant whose input changes within it: the previous input
 /// u(k−1) held over [t_k, t_k + τ), the new u(k) over [t_k + τ, t_{k+1}),
 /// integrated exactly as x(k+1) = Φ x(k) + G_new u(k) + G_old u(k−1) (the
-/// command applied on arrival, issue 20; docs/control.md §10.1).
+/// command applied on arrival, docs/control.md §10.1).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SplitHold {
     /// Φ = e^{A Ts}.

@@ -118,7 +118,7 @@ pub fn compile_observer_block(
     assemble_block(design, &fb, parts, extra_delay_samples)
 }
 
-/// The command applied on arrival (issue 20; docs/control.md §10.1): u_c(k)
+/// The command applied on arrival (docs/control.md §10.1): u_c(k)
 /// acts from t_k + τ, the input present at t_k, u_a(k) = u_c(k−1), until
 /// then. The observer's model is then the split plant's delayed-input form
 /// ([`crate::discretise::SplitHold::delayed_input_form`]), whose state is

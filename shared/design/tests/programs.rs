@@ -69,7 +69,7 @@ fn every_shipped_loop_takes_a_program_for_either_role_or_both() {
     }
 }
 
-/// The cases the issue names: the thesis chain with its Kalman observer
+/// The cases a review found refused: the thesis chain with its Kalman observer
 /// (with and without MC and AD) or none, under a controller program; once
 /// refused as "the closed loop is unstable (spectral radius 1.000000)".
 #[test]

@@ -1,5 +1,5 @@
 //! flexloop-modelfile: the named numeric arrays of a model that a user brings
-//! (issue 17, "your own plant"), whatever they were saved with, as one data
+//! (docs/own-plant.md), whatever they were saved with, as one data
 //! contract. Turning the arrays into a model is the next crate up.
 //!
 //! - [`ModelArrays`]: read from a NumPy `.npz` (`np.savez`), a MATLAB level-5

@@ -592,7 +592,7 @@ pub enum TickWait {
 
 impl TickWait {
     /// The setting of a scenario that names none. Switching the default is
-    /// this one line (issue 23: the lead measures both on a quiet machine).
+    /// this one line (docs/benchmarks.md, "Sleep or sleep-then-spin": the lead measures both on a quiet machine).
     pub const DEFAULT: TickWait = TickWait::Sleep;
 
     fn default_setting() -> Self {

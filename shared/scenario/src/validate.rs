@@ -8,7 +8,7 @@ use crate::{ScenarioError, limits};
 
 impl Scenario {
     /// `loop.command_deadline_us`: inside the period, and only where the
-    /// loop can use it (issue 20, docs/deadline.md); what the design cannot
+    /// loop can use it (docs/deadline.md); what the design cannot
     /// use it for (the model, the observer) the design step refuses.
     fn validate_command_deadline(&self) -> Result<(), ScenarioError> {
         let Some(deadline) = self.timing.command_deadline_us else {

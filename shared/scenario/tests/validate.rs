@@ -387,7 +387,7 @@ fn an_io_observer_takes_exactly_one_correction_filter() {
     }
 }
 
-/// Issue 31's smaller refusals: each names the field at fault.
+/// Smaller refusals a review found: each names the field at fault.
 #[test]
 fn a_negative_rate_is_the_rates_fault_and_ad_needs_a_mode() {
     let thesis = include_str!("../../../scenarios/thesis-mc-ad.toml");

@@ -98,7 +98,7 @@ pub enum DesignDomain {
     /// and applying it (docs/control.md §10.1: 1 is the 10 kHz reference).
     /// With `command_deadline_s` = τ (and `loop_delay` 1) u_c(k) acts from
     /// t_k + τ instead: the plant is integrated in two pieces and the
-    /// observer designed for it (issue 20, [`ThesisDesignSpec::on_arrival`]).
+    /// observer designed for it (docs/deadline.md, [`ThesisDesignSpec::on_arrival`]).
     Discrete {
         ts: f64,
         loop_delay: usize,

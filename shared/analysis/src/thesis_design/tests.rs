@@ -133,9 +133,9 @@ fn discrete_mc_ad_bandwidth_with_loop_delay() {
     discrete_case(DesignCase::McAdBandpass);
 }
 
-/// Issue 20: each command applied on arrival at t_k + τ. The largest f_bw
+/// docs/deadline.md: each command applied on arrival at t_k + τ. The largest f_bw
 /// of the observer loops against τ (0 the limit, 30 µs, 100 µs = one
-/// sample), as the issue's independent model has them, within ±0.5 Hz.
+/// sample), as the independent model in docs/deadline.md has them, within ±0.5 Hz.
 const ON_ARRIVAL_F_BW: [(DesignCase, [f64; 3]); 3] = [
     (DesignCase::McRe, [44.5, 44.5, 35.0]),
     (DesignCase::AdBandpass, [58.5, 50.5, 36.0]),
