@@ -11,9 +11,10 @@
 //! `cargo bench --bench recording` (docs/benchmarks.md, "The computation of one sample: criterion").
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use flexloop_components::{InProcessLoop, LogReader, Recorder, SampleWriter};
+use flexloop_components::InProcessLoop;
 use flexloop_design::LoopDesign;
 use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_recording::{LogReader, Recorder, SampleWriter};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -2,9 +2,9 @@
 //! (`bench --logging-cost`, `bench --live-cost`): their options, the table
 //! they print and the difference at the round trip's p50 and p99.99.
 
-use crate::bench::BenchArgs;
 use crate::launch::LoopArgs;
 use anyhow::bail;
+use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::PlantLatency;
 use flexloop_runtime::latency::Metric;
 use flexloop_scenario::{Mode, Overrides};
@@ -36,9 +36,13 @@ impl Options {
         }
     }
 
-    /// The bench's options for a comparison, checked.
-    pub fn from_args(args: &BenchArgs) -> anyhow::Result<Self> {
-        let o = args.overrides;
+    /// The bench's options for a comparison (its scenario, overrides and
+    /// run directory flags), checked.
+    pub fn from_args(
+        scenario: Option<PathBuf>,
+        o: &OverrideFlags,
+        run_dir: Option<PathBuf>,
+    ) -> anyhow::Result<Self> {
         let positive = |flag: &str, v: Option<f64>| match v {
             Some(x) if !(x.is_finite() && x > 0.0) => {
                 bail!("{flag} needs a positive number, got {x}")
@@ -46,12 +50,12 @@ impl Options {
             _ => Ok(v),
         };
         Ok(Options {
-            scenario: args.scenario.clone(),
+            scenario,
             duration_s: positive("--duration", o.duration_s)?.unwrap_or(10.0),
             rate_hz: positive("--rate", o.rate_hz)?,
             no_realtime: o.no_realtime,
             tick: o.tick,
-            out: args.run_dir.clone(),
+            out: run_dir,
         })
     }
 }

@@ -8,10 +8,10 @@ use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
 use crate::{ab_table, live_cost, logging_cost, probes, sweep};
 use anyhow::Context;
 use flexloop_analysis::verdict::GridCounts;
-use flexloop_components::LogReader;
 use flexloop_node::Role;
 use flexloop_node::overrides::OverrideFlags;
 use flexloop_protocol::flags;
+use flexloop_recording::LogReader;
 use flexloop_runfiles::bench::{BenchFile, SwapReport};
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::{Histogram, RunDir};
@@ -65,11 +65,24 @@ fn positive_seconds(text: &str) -> Result<f64, String> {
 /// `bench`, `bench --sweep` or `bench --logging-cost`.
 pub fn dispatch(args: BenchArgs) -> anyhow::Result<i32> {
     if args.sweep {
-        sweep::sweep(sweep::Options::from_args(&args)?)
+        sweep::sweep(sweep::Options::from_args(
+            &args.grid,
+            &args.overrides,
+            args.no_probes,
+            args.run_dir.clone(),
+        )?)
     } else if args.logging_cost {
-        logging_cost::logging_cost(ab_table::Options::from_args(&args)?)
+        logging_cost::logging_cost(ab_table::Options::from_args(
+            args.scenario.clone(),
+            &args.overrides,
+            args.run_dir.clone(),
+        )?)
     } else if args.live_cost {
-        live_cost::live_cost(ab_table::Options::from_args(&args)?)
+        live_cost::live_cost(ab_table::Options::from_args(
+            args.scenario.clone(),
+            &args.overrides,
+            args.run_dir.clone(),
+        )?)
     } else {
         bench(args)
     }
@@ -98,7 +111,7 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
         scenario.timing.rate_hz,
         run_dir.path().display()
     );
-    println!("{}", profile_line(&scenario));
+    println!("{}", crate::deployment::profile_line(&scenario));
     // The plant's CPU (what a spinning tick wait costs there), CPU 0 if unpinned.
     let plant_cpu = scenario.realtime.plant.cpu.unwrap_or(0);
     let cpu_before = crate::sampling::CpuTimes::read(plant_cpu);
@@ -381,40 +394,6 @@ fn tick_line(
         ));
     }
     parts.join("; ")
-}
-
-/// Which deployment profile runs and why, for the head of the bench table.
-pub fn profile_line(scenario: &flexloop_scenario::Scenario) -> String {
-    use flexloop_scenario::{DEDICATED_CORES_MIN_CPUS, Profile};
-    let cpus = flexloop_runtime::realtime::online_cpus();
-    let rt = &scenario.realtime;
-    let cpu = |p: &flexloop_scenario::schema::ProcessRealtime| {
-        p.cpu.map_or("any".to_string(), |c| c.to_string())
-    };
-    let placement = format!(
-        "plant CPU {}, observer {}, controller {}, logger {}",
-        cpu(&rt.plant),
-        cpu(&rt.observer),
-        cpu(&rt.controller),
-        cpu(&rt.logger)
-    );
-    match rt.profile {
-        Profile::SharedCores => format!(
-            "profile shared-cores: event wake-ups, {placement}; {}",
-            if cpus < DEDICATED_CORES_MIN_CPUS {
-                format!(
-                    "this machine has {cpus} CPUs, a spinning dedicated-cores profile needs {DEDICATED_CORES_MIN_CPUS}"
-                )
-            } else {
-                format!(
-                    "this machine has {cpus} CPUs: realtime.profile = \"dedicated-cores\" would spin each loop process on its own"
-                )
-            }
-        ),
-        Profile::DedicatedCores => format!(
-            "profile dedicated-cores: plant, observer and controller spin on their own CPUs ({placement}; {cpus} CPUs)"
-        ),
-    }
 }
 
 /// Misses inside the swap windows (from the replacement's start to 100

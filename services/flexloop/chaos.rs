@@ -9,8 +9,8 @@
 use crate::launch::{resolve_scenario, stamped_run_dir};
 use anyhow::{Context, Result, anyhow, bail};
 use flexloop_analysis::fault_recovery::{self, Tick};
-use flexloop_components::sample_file::LogReader;
 use flexloop_protocol::flags;
+use flexloop_recording::sample_file::LogReader;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::chaos::{ChaosFile, Kill, RoleFaults};
 use flexloop_runfiles::json::{read_json, write_json_atomically};
@@ -342,7 +342,7 @@ fn wait_until_serving(loop_dir: &RunDir, up: &mut UpProcess) -> Result<()> {
         let serving = [Target::Controller, Target::Observer]
             .iter()
             .all(|&t| !pids_of(loop_dir, t).is_empty())
-            && flexloop_components::mcap_repair::topic_counts(&loop_dir.samples(0))
+            && flexloop_recording::mcap_repair::topic_counts(&loop_dir.samples(0))
                 .is_ok_and(|c| c.get("/measurement").copied().unwrap_or(0) > 0);
         if serving {
             return Ok(());

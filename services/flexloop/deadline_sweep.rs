@@ -11,10 +11,10 @@
 use anyhow::Context;
 use flexloop_analysis::loop_report::largest_bandwidth;
 use flexloop_analysis::thesis_design::{DesignCase, ThesisDesignSpec, evaluate_design_case};
-use flexloop_components::{LogReader, Record};
 use flexloop_design::LoopDesign;
 use flexloop_design::plants::thesis_chain::{chain_mass, chain_modal};
 use flexloop_protocol::flags;
+use flexloop_recording::{LogReader, Record};
 use flexloop_scenario::Scenario;
 use serde::Serialize;
 use std::fmt::Write as _;

@@ -9,8 +9,8 @@
 
 use anyhow::{Context, bail};
 use flexloop_analysis::run_log::JoinedLog;
-use flexloop_components::LogReader;
 use flexloop_protocol::layout::{self, Field, MessageLayout, Scalar};
+use flexloop_recording::LogReader;
 use flexloop_runfiles::RunDir;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};

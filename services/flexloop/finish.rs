@@ -76,7 +76,7 @@ fn stopped_recording(summary: &flexloop_runfiles::RunSummary) -> Option<String> 
 fn close_sample_files(run_dir: &RunDir) -> Vec<String> {
     let mut said = Vec::new();
     for (_, path) in run_dir.sample_files() {
-        match flexloop_components::mcap_repair::repair_file(&path) {
+        match flexloop_recording::mcap_repair::repair_file(&path) {
             Ok(c) if c.already_complete => {}
             Ok(c) => said.push(format!(
                 "{}: the logger did not finish it; closed after its last complete chunk ({} messages in {} chunks kept, {} bytes of torn data cut)",

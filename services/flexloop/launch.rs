@@ -4,9 +4,9 @@
 //! command that runs a loop (`up`, `run`, `bench`, `positions`) goes
 //! through [`prepare`] and [`supervise`].
 
+use crate::children::{self, LaunchPlan, Outcome, RunningLoop};
 use crate::conductor::{Conductor, Switch};
-use crate::supervisor::{LaunchPlan, Outcome, RunningLoop};
-use crate::{progress, registry, supervisor};
+use crate::{progress, registry};
 use anyhow::{Context, anyhow, bail};
 use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::RunDir;
@@ -382,7 +382,7 @@ fn run_to_the_end(
     }
     let mut live_pending = prepared.live.clone();
     let mut live_server: Option<crate::live_view::LiveServer> = None;
-    let mut running = supervisor::start(prepared.plan)?;
+    let mut running = children::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
     let wake_fds = conductor.wake_fds();
     let outcome = running.watch(limit, &wake_fds, |running| {

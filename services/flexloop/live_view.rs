@@ -184,7 +184,8 @@ impl Tuner for LoopTuner {
     }
 
     fn design(&self, file: &str, text: &str) -> Result<Vec<(String, String)>, String> {
-        crate::live::design_words(std::path::Path::new(file), text).map_err(|e| e.to_string())
+        flexloop_analysis::loop_report::design_words(std::path::Path::new(file), text)
+            .map_err(|e| e.to_string())
     }
 }
 
@@ -231,7 +232,7 @@ impl LiveServer {
             None => cmd.env_remove(TOKEN_ENV),
         };
         cmd.stdout(Stdio::null());
-        crate::supervisor::tied_to_supervisor(&mut cmd, stderr);
+        crate::children::tied_to_supervisor(&mut cmd, stderr);
         let child = cmd.spawn().context("cannot start flexloop live-server")?;
         Ok(Self {
             pid: child.id() as i32,

@@ -12,14 +12,15 @@
 mod ab_table;
 mod bench;
 mod chaos;
+mod children;
 mod conductor;
 mod dead_loops;
 mod deadline_sweep;
+mod deployment;
 mod design;
 mod export;
 mod finish;
 mod launch;
-mod live;
 mod live_cost;
 mod live_view;
 mod logging_cost;
@@ -30,8 +31,8 @@ mod progress;
 mod registry;
 mod report;
 mod run;
+mod running;
 mod sampling;
-mod supervisor;
 mod sweep;
 mod tune;
 
@@ -50,7 +51,7 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Start the loop's processes until the scenario's duration ends, Ctrl-C or `flexloop down`.
-    Up(live::UpArgs),
+    Up(running::UpArgs),
     /// Run the scenario's trajectory, then print its control metrics beside the timing summary; writes metrics.json.
     Run(run::RunFlags),
     /// A finished run as report.md (with SVG figures) and a self-contained report.html.
@@ -64,11 +65,11 @@ enum Command {
     /// A run's sample file as one CSV per channel.
     Export(export::ExportArgs),
     /// Stop a running loop (with several running: --prefix P, or --all).
-    Down(live::DownArgs),
+    Down(running::DownArgs),
     /// Live counters and latency percentiles of a running loop (--scenario: its scenario as it stands).
-    Status(live::StatusArgs),
+    Status(running::StatusArgs),
     /// Replace a running loop's controller or observer by one designed from SCENARIO.
-    Swap(live::SwapArgs),
+    Swap(running::SwapArgs),
     /// A running loop's tunables and their current values.
     Get(tune::GetArgs),
     /// Change tunables of a running loop: checked, then handed over bumplessly through the swap path.
@@ -132,16 +133,16 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     }
     match command {
-        Command::Up(args) => live::up(args),
+        Command::Up(args) => running::up(args),
         Command::Run(flags) => run::run(flags),
         Command::Report(args) => report::report(args),
         Command::TuneFf(args) => run::tune_ff(args),
         Command::Design(args) => design::design(args),
         Command::Positions(args) => positions::positions(args),
         Command::Export(args) => export::export(args),
-        Command::Down(args) => live::down(args),
-        Command::Status(args) => live::status(args),
-        Command::Swap(args) => live::swap(args),
+        Command::Down(args) => running::down(args),
+        Command::Status(args) => running::status(args),
+        Command::Swap(args) => running::swap(args),
         Command::Get(args) => tune::get(args),
         Command::Set(args) => tune::set_command(args),
         Command::Bench(args) => bench::dispatch(args),

@@ -2,8 +2,8 @@
 //! was published against its tick, the interval between publications, and
 //! how busy the plant's CPU was (a spinning wait costs CPU there).
 
-use flexloop_components::LogReader;
 use flexloop_node::summary::floor_histogram;
+use flexloop_recording::LogReader;
 use flexloop_runfiles::bench::{CpuBusy, SamplingJitter};
 use flexloop_runtime::latency::LatencyHistogram;
 use std::path::Path;

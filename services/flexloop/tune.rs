@@ -5,8 +5,8 @@
 //! prefix and field/value pairs in, an outcome or a refusal with its reason
 //! out (docs/architecture.md, "Live tuning").
 
-use crate::live::PrefixArg;
 use crate::registry;
+use crate::registry::PrefixArg;
 use anyhow::{Context, bail};
 use flexloop_runfiles::json::read_json;
 use flexloop_runfiles::supervision::Processes;

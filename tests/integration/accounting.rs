@@ -13,23 +13,7 @@ use std::time::Duration;
 fn program_scenario(dir: &Path, law: &str) -> PathBuf {
     let path = dir.join("law.py");
     std::fs::write(&path, law).unwrap();
-    let mut table: toml::Table =
-        toml::from_str(&std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap())
-            .unwrap();
-    let exec = [
-        python_with(&["flexloop", "iceoryx2"]),
-        path.display().to_string(),
-    ];
-    flexloop_scenario::program::served_by_program(
-        &mut table,
-        flexloop_scenario::ProgramRole::Controller,
-        &exec,
-        None,
-        None,
-    );
-    let file = dir.join("law.toml");
-    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
-    file
+    python_controller_scenario(dir, "law.toml", &path)
 }
 
 fn run(file: &Path, run_dir: &Path, args: &[&str]) -> (Output, String) {
@@ -110,8 +94,8 @@ fn every_tick_the_plant_held_is_a_held_input_with_a_command_or_without() {
     let run_dir = dir.join("run");
     let (_, said) = run(&file, &run_dir, &["--rate", "1000", "--duration", "1"]);
     let mut held = 0u64;
-    flexloop_components::LogReader::scan(&run_dir.join("samples.mcap"), |r| {
-        if let flexloop_components::sample_file::Record::Measurement(m) = r
+    flexloop_recording::LogReader::scan(&run_dir.join("samples.mcap"), |r| {
+        if let flexloop_recording::sample_file::Record::Measurement(m) = r
             && m.flags & flags::HELD_INPUT != 0
         {
             held += 1;

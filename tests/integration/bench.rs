@@ -184,7 +184,7 @@ fn dedicated_copy(dir: &std::path::Path) -> std::path::PathBuf {
 
 /// Commands of a lockstep run, bit for bit.
 fn commands(run: &std::path::Path) -> Vec<u64> {
-    let log = flexloop_components::LogReader::open(&run.join("samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&run.join("samples.mcap")).unwrap();
     log.commands().map(|c| c.u[0].to_bits()).collect()
 }
 

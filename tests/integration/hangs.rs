@@ -98,45 +98,27 @@ fn in_lockstep_a_stopped_controller_is_found_silent_and_restarted() {
     }
 }
 
-/// A Python controller whose law sleeps 4 s after it started: alive, its
-/// process answers signals, but it sends nothing. Swapped into a running
-/// loop, it is found silent, killed and rolled back to the built-in
-/// controller that served before it.
-#[test]
-fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
-    let dir = temp_dir("hang-program");
-    let law = dir.join("sleepy.py");
-    std::fs::write(
-        &law,
-        "import time\nimport flexloop\n\n\
-         class Sleepy(flexloop.Controller):\n\
-         \x20   def __init__(self, setup):\n\
-         \x20       super().__init__(setup)\n\
-         \x20       self.since = time.monotonic()\n\n\
-         \x20   def step(self, m, estimate):\n\
-         \x20       if time.monotonic() - self.since > 4.0:\n\
-         \x20           time.sleep(3600)\n\
-         \x20       return -100.0 * m.y[0]\n\n\
-         flexloop.run(Sleepy)\n",
-    )
-    .unwrap();
+/// A Python controller `law` swapped into a running loop (the built-in
+/// controller serving before it) goes silent: it is found, killed and
+/// rolled back to the built-in controller, and the loop runs on with
+/// nothing left. Returns the `silent` and `crash` events.
+fn program_is_silenced_and_rolled_back(test: &str, law: &str) -> (Value, Value) {
+    let dir = temp_dir(test);
+    let path = dir.join("law.py");
+    std::fs::write(&path, law).unwrap();
     let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
     wait_for_ticks(&dir, 1_000);
     let python = python_with(&["flexloop", "iceoryx2"]);
     let mut swap = flexloop();
     swap.args(["swap", "--prefix", &prefix, "controller", "--exec"])
         .arg(&python)
-        .arg(&law);
+        .arg(&path);
     let out = run_bounded(swap, Duration::from_secs(150));
     assert!(out.status.success(), "{}", describe(&out));
     let program = pid_on_duty(&dir, "controller", "active");
     let silent = await_event(&dir, "silent", "controller");
     assert_eq!(silent["detail"]["pid"], program, "{silent}");
-    // Alive and asleep, not stopped: found by the loop's silence.
-    assert!(
-        silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200,
-        "{silent}"
-    );
+    let crash = await_event(&dir, "crash", "controller");
     let restart = await_event(&dir, "restart", "controller");
     assert!(
         restart["detail"]["rolled_back_from"].is_string(),
@@ -147,18 +129,41 @@ fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
     let out = stop(&prefix, up);
     assert_ran(&out);
     assert_clean(&dir);
+    (silent, crash)
+}
+
+/// A Python controller whose law sleeps 4 s after it started: alive, its
+/// process answers signals, but it sends nothing: found by the loop's
+/// silence (not stopped, so not by the kernel's view of it).
+#[test]
+fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
+    let (silent, crash) = program_is_silenced_and_rolled_back(
+        "hang-program",
+        "import time\nimport flexloop\n\n\
+         class Sleepy(flexloop.Controller):\n\
+         \x20   def __init__(self, setup):\n\
+         \x20       super().__init__(setup)\n\
+         \x20       self.since = time.monotonic()\n\n\
+         \x20   def step(self, m, estimate):\n\
+         \x20       if time.monotonic() - self.since > 4.0:\n\
+         \x20           time.sleep(3600)\n\
+         \x20       return -100.0 * m.y[0]\n\n\
+         flexloop.run(Sleepy)\n",
+    );
+    assert!(
+        silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200,
+        "{silent}"
+    );
+    assert_eq!(crash["detail"]["cause"], "silent", "{crash}");
 }
 
 /// A Python controller that sends NaN from its 500th sample: it answers
-/// every sample, but the plant refuses every command (not finite) and holds.
-/// Swapped into a running loop, it is found silent for that cause, killed
-/// and rolled back to the built-in controller that served before it.
+/// every sample, but the plant refuses every command (not finite) and
+/// holds: found silent for that cause.
 #[test]
 fn a_program_sending_non_finite_commands_is_diagnosed_and_rolled_back() {
-    let dir = temp_dir("hang-nan");
-    let law = dir.join("nan.py");
-    std::fs::write(
-        &law,
+    let (silent, crash) = program_is_silenced_and_rolled_back(
+        "hang-nan",
         "import flexloop\n\n\
          class NotANumber(flexloop.Controller):\n\
          \x20   def __init__(self, setup):\n\
@@ -170,33 +175,9 @@ fn a_program_sending_non_finite_commands_is_diagnosed_and_rolled_back() {
          \x20           return float(\"nan\")\n\
          \x20       return -100.0 * m.y[0]\n\n\
          flexloop.run(NotANumber)\n",
-    )
-    .unwrap();
-    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_ticks(&dir, 1_000);
-    let python = python_with(&["flexloop", "iceoryx2"]);
-    let mut swap = flexloop();
-    swap.args(["swap", "--prefix", &prefix, "controller", "--exec"])
-        .arg(&python)
-        .arg(&law);
-    let out = run_bounded(swap, Duration::from_secs(150));
-    assert!(out.status.success(), "{}", describe(&out));
-    let program = pid_on_duty(&dir, "controller", "active");
-    let silent = await_event(&dir, "silent", "controller");
-    assert_eq!(silent["detail"]["pid"], program, "{silent}");
-    assert_eq!(silent["detail"]["cause"], "non-finite output", "{silent}");
-    let crash = await_event(&dir, "crash", "controller");
-    assert_eq!(crash["detail"]["cause"], "non-finite output", "{crash}");
-    let restart = await_event(&dir, "restart", "controller");
-    assert!(
-        restart["detail"]["rolled_back_from"].is_string(),
-        "a program is rolled back: {restart}"
     );
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 500);
-    let out = stop(&prefix, up);
-    assert_ran(&out);
-    assert_clean(&dir);
+    assert_eq!(silent["detail"]["cause"], "non-finite output", "{silent}");
+    assert_eq!(crash["detail"]["cause"], "non-finite output", "{crash}");
 }
 
 /// The loop owns what it started: when its supervisor is killed (kill -9),
@@ -225,22 +206,7 @@ fn a_hung_program_does_not_outlive_its_killed_supervisor() {
         ),
     )
     .unwrap();
-    let mut table: toml::Table =
-        toml::from_str(&std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap())
-            .unwrap();
-    let exec = [
-        python_with(&["flexloop", "iceoryx2"]),
-        law.display().to_string(),
-    ];
-    flexloop_scenario::program::served_by_program(
-        &mut table,
-        flexloop_scenario::ProgramRole::Controller,
-        &exec,
-        None,
-        None,
-    );
-    let file = dir.join("sleepy.toml");
-    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
+    let file = python_controller_scenario(&dir, "sleepy.toml", &law);
     let (up, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
     wait_for_ticks(&dir, 500);
     let program = pid_on_duty(&dir, "controller", "active");

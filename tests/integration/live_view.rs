@@ -11,10 +11,10 @@
 //! never the command line.
 
 use crate::util::*;
-use flexloop_components::LogReader;
-use flexloop_components::sample_file::EVENT_SCHEMA;
 use flexloop_protocol::WireBytes;
 use flexloop_protocol::layout;
+use flexloop_recording::LogReader;
+use flexloop_recording::sample_file::EVENT_SCHEMA;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::Path;

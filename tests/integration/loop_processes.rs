@@ -2,7 +2,7 @@
 //! clean shutdown, nothing left behind.
 
 use crate::util::*;
-use flexloop_components::LogReader;
+use flexloop_recording::LogReader;
 use std::time::Duration;
 
 fn up(run_dir: &std::path::Path, extra: &[&str]) -> std::process::Output {

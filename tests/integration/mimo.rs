@@ -7,8 +7,9 @@
 
 use crate::util::*;
 use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
-use flexloop_components::{InProcessLoop, LogReader};
+use flexloop_components::InProcessLoop;
 use flexloop_design::LoopDesign;
+use flexloop_recording::LogReader;
 use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::time::Duration;
 

@@ -9,8 +9,8 @@
 
 use crate::own_components::{assert_gone, built, observer_scenario};
 use crate::util::*;
-use flexloop_components::LogReader;
 use flexloop_protocol::Measurement;
+use flexloop_recording::LogReader;
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};

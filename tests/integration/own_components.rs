@@ -6,8 +6,8 @@
 //! the loop runs on.
 
 use crate::util::*;
-use flexloop_components::LogReader;
 use flexloop_protocol::{Command, Measurement};
+use flexloop_recording::LogReader;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;

@@ -16,8 +16,9 @@
 
 use crate::own_components::{built, example_program};
 use crate::util::*;
-use flexloop_components::{ControllerCore, LogReader};
+use flexloop_components::ControllerCore;
 use flexloop_protocol::{Command, Estimate, MAX_INPUTS, Measurement};
+use flexloop_recording::LogReader;
 use flexloop_scenario::ProgramRole;
 use flexloop_scenario::program::served_by_program;
 use std::collections::HashMap;

@@ -7,7 +7,7 @@
 //! and iceoryx2 there from tools/python-requirements.txt).
 
 use crate::util::*;
-use flexloop_components::LogReader;
+use flexloop_recording::LogReader;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -273,7 +273,7 @@ fn a_python_controllers_commands_carry_their_parts_and_its_params_are_recorded()
     let scenario = Scenario::load(&file, &Overrides::default()).unwrap();
     let reference = Reference::from_scenario(&scenario).unwrap();
     let ts = 1.0 / scenario.timing.rate_hz;
-    let log = flexloop_components::LogReader::open(&run_dir.join("samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&run_dir.join("samples.mcap")).unwrap();
     let y: std::collections::HashMap<u64, f64> =
         log.measurements().map(|m| (m.seq, m.y[0])).collect();
     let x_hat: std::collections::HashMap<u64, f64> =
@@ -357,7 +357,7 @@ fn python_observer_scenario(dir: &Path) -> PathBuf {
 /// The example's predictor (examples/luenberger-observer, 1 kg, 200 Hz,
 /// ζ 0.7 at 10 kHz): x̂ for every tick from `from` (where it starts at 0)
 /// on the recorded measurements, by tick.
-fn predictor(log: &flexloop_components::LogReader, from: u64) -> Vec<Option<[f64; 2]>> {
+fn predictor(log: &flexloop_recording::LogReader, from: u64) -> Vec<Option<[f64; 2]>> {
     let (ts, mass, w, zeta) = (1e-4, 1.0, 2.0 * std::f64::consts::PI * 200.0, 0.7_f64);
     let decay = (-zeta * w * ts).exp();
     let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
@@ -385,7 +385,7 @@ fn predictor(log: &flexloop_components::LogReader, from: u64) -> Vec<Option<[f64
 /// Every estimate of `generations` equals the predictor started at `from`;
 /// returns how many there were.
 fn assert_estimates_follow_the_predictor(
-    log: &flexloop_components::LogReader,
+    log: &flexloop_recording::LogReader,
     from: u64,
     generations: &[u32],
 ) -> usize {
@@ -474,7 +474,7 @@ fn the_python_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() {
     for channel in ["measurement", "estimate", "command"] {
         assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
     }
-    let log = flexloop_components::LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =
         log.estimates().map(|e| e.generation).collect();
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
@@ -556,7 +556,7 @@ fn the_python_observer_swaps_into_a_running_loop_and_back() {
     for channel in ["measurement", "estimate", "command"] {
         assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
     }
-    let log = flexloop_components::LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let mut served: Vec<u64> = log
         .estimates()
         .filter(|e| e.generation == 1)
@@ -624,7 +624,7 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
         text.contains("took over the state after sample") && !text.contains("hole"),
         "{text}"
     );
-    let log = flexloop_components::LogReader::open(&dir.join("samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =
         log.estimates().map(|e| e.generation).collect();
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
@@ -707,7 +707,7 @@ fn the_thesis_controller_in_python_scans_as_the_built_in_one_at_the_same_gains()
         off * 100.0
     );
     // The Python law's command carries its parts as the built-in one's does.
-    let log = flexloop_components::LogReader::open(&dir.join("run-python/samples.mcap")).unwrap();
+    let log = flexloop_recording::LogReader::open(&dir.join("run-python/samples.mcap")).unwrap();
     let c = log.commands().nth(1_000).unwrap();
     assert!(
         c.u_ff[0] != 0.0 && c.u_d[0] != 0.0 && c.u_fb[0] != 0.0,

@@ -4,7 +4,7 @@
 //! happens to the run: Ctrl-C, a killed plant, a killed logger, a full disk.
 
 use crate::util::*;
-use flexloop_components::LogReader;
+use flexloop_recording::LogReader;
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;

@@ -2,10 +2,11 @@
 //! and a plant that refuses commands it must not apply.
 
 use crate::util::*;
-use flexloop_components::{InProcessLoop, LogReader, ObserverCore};
+use flexloop_components::{InProcessLoop, ObserverCore};
 use flexloop_design::LoopDesign;
 use flexloop_protocol::channels::{COMMAND, MEASUREMENT};
 use flexloop_protocol::{Command, Estimate, Measurement, flags};
+use flexloop_recording::LogReader;
 use flexloop_scenario::{Overrides, Scenario};
 use flexloop_transport::{Domain, Inlet, Outlet};
 use serde_json::Value;

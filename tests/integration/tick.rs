@@ -5,7 +5,7 @@
 use crate::util::{
     assert_bench_ran, describe, flexloop, processes_mentioning, run_bounded, temp_dir,
 };
-use flexloop_components::LogReader;
+use flexloop_recording::LogReader;
 use serde_json::Value;
 use std::path::Path;
 use std::time::Duration;

@@ -3,7 +3,7 @@
 //! or is refused with its reason and leaves the loop as it was.
 
 use crate::util::*;
-use flexloop_components::LogReader;
+use flexloop_recording::LogReader;
 use serde_json::Value;
 use std::path::Path;
 use std::process::Output;

@@ -175,7 +175,7 @@ pub fn processes_mentioning(needle: &str) -> Vec<String> {
 /// The run's iceoryx2 prefix, from the sample log's metadata (read
 /// without keeping the samples: a long lockstep run holds millions).
 pub fn prefix_of(run_dir: &Path) -> String {
-    let log = flexloop_components::LogReader::scan(&run_dir.join("samples.mcap"), |_| {}).unwrap();
+    let log = flexloop_recording::LogReader::scan(&run_dir.join("samples.mcap"), |_| {}).unwrap();
     let meta: serde_json::Value = serde_json::from_str(&log.metadata_json).unwrap();
     meta["prefix"].as_str().unwrap().to_string()
 }
@@ -292,7 +292,7 @@ impl Drop for Up {
 /// (from the file's indexes: reading it whole each time would take the
 /// loop's CPU).
 pub fn recorded_ticks_in(dir: &Path, file: &str) -> usize {
-    flexloop_components::mcap_repair::topic_counts(&dir.join(file))
+    flexloop_recording::mcap_repair::topic_counts(&dir.join(file))
         .map_or(0, |c| c.get("/measurement").copied().unwrap_or(0) as usize)
 }
 
@@ -417,6 +417,28 @@ pub fn pids_of(dir: &Path, role: &str) -> Vec<i32> {
 /// tools/python-requirements.txt and sets `FLEXLOOP_PYTHON`), checked to
 /// import `modules`. A test that needs it fails without it, saying how to
 /// get it: it never passes without having checked anything.
+/// The lecture's double integrator with the Python program `law` as its
+/// controller, written to `dir/name`.
+pub fn python_controller_scenario(dir: &Path, name: &str, law: &Path) -> PathBuf {
+    let mut table: toml::Table =
+        toml::from_str(&std::fs::read_to_string(scenario("lecture-double-integrator")).unwrap())
+            .unwrap();
+    let exec = [
+        python_with(&["flexloop", "iceoryx2"]),
+        law.display().to_string(),
+    ];
+    flexloop_scenario::program::served_by_program(
+        &mut table,
+        flexloop_scenario::ProgramRole::Controller,
+        &exec,
+        None,
+        None,
+    );
+    let file = dir.join(name);
+    std::fs::write(&file, toml::to_string(&table).unwrap()).unwrap();
+    file
+}
+
 pub fn python_with(modules: &[&str]) -> String {
     let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-python/bin/python");
     let python = std::env::var("FLEXLOOP_PYTHON").unwrap_or_else(|_| venv.display().to_string());
@@ -446,8 +468,8 @@ pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, t
     let summary = summary(dir);
     assert_eq!(summary["counters"]["misses"], 0, "{summary}");
     let mut commands_of_others = 0;
-    flexloop_components::LogReader::scan(&dir.join("samples.mcap"), |r| {
-        if let flexloop_components::Record::Command(c) = r {
+    flexloop_recording::LogReader::scan(&dir.join("samples.mcap"), |r| {
+        if let flexloop_recording::Record::Command(c) = r {
             commands_of_others += u64::from(c.generation != 0);
         }
     })

@@ -24,8 +24,8 @@ use super::measure::{AppliedHistory, BEFORE_SWITCH, Pace};
 use super::per_role::PerRole;
 use super::roster::{Duty, Roster};
 use super::switch::Switch;
+use crate::children::Outcome;
 use crate::process_state::ProcessState;
-use crate::supervisor::Outcome;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::handover::ACTIVE;
@@ -36,6 +36,10 @@ use silence::SilenceWatch;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// How long a replacement may take to start and follow the loop in shadow.
+pub const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long the replaced instance may take to hand over and exit.
+pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a standby told to retire may take to become a spare.
 const RETIRE_TIMEOUT: Duration = Duration::from_secs(2);
 /// The shortest time ahead a swap's boundary is announced: every process
@@ -173,11 +177,15 @@ impl Core {
                 finite,
             } => {
                 self.saw_sample(seq);
-                self.non_finite = match self.non_finite {
-                    _ if finite => None,
-                    Some((g, n)) if g == generation => Some((g, n + 1)),
-                    _ => Some((generation, 1)),
-                };
+                // The owner's commands only: a standby's or a stray's say
+                // nothing of the active controller.
+                if self.activation.controller_for(seq) == generation {
+                    self.non_finite = match self.non_finite {
+                        _ if finite => None,
+                        Some((g, n)) if g == generation => Some((g, n + 1)),
+                        _ => Some((generation, 1)),
+                    };
+                }
                 Vec::new()
             }
             Event::Applied {

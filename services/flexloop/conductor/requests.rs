@@ -3,7 +3,7 @@
 //! `requests/` folder (`*.request` a swap, `*.set` a set), answered by a file
 //! beside it (each written whole, then renamed: never read half-done).
 
-use super::shell::{DRAIN_TIMEOUT, SHADOW_TIMEOUT};
+use super::decide::{DRAIN_TIMEOUT, SHADOW_TIMEOUT};
 use anyhow::{Context, Result, bail};
 use flexloop_node::Role;
 use flexloop_runfiles::FileError;

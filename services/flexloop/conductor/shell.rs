@@ -4,8 +4,8 @@
 //! and waits where a swap or restart must wait, asking the core at each step.
 
 use super::decide::{
-    Action, Core, DrainStep, Engagement, Event, Failure, Policy, Record, RestartPlan, Retirement,
-    ShadowStep, Stage,
+    Action, Core, DRAIN_TIMEOUT, DrainStep, Engagement, Event, Failure, Policy, Record,
+    RestartPlan, Retirement, SHADOW_TIMEOUT, ShadowStep, Stage,
 };
 use super::ports::Ports;
 use super::record::RunFiles;
@@ -13,7 +13,7 @@ use super::replay::Replay;
 use super::requests;
 use super::switch::Switch;
 use super::tuning::Tuning;
-use crate::supervisor::{Outcome, RunningLoop};
+use crate::children::{Outcome, RunningLoop};
 use anyhow::{Result, anyhow, bail};
 use flexloop_design::LoopDesign;
 use flexloop_node::Role;
@@ -30,10 +30,6 @@ use std::os::fd::RawFd;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// How long a replacement may take to start and follow the loop in shadow.
-pub(super) const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
-/// How long the replaced instance may take to hand over and exit.
-pub(super) const DRAIN_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a swap or restart waits for a spare that is still starting.
 const SPARE_START_WAIT: Duration = Duration::from_secs(5);
 /// How far back the supervisor keeps measurements for a restarted observer:
@@ -569,7 +565,7 @@ impl Conductor {
         generation: u32,
         joining: Joining,
     ) -> Result<(i32, bool)> {
-        let own_program = crate::supervisor::own_program(role, scenario)?.is_some();
+        let own_program = crate::children::own_program(role, scenario)?.is_some();
         let since = Instant::now();
         // The first decision on what is known already: an idle spare is
         // ordered at once (a restart's every look costs held ticks).
@@ -729,7 +725,7 @@ impl Conductor {
     fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<()> {
         let start_seq = self.core.last_seq().unwrap_or(0);
         let is_program = |scenario: &Path| {
-            crate::supervisor::own_program(role, scenario).is_ok_and(|p| p.is_some())
+            crate::children::own_program(role, scenario).is_ok_and(|p| p.is_some())
         };
         let (scenario, generation, owns_from, rolled_back_from) =
             match self.core.plan_restart(role, &is_program)? {

@@ -1,7 +1,7 @@
 //! The CPU time of each loop process over a sweep point's run, past its
 //! start-up, from the scheduler's own account.
 
-use crate::supervisor::RunningLoop;
+use crate::children::RunningLoop;
 use flexloop_node::Role;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;

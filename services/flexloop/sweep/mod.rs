@@ -15,12 +15,12 @@
 mod cpu;
 mod results;
 
-use crate::bench::BenchArgs;
 use crate::launch::{LoopArgs, named_scenario, prepare, resolve_scenario, supervise};
 use crate::probes;
 use anyhow::{Context, bail};
 use cpu::CpuWindow;
 use flexloop_design::LoopDesign;
+use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::bench::{Floors, SweepFile, SweepMeasurement, SweepPoint, SweepResult};
 use flexloop_runtime::latency::Metric;
@@ -101,8 +101,12 @@ pub struct Options {
 
 impl Options {
     /// The sweep's options from `bench --sweep`'s flags, checked.
-    pub fn from_args(args: &BenchArgs) -> anyhow::Result<Self> {
-        let grid = &args.grid;
+    pub fn from_args(
+        grid: &GridArgs,
+        overrides: &OverrideFlags,
+        no_probes: bool,
+        run_dir: Option<PathBuf>,
+    ) -> anyhow::Result<Self> {
         let o = Options {
             series: grid
                 .series
@@ -110,12 +114,12 @@ impl Options {
                 .unwrap_or_else(|| vec![Series::Rate, Series::States, Series::Axes]),
             rates_hz: grid.rates.clone().unwrap_or_else(|| RATES_HZ.to_vec()),
             states: grid.states.clone().unwrap_or_else(|| STATES.to_vec()),
-            duration_s: args.overrides.duration_s.unwrap_or(4.0),
-            probes: !args.no_probes,
-            no_realtime: args.overrides.no_realtime,
-            tick: args.overrides.tick,
+            duration_s: overrides.duration_s.unwrap_or(4.0),
+            probes: !no_probes,
+            no_realtime: overrides.no_realtime,
+            tick: overrides.tick,
             keep_logs: grid.keep_logs,
-            out: args.run_dir.clone(),
+            out: run_dir,
         };
         if !(o.duration_s.is_finite() && o.duration_s > 0.0) {
             bail!(
@@ -178,7 +182,7 @@ pub fn sweep(o: Options) -> anyhow::Result<i32> {
         .unwrap_or_else(|| crate::launch::stamped_run_dir("sweep"));
     std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
     let base = Scenario::load(&default_scenario()?, &base_overrides(&o, BASE_RATE_HZ))?;
-    let profile = crate::bench::profile_line(&base);
+    let profile = crate::deployment::profile_line(&base);
     println!("{profile}");
     let points = plan(&o, &root)?;
     eprintln!(
@@ -439,7 +443,10 @@ mod tests {
                 .map_err(|e| e.to_string())?
                 .command
             {
-                crate::Command::Bench(args) => Options::from_args(&args).map_err(|e| e.to_string()),
+                crate::Command::Bench(args) => {
+                    Options::from_args(&args.grid, &args.overrides, args.no_probes, args.run_dir)
+                        .map_err(|e| e.to_string())
+                }
                 other => panic!("not bench: {other:?}"),
             }
         };

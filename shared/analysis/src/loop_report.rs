@@ -630,6 +630,26 @@ impl LoopReport {
     }
 }
 
+/// The design the scenario `text` (read from `path`) runs, by part: what
+/// closes the loop and the observer, in words (`flexloop status`, the live
+/// view): the file accepted as every command accepts it, then its words.
+pub fn design_words(
+    path: &std::path::Path,
+    text: &str,
+) -> Result<Vec<(String, String)>, flexloop_scenario::ScenarioError> {
+    let accepted = flexloop_design::acceptance::accept_text(
+        path,
+        text,
+        &flexloop_scenario::Overrides::default(),
+        flexloop_runtime::realtime::online_cpus(),
+    )?;
+    let (s, d) = (&accepted.scenario, &accepted.design);
+    Ok(vec![
+        ("controller".into(), controller_words(s, d)),
+        ("observer".into(), observer_words(s, d)),
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

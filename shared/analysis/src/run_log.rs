@@ -7,7 +7,7 @@
 //! ([`joined_summary`]).
 
 use crate::latency_log::LatencyLog;
-use flexloop_components::{LogEvent, LogReader, Record};
+use flexloop_recording::{LogEvent, LogReader, Record};
 use flexloop_runfiles::summary::{
     Counters, DroppedInLogger, GenerationAccount, Outage, PerChannel, Recording, SampleFileState,
 };

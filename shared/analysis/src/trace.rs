@@ -8,8 +8,9 @@
 //! counted, never filled in. The timing of every tick the plant logged,
 //! complete or not, is kept apart in [`RunTrace::timing`].
 
-use flexloop_components::{InProcessLoop, LogReader};
+use flexloop_components::InProcessLoop;
 use flexloop_protocol::{Command, Estimate, Measurement, flags};
+use flexloop_recording::LogReader;
 use std::collections::BTreeMap;
 
 /// One tick of a run.

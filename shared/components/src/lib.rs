@@ -15,15 +15,10 @@
 //!   feedforward and limits: u(k).
 //! - [`handover`]: design fingerprints and bumpless state shifts for swaps.
 //! - [`in_process`]: the whole loop in one process, as lockstep runs it.
-//! - [`recorder`]: the logger's bookkeeping: gaps, latencies, events, and
-//!   every message into the sample file.
-//! - [`sample_file`]: the run's MCAP sample file, written and read back.
-//! - [`mcap_repair`]: closes a sample file its writer left unfinished.
-//! - [`storage`]: where a sample file lives (a file, or memory), as the
-//!   writer and the repair both use it.
-//! - [`loop_events`]: conditions of the loop (misses, stalls, fallbacks, ...)
-//!   read off the samples.
 //! - [`noise`]: the seeded disturbance generator.
+//!
+//! The record of the samples (the logger's recorder, the MCAP sample file)
+//! is flexloop-recording's.
 
 pub mod control_law;
 pub mod controller;
@@ -31,14 +26,9 @@ pub mod estimation_law;
 pub mod handover;
 pub mod in_process;
 pub mod law_setup;
-pub mod loop_events;
-pub mod mcap_repair;
 pub mod noise;
 pub mod observer;
 pub mod plant;
-pub mod recorder;
-pub mod sample_file;
-pub mod storage;
 
 pub use control_law::{ControlLaw, ControllerSetup};
 pub use controller::ControllerCore;
@@ -47,5 +37,3 @@ pub use in_process::InProcessLoop;
 pub use law_setup::{LawSetup, SetupError};
 pub use observer::ObserverCore;
 pub use plant::{CommandVerdict, PlantCore, PlantCounters};
-pub use recorder::{RecordSink, Recorder};
-pub use sample_file::{LogEvent, LogReader, Record, SampleWriter};

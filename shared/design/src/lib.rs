@@ -29,6 +29,7 @@ pub mod feedforward;
 pub mod io_observer;
 pub mod loop_design;
 pub mod observer;
+pub mod observer_choice;
 pub mod pid_bandwidth;
 pub mod plants;
 pub mod reference;

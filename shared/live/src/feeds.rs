@@ -1,8 +1,9 @@
 //! What the JSON channels carry: `/latency` from the logger's telemetry,
 //! `/events` from the run's `events.jsonl`, `/scenario` as it stands.
 
+use crate::counts::Counts;
+use crate::error::LiveError;
 use crate::gate::GateCounts;
-use crate::server::{Counts, LiveError};
 use crate::tuning::Tuner;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;

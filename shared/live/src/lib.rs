@@ -20,6 +20,8 @@
 //! - `feeds`: what the JSON channels carry (latency, events, scenario).
 
 pub mod clients;
+mod counts;
+mod error;
 mod feeds;
 pub mod gate;
 pub mod options;
@@ -29,8 +31,9 @@ pub mod server;
 pub mod token;
 pub mod tuning;
 
+pub use error::LiveError;
 pub use options::{
     DEFAULT_ADDRESS, HOW_TO_GIVE_A_TOKEN, LiveOptions, MIN_TOKEN_CHARS, OptionsError, TOKEN_ENV,
 };
-pub use server::{LiveError, LoopSide, endpoint, serve};
+pub use server::{LoopSide, endpoint, serve};
 pub use tuning::{SetOutcome, Tuner};

@@ -3,7 +3,7 @@
 //! publisher of the loop waits for it), in the order and with the
 //! ownership the logger records them.
 
-use crate::server::LiveError;
+use crate::error::LiveError;
 use flexloop_node::handover::ActivationView;
 use flexloop_node::in_order::{InOrder, STAGED};
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, MEASUREMENT};

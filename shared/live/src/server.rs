@@ -19,6 +19,8 @@
 //! the client may change the loop.
 
 use crate::clients::{ClientTable, RATE_PARAMETER, Route, TOKEN_PARAMETER, targets};
+use crate::counts::Counts;
+pub use crate::error::LiveError;
 use crate::feeds::{EventsTail, LatencyFeed, ScenarioWatch};
 use crate::gate::{Admissions, Gate, GateCounts, Limits, MARK_PARAMETER, MAX_CLIENTS, Mark};
 use crate::options::LiveOptions;
@@ -26,11 +28,10 @@ use crate::parameters;
 use crate::reader::LoopReader;
 use crate::token::{self, Attempt, Throttle};
 use crate::tuning::{SetOutcome, Tuner};
-use flexloop_components::sample_file::{
+use flexloop_protocol::layout::{self, MessageLayout};
+use flexloop_recording::sample_file::{
     COMMAND_TOPIC, ESTIMATE_TOPIC, EVENT_SCHEMA, EVENT_SCHEMA_NAME, EVENTS_TOPIC, MEASUREMENT_TOPIC,
 };
-use flexloop_node::NodeError;
-use flexloop_protocol::layout::{self, MessageLayout};
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::live::{LiveEndpoint, LiveSummary};
@@ -45,7 +46,6 @@ use foxglove::{
     WebSocketServerHandle,
 };
 use std::collections::HashMap;
-use std::fmt;
 use std::net::{Ipv4Addr, SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -106,46 +106,6 @@ pub struct LoopSide {
     pub prefix: String,
     pub run_dir: PathBuf,
     pub rate_hz: f64,
-}
-
-/// Why the server stopped or could not start.
-#[derive(Debug)]
-pub enum LiveError {
-    /// The WebSocket server could not start (the address is taken, ...).
-    Start { address: String, reason: String },
-    /// A channel of the Foxglove context could not be made.
-    Channel { topic: &'static str, reason: String },
-    /// Reading the loop's channels failed.
-    Loop(NodeError),
-    /// `live.json` could not be written.
-    RunFile(flexloop_runfiles::FileError),
-}
-
-impl fmt::Display for LiveError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            LiveError::Start { address, reason } => {
-                write!(f, "the live server cannot listen on {address}: {reason}")
-            }
-            LiveError::Channel { topic, reason } => write!(f, "live channel {topic}: {reason}"),
-            LiveError::Loop(e) => write!(f, "reading the loop: {e}"),
-            LiveError::RunFile(e) => e.fmt(f),
-        }
-    }
-}
-
-impl std::error::Error for LiveError {}
-
-impl From<NodeError> for LiveError {
-    fn from(e: NodeError) -> Self {
-        LiveError::Loop(e)
-    }
-}
-
-impl From<flexloop_transport::TransportError> for LiveError {
-    fn from(e: flexloop_transport::TransportError) -> Self {
-        LiveError::Loop(NodeError::Transport(e))
-    }
 }
 
 /// What the server's callbacks share with the reader.
@@ -693,76 +653,6 @@ fn feed(
     Ok(())
 }
 
-/// The server's own counts: messages sent, and samples its reader never
-/// got (its queue overflowed: it was not scheduled for 51 ms).
-#[derive(Debug, Default)]
-pub(crate) struct Counts {
-    /// Messages handed to each client (of clients no longer subscribed to
-    /// anything, kept until there are more than [`KEPT_GONE`]).
-    handed_to: HashMap<SinkId, u64>,
-    /// Messages handed to clients forgotten since.
-    handed_to_gone: u64,
-    last_seq: [Option<u64>; 3],
-    pub(crate) lost: [u64; 3],
-    most_clients: usize,
-}
-
-/// Counts of clients without a route kept before they are forgotten: the
-/// count of each connection the server ever served would grow without end
-/// under clients that connect again and again.
-const KEPT_GONE: usize = 4 * MAX_CLIENTS;
-
-impl Counts {
-    fn handed(&mut self, sink: SinkId) {
-        *self.handed_to.entry(sink).or_insert(0) += 1;
-    }
-
-    /// Forgets the counts of clients without a route once there are many.
-    fn forget_gone(&mut self, routes: &[Route<SinkId>]) {
-        if self.handed_to.len() <= routes.len() + KEPT_GONE {
-            return;
-        }
-        let mut gone = 0;
-        self.handed_to.retain(|sink, n| {
-            let keep = routes.iter().any(|r| r.sink == *sink);
-            if !keep {
-                gone += *n;
-            }
-            keep
-        });
-        self.handed_to_gone += gone;
-    }
-
-    /// Messages handed to all clients.
-    pub(crate) fn sent(&self) -> u64 {
-        self.handed_to_gone + self.handed_to.values().sum::<u64>()
-    }
-
-    fn handed_to(&self, sink: SinkId) -> u64 {
-        self.handed_to.get(&sink).copied().unwrap_or(0)
-    }
-
-    /// To every client subscribed to `channel`, counted.
-    fn log_to_subscribers(&mut self, channel: &RawChannel, routes: &[Route<SinkId>], bytes: &[u8]) {
-        let id = u64::from(channel.id());
-        for route in routes.iter().filter(|r| r.channels.contains(&id)) {
-            channel.log_to_sink(bytes, Some(route.sink));
-            self.handed(route.sink);
-        }
-    }
-
-    fn read(&mut self, channel: usize, seq: u64) {
-        if let Some(last) = self.last_seq[channel]
-            && seq > last + 1
-        {
-            self.lost[channel] += seq - last - 1;
-        }
-        if self.last_seq[channel].is_none_or(|last| seq > last) {
-            self.last_seq[channel] = Some(seq);
-        }
-    }
-}
-
 fn wall_clock_ns() -> u64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
@@ -772,19 +662,4 @@ fn wall_clock_ns() -> u64 {
 /// Where `serve` says it listens.
 pub fn endpoint(run_dir: &Path) -> Result<LiveEndpoint, flexloop_runfiles::FileError> {
     flexloop_runfiles::json::read_json(&RunDir::new(run_dir).live())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_reader_counts_what_its_queue_lost_and_not_reordering() {
-        let mut counts = Counts::default();
-        for seq in [0, 1, 2, 5, 4, 6] {
-            counts.read(0, seq);
-        }
-        assert_eq!(counts.lost[0], 2);
-        assert_eq!(counts.last_seq[0], Some(6));
-    }
 }

@@ -2,6 +2,7 @@
 //! whatever the file's layout, and the conversions of stored numbers to `f64`.
 
 use crate::error::ModelFileErrorKind;
+use crate::limits::{MAX_DIMENSION, MAX_ENTRIES};
 
 /// An array of numbers as the file holds it: `shape` as written (`[]` for a
 /// single number, `[n]` for a 1-D array, `[rows, columns]` for a matrix) and
@@ -115,6 +116,22 @@ pub(crate) fn unsigned_to_f64(values: &[u64]) -> Result<Vec<f64>, ModelFileError
         .collect()
 }
 
+/// Whether an array of `shape` (as declared, before anything is read) is
+/// within what flexloop takes: every dimension at most [`MAX_DIMENSION`](crate::limits::MAX_DIMENSION) and
+/// at most [`MAX_ENTRIES`](crate::limits::MAX_ENTRIES) entries.
+pub(crate) fn check_shape(shape: &[u64]) -> Result<(), ModelFileErrorKind> {
+    let entries = shape
+        .iter()
+        .try_fold(1u64, |count, &n| count.checked_mul(n))
+        .unwrap_or(u64::MAX);
+    if shape.iter().any(|&n| n > MAX_DIMENSION) || entries > MAX_ENTRIES {
+        return Err(ModelFileErrorKind::ArrayTooLarge {
+            shape: shape.to_vec(),
+        });
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -160,5 +177,35 @@ mod tests {
         );
         assert!(unsigned_to_f64(&[u64::MAX]).is_err());
         assert_eq!(unsigned_to_f64(&[7]).unwrap(), vec![7.0]);
+    }
+
+    #[test]
+    fn shapes_up_to_the_loop_s_size_pass() {
+        for shape in [
+            &[][..],
+            &[128],
+            &[128, 128],
+            &[128, 8],
+            &[2, 2, 2],
+            &[0, 1 << 40],
+        ] {
+            // An empty array has no entries, but a dimension beyond the
+            // bound is still refused: nothing flexloop takes has one.
+            let ok = shape.iter().all(|&n| n <= MAX_DIMENSION);
+            assert_eq!(check_shape(shape).is_ok(), ok, "{shape:?}");
+        }
+        for shape in [
+            &[129][..],
+            &[129, 129],
+            &[64, 64, 64],
+            &[u64::MAX, u64::MAX],
+        ] {
+            assert_eq!(
+                check_shape(shape),
+                Err(ModelFileErrorKind::ArrayTooLarge {
+                    shape: shape.to_vec()
+                })
+            );
+        }
     }
 }

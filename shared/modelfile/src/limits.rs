@@ -12,8 +12,6 @@
 //! room for any number type and writer around that, and nothing for a
 //! model flexloop could not run anyway.
 
-use crate::error::ModelFileErrorKind;
-
 /// The largest dimension of any array flexloop takes: the loop's estimate
 /// carries at most 128 states (`flexloop_protocol::MAX_STATES`; flexloop-design
 /// checks that the two agree), and every model array (A, B, C, D, M, K, and
@@ -39,54 +37,3 @@ pub const MAX_ARRAY_BYTES: u64 = 1 << 20;
 /// The most arrays (`.npz` members, `.mat` variables) a model file may
 /// hold: a model has at most five (M, K, D, B, C or A, B, C, D, ts).
 pub const MAX_ARRAYS: usize = 64;
-
-/// Whether an array of `shape` (as declared, before anything is read) is
-/// within what flexloop takes: every dimension at most [`MAX_DIMENSION`] and
-/// at most [`MAX_ENTRIES`] entries.
-pub(crate) fn check_shape(shape: &[u64]) -> Result<(), ModelFileErrorKind> {
-    let entries = shape
-        .iter()
-        .try_fold(1u64, |count, &n| count.checked_mul(n))
-        .unwrap_or(u64::MAX);
-    if shape.iter().any(|&n| n > MAX_DIMENSION) || entries > MAX_ENTRIES {
-        return Err(ModelFileErrorKind::ArrayTooLarge {
-            shape: shape.to_vec(),
-        });
-    }
-    Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn shapes_up_to_the_loop_s_size_pass() {
-        for shape in [
-            &[][..],
-            &[128],
-            &[128, 128],
-            &[128, 8],
-            &[2, 2, 2],
-            &[0, 1 << 40],
-        ] {
-            // An empty array has no entries, but a dimension beyond the
-            // bound is still refused: nothing flexloop takes has one.
-            let ok = shape.iter().all(|&n| n <= MAX_DIMENSION);
-            assert_eq!(check_shape(shape).is_ok(), ok, "{shape:?}");
-        }
-        for shape in [
-            &[129][..],
-            &[129, 129],
-            &[64, 64, 64],
-            &[u64::MAX, u64::MAX],
-        ] {
-            assert_eq!(
-                check_shape(shape),
-                Err(ModelFileErrorKind::ArrayTooLarge {
-                    shape: shape.to_vec()
-                })
-            );
-        }
-    }
-}

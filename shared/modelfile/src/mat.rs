@@ -26,9 +26,9 @@
 
 use matrw::{MatVariable, MatlabType, NumericArray};
 
-use crate::array::{Array, signed_to_f64, unsigned_to_f64};
+use crate::array::{Array, check_shape, signed_to_f64, unsigned_to_f64};
 use crate::error::{FileFormat, ModelFileErrorKind};
-use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS, check_shape};
+use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS};
 use crate::read::{Entry, Fault, NamedArrays, catch};
 
 /// The level-5 header: 116 bytes of text, 8 of subsystem data offset, 2 of

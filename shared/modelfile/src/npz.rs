@@ -5,9 +5,9 @@ use std::io::{Cursor, Read};
 
 use npyz::{DType, NpyFile, Order, TypeChar};
 
-use crate::array::{Array, signed_to_f64, unsigned_to_f64};
+use crate::array::{Array, check_shape, signed_to_f64, unsigned_to_f64};
 use crate::error::{FileFormat, ModelFileErrorKind};
-use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS, check_shape};
+use crate::limits::{MAX_ARRAY_BYTES, MAX_ARRAYS};
 use crate::read::{Entry, Fault, NamedArrays, catch};
 
 /// The names scipy.io.loadmat adds to the variables of a MAT-file: a model

@@ -11,8 +11,8 @@
 //! (cause `logger-queue`) once there is room again. The messages' queues
 //! copy each message once and make no system call; the writer polls them.
 
-use flexloop_components::{RecordSink, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_recording::{RecordSink, SampleWriter};
 use flexloop_runfiles::summary::{DroppedInLogger, SampleFileState};
 use flexloop_runtime::latency::{LoopLatencies, Metric};
 use flexloop_runtime::monotonic_ns;

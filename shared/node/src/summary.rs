@@ -2,7 +2,7 @@
 //! figures (`plant_latency.json`), from their counters and histograms (the
 //! files' types: [`flexloop_runfiles::summary`]).
 
-use flexloop_components::{RecordSink, Recorder};
+use flexloop_recording::{RecordSink, Recorder};
 use flexloop_runfiles::summary::{Counters, PerChannel, PlantCounters, Recording};
 use flexloop_runfiles::{Histogram, Percentiles, PlantLatency, RunSummary};
 use flexloop_runtime::latency::{LatencyHistogram, LoopLatencies, Metric, PlantLatencies};
@@ -132,7 +132,7 @@ mod tests {
     #[test]
     fn the_sample_writers_account_reads_as_the_summarys_type() {
         let path = std::env::temp_dir().join(format!("flexloop-state-{}.mcap", std::process::id()));
-        let mut writer = flexloop_components::SampleWriter::create(&path, 0).unwrap();
+        let mut writer = flexloop_recording::SampleWriter::create(&path, 0).unwrap();
         writer.finish();
         let json = writer.recording_json();
         let _ = std::fs::remove_file(&path);

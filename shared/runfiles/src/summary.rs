@@ -154,7 +154,7 @@ pub struct Recording {
     pub dropped_in_logger: DroppedInLogger,
 }
 
-/// The sample file's writer's own account (`flexloop_components::SampleWriter`).
+/// The sample file's writer's own account (`flexloop_recording::SampleWriter`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct SampleFileState {
     pub format: String,

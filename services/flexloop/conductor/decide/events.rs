@@ -1,7 +1,7 @@
 //! What goes into the decision core (events) and what comes out (actions).
 
+use crate::children::Outcome;
 use crate::process_state::ProcessState;
-use crate::supervisor::Outcome;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::{Handover, MAX_INPUTS};

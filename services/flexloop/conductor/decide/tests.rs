@@ -1250,6 +1250,12 @@ fn a_controller_sending_only_non_finite_commands_is_silent_of_that_cause() {
             generation: 0,
             finite: false,
         });
+        // A standby's (or a stray's) finite commands say nothing of the owner.
+        f.core.handle(Event::Command {
+            seq,
+            generation: 1,
+            finite: true,
+        });
     }
     f.ticks(100, 130, false, true, 4);
     let actions = f.silence_stage(4);

@@ -6,7 +6,8 @@
 use super::Parts;
 use crate::feedback::FeedbackPlan;
 use crate::feedforward::FeedforwardPlan;
-use crate::observer::{flexible_modes_kept, modal_observer};
+use crate::observer::flexible_modes_kept;
+use crate::observer_choice::modal_observer;
 use flexloop_control::discretise::zoh;
 use flexloop_control::kalman::KalmanWeights;
 use flexloop_control::modal::{ModalDamping, ModalModel, ReducedModel};

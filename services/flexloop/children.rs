@@ -1,4 +1,5 @@
-//! Starting, watching and stopping the loop's processes.
+//! The loop's child processes: starting, watching and stopping them (the
+//! supervisor's hands; its decisions are the conductor's).
 //!
 //! Children run in their own process groups (a terminal's Ctrl-C reaches only
 //! the supervisor, which then stops them in order: the plant first, so the

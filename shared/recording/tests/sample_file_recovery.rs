@@ -3,10 +3,10 @@
 //! indexed MCAP file holding the same messages; a full disk stops the
 //! writing, leaves a finished file and the counting goes on.
 
-use flexloop_components::mcap_repair;
-use flexloop_components::storage::Storage;
-use flexloop_components::{LogReader, Recorder, SampleWriter};
 use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_recording::mcap_repair;
+use flexloop_recording::storage::Storage;
+use flexloop_recording::{LogReader, Recorder, SampleWriter};
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::io::{self, Cursor, Write};

@@ -1,9 +1,10 @@
-//! The live commands: `up` starts a loop and supervises it in the
-//! foreground; `down`, `status` and `swap` find a running one through the
-//! registry and stop, show or change it.
+//! The commands on a running loop: `up` starts a loop and supervises it in
+//! the foreground; `down`, `status` and `swap` find a running one through
+//! the registry and stop, show or change it.
 
 use crate::launch::{VERDICT_FAILED, prepare, resolve_scenario, supervise};
 use crate::registry;
+use crate::registry::PrefixArg;
 use anyhow::bail;
 use flexloop_analysis::verdict::GridCounts;
 use flexloop_protocol::Telemetry;
@@ -16,14 +17,6 @@ use flexloop_scenario::ProgramRole;
 use flexloop_transport::{Domain, Inlet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
-
-/// `[--prefix P]`: which running loop (default: every one, or the only one).
-#[derive(Debug, clap::Args)]
-pub struct PrefixArg {
-    /// The loop's iceoryx2 prefix, as `flexloop status` shows it
-    #[arg(long, value_name = "P")]
-    pub prefix: Option<String>,
-}
 
 /// `status [--prefix P] [--scenario]`.
 #[derive(Debug, clap::Args)]
@@ -352,7 +345,7 @@ fn design_now(entry: &registry::Entry) -> Vec<String> {
     }
     let now = crate::tune::current(Some(&entry.prefix))
         .ok()
-        .and_then(|(path, text)| design_words(&path, &text).ok());
+        .and_then(|(path, text)| flexloop_analysis::loop_report::design_words(&path, &text).ok());
     match now {
         Some(parts) => parts
             .into_iter()
@@ -360,31 +353,6 @@ fn design_now(entry: &registry::Entry) -> Vec<String> {
             .collect(),
         None => at_start(),
     }
-}
-
-/// The design the scenario `text` (read from `path`) runs, by part: what
-/// closes the loop and the observer, in words (`status`, the live view).
-pub fn design_words(
-    path: &std::path::Path,
-    text: &str,
-) -> Result<Vec<(String, String)>, flexloop_scenario::ScenarioError> {
-    let accepted = flexloop_design::acceptance::accept_text(
-        path,
-        text,
-        &flexloop_scenario::Overrides::default(),
-        flexloop_runtime::realtime::online_cpus(),
-    )?;
-    let (s, d) = (&accepted.scenario, &accepted.design);
-    Ok(vec![
-        (
-            "controller".into(),
-            flexloop_analysis::loop_report::controller_words(s, d),
-        ),
-        (
-            "observer".into(),
-            flexloop_analysis::loop_report::observer_words(s, d),
-        ),
-    ])
 }
 
 /// Prints the newest telemetry of a running loop (waits up to 3 s for it),
@@ -518,7 +486,7 @@ fn program_name(role: &str, duty: &str, scenario: &str) -> Option<String> {
     if duty == "spare" {
         return None;
     }
-    let program = crate::supervisor::own_program(role, std::path::Path::new(scenario)).ok()??;
+    let program = crate::children::own_program(role, std::path::Path::new(scenario)).ok()??;
     let name = program.program.file_name()?.to_string_lossy().into_owned();
     Some(match program.args.first() {
         // An interpreter: the script names it better.
