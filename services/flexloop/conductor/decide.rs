@@ -405,20 +405,24 @@ impl Core {
         let Some(silent) = self.silence.silent(&self.policy.silence, now) else {
             return Vec::new();
         };
-        let Some((pid, generation)) = self
+        let Some((pid, generation, starved)) = self
             .roster
             .serving(silent.role)
-            .filter(|m| m.alive() && !m.silenced && !m.starved)
-            .map(|m| (m.pid, m.generation))
+            .filter(|m| m.alive() && !m.silenced)
+            .map(|m| (m.pid, m.generation, m.starved))
         else {
             return Vec::new();
         };
         // A controller that sends, but only what the plant refuses (NaN,
-        // infinite), is silent for the loop: said so, with how many.
+        // infinite), is silent for the loop: said so, with how many. It is
+        // judged starved or not: it gets the CPU to send.
         let non_finite = self
             .non_finite
             .filter(|&(g, _)| silent.role == Role::Controller && Some(g) == generation)
             .map(|(_, n)| n);
+        if starved && non_finite.is_none() {
+            return Vec::new();
+        }
         let mut detail = json!({
             "pid": pid,
             "ticks_without_output": silent.ticks,

@@ -1258,6 +1258,9 @@ fn a_controller_sending_only_non_finite_commands_is_silent_of_that_cause() {
         });
     }
     f.ticks(100, 130, false, true, 4);
+    // Starved or not: it gets the CPU to send.
+    f.process_waited(CONTROLLER, ProcessState::Live, Some(0), 2);
+    f.process_waited(CONTROLLER, ProcessState::Live, Some(2_000_000), 4);
     let actions = f.silence_stage(4);
     let silent = record(&actions, "silent");
     assert_eq!(silent.detail["cause"], "non-finite output");
