@@ -68,6 +68,19 @@ pub struct ExitInfo {
     pub cpu_ns: u64,
 }
 
+/// What one look at the running loop decided: the run's end, or when to
+/// look again at the latest (besides every child's exit and wake fd).
+#[derive(Debug, Default)]
+pub struct Look {
+    pub ended: Option<Outcome>,
+    pub again_at: Option<Instant>,
+}
+
+/// The supervisor's regular look, and the shortest wait it asks for (a
+/// silence due now is judged at the next look, not in a spin).
+const LOOK: Duration = Duration::from_millis(20);
+const MIN_LOOK: Duration = Duration::from_millis(1);
+
 pub struct RunningLoop {
     pub plan: LaunchPlan,
     pub children: Vec<ChildProcess>,
@@ -396,22 +409,25 @@ impl RunningLoop {
 
     /// Watches until the run ends by itself, a child fails, `limit` passes (from
     /// tick 0, start-up aside) or a termination signal arrives; the caller then stops and cleans up.
-    /// `tick` is called every 20 ms, as soon as a child exits and when one
-    /// of `wake_fds` (the plant's silence alarm) is readable, after reaping
-    /// and before judging exits: it may settle a child's exit (a restart)
-    /// or end the run, and it must consume what made a wake fd readable.
+    /// `tick` is called every 20 ms (sooner when it names an instant to look
+    /// again: a silence due to be judged), as soon as a child exits and when
+    /// one of `wake_fds` (the plant's silence alarm) is readable, after
+    /// reaping and before judging exits: it may settle a child's exit (a
+    /// restart) or end the run, and it must consume what made a wake fd
+    /// readable.
     pub fn watch(
         &mut self,
         limit: Option<Duration>,
         wake_fds: &[RawFd],
-        mut tick: impl FnMut(&mut RunningLoop) -> Option<Outcome>,
+        mut tick: impl FnMut(&mut RunningLoop) -> Look,
     ) -> Outcome {
         loop {
             self.reap();
             if shutdown::requested() {
                 return Outcome::Interrupted;
             }
-            if let Some(ended) = tick(self) {
+            let look = tick(self);
+            if let Some(ended) = look.ended {
                 return ended;
             }
             let timed_out = limit.is_some_and(|l| match self.ticking_since {
@@ -421,7 +437,11 @@ impl RunningLoop {
             if let Some(ended) = verdict(&self.children, timed_out) {
                 return ended;
             }
-            self.wait_for_an_exit(Duration::from_millis(20), wake_fds);
+            let wait = look.again_at.map_or(LOOK, |at| {
+                at.saturating_duration_since(Instant::now())
+                    .clamp(MIN_LOOK, LOOK)
+            });
+            self.wait_for_an_exit(wait, wake_fds);
         }
     }
 

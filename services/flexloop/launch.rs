@@ -406,7 +406,10 @@ fn run_to_the_end(
         if let Some(server) = live_server.as_mut() {
             server.poll();
         }
-        outcome
+        children::Look {
+            ended: outcome,
+            again_at: conductor.next_look(),
+        }
     });
     if matches!(outcome, Outcome::Interrupted) {
         conductor.note_stop();

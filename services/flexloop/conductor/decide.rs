@@ -516,6 +516,17 @@ impl Core {
         actions
     }
 
+    /// When a silent role's silence is due to be judged, if one is silent
+    /// now (see [`SilenceWatch::due`]); none during a swap or restart or
+    /// once the run ends.
+    pub fn silence_due(&self) -> Option<Instant> {
+        if self.busy || self.run_ending {
+            return None;
+        }
+        let period = Duration::from_secs_f64(1.0 / self.policy.rate_hz.max(1.0));
+        self.silence.due(&self.policy.silence, period)
+    }
+
     /// The live processes of the loop whose state the shell is to look at
     /// (see [`Core::handle`] with [`Event::ProcessState`]).
     pub fn watched_processes(&self) -> Vec<i32> {

@@ -274,6 +274,13 @@ impl Conductor {
         running.terminate(pid);
     }
 
+    /// When to look again at the latest: when a silent role's silence is
+    /// due to be judged (a law that sleeps is found at its 200th silent
+    /// tick, not up to a 20 ms look later).
+    pub fn next_look(&self) -> Option<Instant> {
+        self.core.silence_due()
+    }
+
     /// What the supervisor's wait also wakes on: the plant's silence alarm.
     pub fn wake_fds(&self) -> Vec<RawFd> {
         vec![self.ports.alarm_fd()]

@@ -75,6 +75,8 @@ pub struct SilenceWatch {
     counts: VecDeque<(u64, u64)>,
     controller: Output,
     observer: Output,
+    /// When the last look was taken.
+    looked: Option<Instant>,
 }
 
 /// A role found silent: who, and for how long.
@@ -116,6 +118,7 @@ impl SilenceWatch {
 
     /// One look at the channels is over: what it saw is stamped `now`.
     pub fn polled(&mut self, now: Instant) {
+        self.looked = Some(now);
         for o in [&mut self.controller, &mut self.observer] {
             if std::mem::take(&mut o.fresh) {
                 o.at = Some(now);
@@ -154,6 +157,27 @@ impl SilenceWatch {
             Some(&(_, count)) => self.unstalled - count,
             None => self.unstalled,
         }
+    }
+
+    /// When a role silent now (the plant's watchdog has acted on it: two
+    /// ticks or more without its output) is due to be judged under `rule`,
+    /// at `period` per tick: its silent ticks counted on from the last look,
+    /// and no sooner than its floor. None when no role is silent, or one is
+    /// due already (the regular look judges it).
+    pub fn due(&self, rule: &SilenceRule, period: Duration) -> Option<Instant> {
+        let looked = self.looked?;
+        [&self.observer, &self.controller]
+            .into_iter()
+            .filter_map(|o| {
+                let (seq, at) = (o.seq?, o.at?);
+                let ticks = self.unstalled_after(seq);
+                if rule.lockstep || ticks < 2 || ticks >= rule.ticks {
+                    return None;
+                }
+                let by_ticks = looked + period * u32::try_from(rule.ticks - ticks).ok()?;
+                Some(by_ticks.max(at + rule.floor))
+            })
+            .min()
     }
 
     /// The role found silent at `now` under `rule`, the observer first
@@ -318,6 +342,36 @@ mod tests {
         w.polled(t0 + Duration::from_millis(60));
         let s = w.silent(&RULE, t0 + Duration::from_millis(60)).unwrap();
         assert_eq!((s.role, s.ticks), (Role::Controller, 25));
+    }
+
+    #[test]
+    fn a_silence_under_way_is_due_when_its_ticks_will_have_passed() {
+        let t0 = Instant::now();
+        let period = Duration::from_micros(100);
+        let mut w = SilenceWatch::default();
+        run(&mut w, 0, 100, true, true);
+        w.polled(t0);
+        assert_eq!(w.due(&RULE, period), None, "nothing silent");
+        // 5 silent ticks of the rule's 20: due 15 ticks after this look.
+        run(&mut w, 100, 105, false, true);
+        w.polled(t0 + Duration::from_micros(500));
+        assert_eq!(
+            w.due(&RULE, period),
+            Some(t0 + Duration::from_micros(500) + 15 * period)
+        );
+        // Not before the floor on a shared machine.
+        let shared = SilenceRule {
+            floor: Duration::from_millis(500),
+            ..RULE
+        };
+        assert_eq!(
+            w.due(&shared, period),
+            Some(t0 + Duration::from_millis(500))
+        );
+        // Due already: the regular look judges it.
+        run(&mut w, 105, 125, false, true);
+        w.polled(t0 + Duration::from_millis(3));
+        assert_eq!(w.due(&RULE, period), None);
     }
 
     #[test]
