@@ -6,7 +6,6 @@
 use crate::util::*;
 use flexloop_protocol::flags;
 use std::path::{Path, PathBuf};
-use std::process::Output;
 use std::time::Duration;
 
 /// A scenario file in `dir` whose controller is the Python `law`.
@@ -16,7 +15,8 @@ fn program_scenario(dir: &Path, law: &str) -> PathBuf {
     python_controller_scenario(dir, "law.toml", &path)
 }
 
-fn run(file: &Path, run_dir: &Path, args: &[&str]) -> (Output, String) {
+/// `flexloop run` of `file` into `run_dir`; what it printed.
+fn run(file: &Path, run_dir: &Path, args: &[&str]) -> String {
     let mut cmd = flexloop();
     cmd.arg("run")
         .arg(file)
@@ -25,8 +25,7 @@ fn run(file: &Path, run_dir: &Path, args: &[&str]) -> (Output, String) {
         .arg(run_dir);
     let out = run_bounded(cmd, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
-    (out, said)
+    String::from_utf8_lossy(&out.stdout).to_string()
 }
 
 /// The number after `label` in `said`.
@@ -57,7 +56,7 @@ fn a_programs_commands_beyond_the_limit_are_clamped_counted_and_their_effort_is_
          flexloop.run(Greedy)\n",
     );
     let run_dir = dir.join("run");
-    let (_, said) = run(
+    let said = run(
         &file,
         &run_dir,
         &["--mode", "lockstep", "--duration", "0.5"],
@@ -92,7 +91,7 @@ fn every_tick_the_plant_held_is_a_held_input_with_a_command_or_without() {
          flexloop.run(Napping)\n",
     );
     let run_dir = dir.join("run");
-    let (_, said) = run(&file, &run_dir, &["--rate", "1000", "--duration", "1"]);
+    let said = run(&file, &run_dir, &["--rate", "1000", "--duration", "1"]);
     let mut held = 0u64;
     flexloop_recording::LogReader::scan(&run_dir.join("samples.mcap"), |r| {
         if let flexloop_recording::sample_file::Record::Measurement(m) = r

@@ -22,7 +22,7 @@ pub use steps::{DrainStep, Engagement, Failure, Renewal, RestartPlan, Retirement
 
 use super::measure::{AppliedHistory, BEFORE_SWITCH, Pace};
 use super::per_role::PerRole;
-use super::roster::{Duty, Roster};
+use super::roster::{Duty, Ending, Roster};
 use super::switch::Switch;
 use crate::children::Outcome;
 use crate::process_state::ProcessState;
@@ -320,8 +320,8 @@ impl Core {
                 continue;
             };
             // Unknown while the exit report has not come (found exiting or killed).
-            let (role, generation, code, found) = (m.role, m.generation, m.exit, m.found);
-            let cause = match (m.cause, m.silenced) {
+            let (role, generation, code, found) = (m.role, m.generation, m.exit, m.found());
+            let cause = match (m.cause, m.silenced()) {
                 (Some(cause), _) => cause,
                 (None, true) => "silent",
                 (None, false) => "crashed",
@@ -408,7 +408,7 @@ impl Core {
         let Some((pid, generation, starved)) = self
             .roster
             .serving(silent.role)
-            .filter(|m| m.alive() && !m.silenced)
+            .filter(|m| m.alive() && !m.silenced())
             .map(|m| (m.pid, m.generation, m.starved))
         else {
             return Vec::new();
@@ -436,7 +436,7 @@ impl Core {
                 m.cause = Some("non-finite output");
             }
         }
-        self.kill_hung(pid, "silent", detail, now)
+        self.kill_hung(pid, Ending::Silent, detail, now)
     }
 
     /// What the kernel shows of a live, unsettled process of the loop (the
@@ -455,8 +455,7 @@ impl Core {
         match state {
             ProcessState::Live => Vec::new(),
             ProcessState::Exiting => {
-                m.exiting = true;
-                m.found = "exiting";
+                m.ending = Some(Ending::Exiting);
                 self.settle_crashes(now)
             }
             ProcessState::Stopped => {
@@ -466,7 +465,7 @@ impl Core {
                     "ticks_without_output": self.silence.ticks_without(m.role),
                     "action": "killed, then handled as a crash",
                 });
-                self.kill_hung(pid, "stopped", detail, now)
+                self.kill_hung(pid, Ending::Stopped, detail, now)
             }
         }
     }
@@ -492,19 +491,11 @@ impl Core {
     }
 
     /// Kills the hung `pid` and deals with it as crashed now.
-    fn kill_hung(
-        &mut self,
-        pid: i32,
-        found: &'static str,
-        detail: Value,
-        now: Instant,
-    ) -> Vec<Action> {
+    fn kill_hung(&mut self, pid: i32, how: Ending, detail: Value, now: Instant) -> Vec<Action> {
         let Some(m) = self.roster.get_mut(pid) else {
             return Vec::new();
         };
-        m.silenced = true;
-        m.exiting = true;
-        m.found = found;
+        m.ending = Some(how);
         let (role, generation) = (m.role, m.generation);
         // Its replacement is judged from its own start.
         self.silence.restart_clock(role, now);

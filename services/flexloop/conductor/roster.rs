@@ -59,34 +59,55 @@ pub struct Member {
     /// It published a state (following in shadow, or serving): it has
     /// followed the loop at least once.
     pub followed: bool,
-    /// Judged hung (silent) and killed: its exit is a fault of that cause.
-    pub silenced: bool,
     /// Why it was judged hung, when more is known than its silence
     /// (`"non-finite output"`: it sent only commands the plant refused).
     pub cause: Option<&'static str>,
-    /// Known to be on its way out (killed by the supervisor, or the kernel
-    /// shows it exiting) before its exit report came: it sends nothing
-    /// more, and is dealt with as ended.
-    pub exiting: bool,
+    /// Known to be on its way out before its exit report came (the kernel
+    /// showed it exiting, or the supervisor killed it as hung): it sends
+    /// nothing more, and is dealt with as ended.
+    pub ending: Option<Ending>,
     /// Its wait for a CPU at the last look (when, ns waited so far), and
     /// whether it waited for most of the time since the look before: a
     /// process starved on a busy machine is not judged hung.
     pub runqueue_wait: Option<(std::time::Instant, u64)>,
     pub starved: bool,
-    /// How its end was found: `"exit report"`, `"exiting"` (the kernel
-    /// showed it in its exit), `"stopped"` or `"silent"` (judged hung).
-    pub found: &'static str,
+}
+
+/// How a process's end was found before its exit report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ending {
+    /// The kernel showed it in its exit (killed or crashed).
+    Exiting,
+    /// Judged hung from the loop's silence, and killed.
+    Silent,
+    /// Found stopped, and killed.
+    Stopped,
 }
 
 impl Member {
     pub fn alive(&self) -> bool {
-        self.exit.is_none() && !self.exiting
+        self.exit.is_none() && self.ending.is_none()
     }
 
     /// Ended other than by a clean exit (an exit found before its report
     /// is a kill or a crash).
     pub fn crashed(&self) -> bool {
-        self.exit.map_or(self.exiting, |code| code != 0)
+        self.exit.map_or(self.ending.is_some(), |code| code != 0)
+    }
+
+    /// Judged hung and killed: its exit is a fault of that cause.
+    pub fn silenced(&self) -> bool {
+        matches!(self.ending, Some(Ending::Silent | Ending::Stopped))
+    }
+
+    /// How its end was found, for its `crash` event.
+    pub fn found(&self) -> &'static str {
+        match self.ending {
+            None => "exit report",
+            Some(Ending::Exiting) => "exiting",
+            Some(Ending::Silent) => "silent",
+            Some(Ending::Stopped) => "stopped",
+        }
     }
 
     pub fn spare(&self) -> bool {
@@ -134,12 +155,10 @@ impl Roster {
             fatal_recorded: false,
             program,
             followed: false,
-            silenced: false,
             cause: None,
             runqueue_wait: None,
             starved: false,
-            exiting: false,
-            found: "exit report",
+            ending: None,
         });
     }
 

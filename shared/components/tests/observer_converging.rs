@@ -29,9 +29,21 @@ fn settling_samples_follow_the_blocks_slowest_pole() {
     assert_eq!(settling_samples(&DMatrix::zeros(2, 2), 1000), 1);
 }
 
-/// The block's free response and direct part, as the controller uses them.
-fn corrections(e: &Estimate) -> Vec<f64> {
-    e.free.iter().chain(e.direct.iter()).copied().collect()
+/// The largest difference between two estimates' corrections (the block's
+/// free response and direct part, as the controller uses them).
+fn distance(a: &Estimate, b: &Estimate) -> f64 {
+    let corrections = |e: &Estimate| {
+        e.free
+            .iter()
+            .chain(e.direct.iter())
+            .copied()
+            .collect::<Vec<_>>()
+    };
+    corrections(a)
+        .iter()
+        .zip(corrections(b))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -50,24 +62,13 @@ fn an_observer_from_its_own_initial_state_meets_the_running_one_within_its_settl
     for _ in 0..n {
         l.tick();
         fresh.step(&l.measurement, &mut own);
-        let distance = |a: &Estimate, b: &Estimate| {
-            corrections(a)
-                .iter()
-                .zip(corrections(b))
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max)
-        };
         let d = distance(&own, &l.estimate);
         if first.is_none() {
             assert!(d > 0.0, "the fresh observer starts elsewhere");
             first = Some(d);
         }
     }
-    let distance_at_end = corrections(&own)
-        .iter()
-        .zip(corrections(&l.estimate))
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
+    let distance_at_end = distance(&own, &l.estimate);
     let first = first.unwrap();
     // A millionfold by the slowest pole; the block's transient (it is not
     // a normal matrix) leaves a little more.
