@@ -141,7 +141,7 @@ fn commands_a_silent_controller_never_sent_are_gaps_of_that_cause_not_a_logger_o
             "--rate",
             "1000",
             "--duration",
-            "3",
+            "8",
             "--run-dir",
         ])
         .arg(&run_dir);
