@@ -2,12 +2,12 @@
 //! (`bench --logging-cost`, `bench --live-cost`): their options, the table
 //! they print and the difference at the round trip's p50 and p99.99.
 
-use crate::launch::LoopArgs;
 use anyhow::bail;
 use flexloop_node::overrides::OverrideFlags;
 use flexloop_runfiles::PlantLatency;
 use flexloop_runtime::latency::Metric;
 use flexloop_scenario::{Mode, Overrides};
+use flexloop_supervisor::launch::LoopArgs;
 use std::path::{Path, PathBuf};
 
 /// A two-run comparison's options (`bench --logging-cost`, `--live-cost`).

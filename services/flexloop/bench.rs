@@ -3,8 +3,6 @@
 //! `--logging-cost` and `--live-cost` hand over to [`crate::sweep`],
 //! [`crate::logging_cost`] and [`crate::live_cost`].
 
-use crate::conductor::Switch;
-use crate::launch::{LoopArgs, prepare, resolve_scenario, supervise};
 use crate::{ab_table, live_cost, logging_cost, probes, sweep};
 use anyhow::Context;
 use flexloop_analysis::verdict::GridCounts;
@@ -17,6 +15,8 @@ use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::{Histogram, RunDir};
 use flexloop_runtime::latency::{Metric, QUANTILE_LABELS};
 use flexloop_scenario::{Mode, Overrides};
+use flexloop_supervisor::conductor::Switch;
+use flexloop_supervisor::launch::{LoopArgs, prepare, resolve_scenario, supervise};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -346,7 +346,7 @@ fn bench(args: BenchArgs) -> anyhow::Result<i32> {
     // benchmark must not read a FAILED or a does-NOT-fit as a pass.
     let verdict_failed = grid.stalls_dominate() || (!fits && rate >= 1e-4);
     Ok(if verdict_failed {
-        crate::launch::VERDICT_FAILED
+        crate::loop_command::VERDICT_FAILED
     } else {
         0
     })

@@ -6,7 +6,6 @@
 //! safe action until the loop recovered, samples the recording lacks,
 //! whether a replacement came, and the files left in shared memory.
 
-use crate::launch::{resolve_scenario, stamped_run_dir};
 use anyhow::{Context, Result, anyhow, bail};
 use flexloop_analysis::fault_recovery::{self, Tick};
 use flexloop_protocol::flags;
@@ -17,6 +16,7 @@ use flexloop_runfiles::json::{read_json, write_json_atomically};
 use flexloop_runfiles::supervision::Processes;
 use flexloop_runtime::{monotonic_ns, shutdown};
 use flexloop_scenario::{Overrides, Scenario};
+use flexloop_supervisor::launch::{resolve_scenario, stamped_run_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -191,7 +191,7 @@ pub fn chaos(args: ChaosArgs) -> Result<i32> {
     println!("written: {}", dir.chaos().display());
     // `up`'s failed grid verdict (stalls dominated) is the machine's; what
     // chaos judges is how the loop survived the kills.
-    let up_failed = file.exit_code != 0 && file.exit_code != crate::launch::VERDICT_FAILED;
+    let up_failed = file.exit_code != 0 && file.exit_code != crate::loop_command::VERDICT_FAILED;
     let failed = up_failed
         || file.aborted.is_some()
         || file.files_left > 0

@@ -103,7 +103,7 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         latency,
         json,
     } = args;
-    let path = crate::launch::resolve_scenario(scenario)?;
+    let path = flexloop_supervisor::launch::resolve_scenario(scenario)?;
     // The check `up` makes: a file design reports on is one up would run.
     let Accepted {
         scenario: s,

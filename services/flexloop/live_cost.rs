@@ -5,13 +5,13 @@
 //! own CPU time is reported beside it (`live_summary.json`).
 
 use crate::ab_table::Options;
-use crate::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use anyhow::{Context, bail};
 use flexloop_live::LiveOptions;
 use flexloop_runfiles::bench::LiveCost;
 use flexloop_runfiles::json::{read_json, write_json_atomically};
 use flexloop_runfiles::live::LiveSummary;
 use flexloop_runfiles::{PlantLatency, RunDir};
+use flexloop_supervisor::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use std::io::ErrorKind;
 use std::net::TcpStream;
 use std::path::Path;

@@ -1,34 +1,28 @@
 //! `up --live`: the loop served to Foxglove while it runs (flexloop-live).
 //!
 //! The server is a process of its own (`flexloop live-server`, hidden),
-//! started by the supervisor once the loop ticks and stopped before the
+//! started by the supervisor once the loop ticks (flexloop_supervisor::live_server) and stopped before the
 //! loop's processes are: a crash of the server (or of the WebSocket stack
 //! under it) is never the supervisor's, it runs with the supervisor's CPU
 //! and priority (off the loop's), and it dies with the supervisor
-//! (PR_SET_PDEATHSIG). Its tunables go through [`crate::tune`], as
+//! (PR_SET_PDEATHSIG). Its tunables go through flexloop_supervisor::attach, as
 //! `flexloop get`, `set` and `status --scenario` do (docs/live.md).
 
-use crate::tune;
 use anyhow::Context;
 use flexloop_live::{
     DEFAULT_ADDRESS, HOW_TO_GIVE_A_TOKEN, LiveOptions, LoopSide, OptionsError, SetOutcome,
     TOKEN_ENV, Tuner,
 };
-use flexloop_runfiles::RunDir;
+use flexloop_supervisor::attach;
 use std::net::{SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 // The token comes to `up` in its environment (TOKEN_ENV) or a file, and
-// travels to the server in the server's environment: never on a command
-// line, which every local user can read in /proc/PID/cmdline (a process's
-// environment only its own user can).
-const STDERR_FILE: &str = "live-server.stderr";
-/// How long the server may take to listen before `up` goes on without it.
-const START_LIMIT: Duration = Duration::from_secs(10);
-const STOP_LIMIT: Duration = Duration::from_secs(3);
+// travels to the server in the server's environment
+// (flexloop_supervisor::live_server): never on a command line, which every
+// local user can read in /proc/PID/cmdline (a process's environment only
+// its own user can).
 
 /// `up`'s live flags.
 #[derive(Debug, Clone, clap::Args)]
@@ -166,19 +160,19 @@ struct LoopTuner {
 
 impl Tuner for LoopTuner {
     fn values(&self) -> Result<Vec<(String, Option<toml::Value>)>, String> {
-        tune::values(Some(&self.prefix)).map_err(|e| e.reason)
+        attach::values(Some(&self.prefix)).map_err(|e| e.reason)
     }
 
     fn set(&self, changes: &[(String, String)]) -> Result<SetOutcome, String> {
-        let outcome = tune::set(Some(&self.prefix), changes).map_err(|e| e.reason)?;
+        let outcome = attach::set(Some(&self.prefix), changes).map_err(|e| e.reason)?;
         Ok(SetOutcome {
             fields: outcome.fields.iter().map(|f| f.field.clone()).collect(),
-            summary: tune::outcome_lines(&outcome).join("; "),
+            summary: crate::tune::outcome_lines(&outcome).join("; "),
         })
     }
 
     fn scenario(&self) -> Result<(String, String), String> {
-        tune::current(Some(&self.prefix))
+        attach::current(Some(&self.prefix))
             .map(|(path, text)| (path.display().to_string(), text))
             .map_err(|e| e.reason)
     }
@@ -186,144 +180,5 @@ impl Tuner for LoopTuner {
     fn design(&self, file: &str, text: &str) -> Result<Vec<(String, String)>, String> {
         flexloop_analysis::loop_report::design_words(std::path::Path::new(file), text)
             .map_err(|e| e.to_string())
-    }
-}
-
-/// The server process of a running loop.
-pub struct LiveServer {
-    pid: i32,
-    run_dir: PathBuf,
-    spawned: Instant,
-    listening: bool,
-    stopped: bool,
-}
-
-impl LiveServer {
-    /// Starts the server; [`LiveServer::poll`] then says when it listens
-    /// (the supervisor's watch goes on meanwhile).
-    pub fn spawn(
-        options: &LiveOptions,
-        prefix: &str,
-        run_dir: &Path,
-        rate_hz: f64,
-    ) -> anyhow::Result<Self> {
-        let exe = std::env::current_exe().context("where flexloop is")?;
-        let stderr_path = run_dir.join(STDERR_FILE);
-        let stderr = std::fs::File::create(&stderr_path)
-            .with_context(|| format!("cannot create {}", stderr_path.display()))?;
-        let mut cmd = Command::new(exe);
-        cmd.arg("live-server")
-            .arg("--prefix")
-            .arg(prefix)
-            .arg("--run-dir")
-            .arg(std::path::absolute(run_dir)?)
-            .arg("--address")
-            .arg(options.address.to_string())
-            .arg("--rate-hz")
-            .arg(rate_hz.to_string());
-        if !options.address.ip().is_loopback() {
-            cmd.arg("--remote");
-        }
-        if options.read_only {
-            cmd.arg("--read-only");
-        }
-        match &options.token {
-            Some(token) => cmd.env(TOKEN_ENV, token),
-            None => cmd.env_remove(TOKEN_ENV),
-        };
-        cmd.stdout(Stdio::null());
-        crate::children::tied_to_supervisor(&mut cmd, stderr);
-        let child = cmd.spawn().context("cannot start flexloop live-server")?;
-        Ok(Self {
-            pid: child.id() as i32,
-            run_dir: run_dir.to_path_buf(),
-            spawned: Instant::now(),
-            listening: false,
-            stopped: false,
-        })
-    }
-
-    /// Until the server listens: says where once it does, or why the live
-    /// view is off (it exited, or did not listen in time; the loop runs on).
-    pub fn poll(&mut self) {
-        if self.listening || self.stopped {
-            return;
-        }
-        if let Ok(endpoint) = flexloop_live::endpoint(&self.run_dir) {
-            self.listening = true;
-            eprintln!(
-                "flexloop: live view on ws://{}{} (Foxglove: Open connection, Foxglove WebSocket)",
-                endpoint.address,
-                if endpoint.read_only {
-                    ", read-only"
-                } else if endpoint.token_required {
-                    ", changes need live.token"
-                } else {
-                    ""
-                }
-            );
-        } else if let Some(code) = self.exited() {
-            self.stopped = true;
-            let text = std::fs::read_to_string(self.run_dir.join(STDERR_FILE)).unwrap_or_default();
-            eprintln!(
-                "flexloop: the live view is off: flexloop live-server exited ({code}): {}",
-                text.trim()
-            );
-        } else if self.spawned.elapsed() > START_LIMIT {
-            self.stop();
-            eprintln!(
-                "flexloop: the live view is off: flexloop live-server did not listen within {START_LIMIT:?}"
-            );
-        }
-    }
-
-    /// Its exit status, once it has exited (reaped).
-    fn exited(&self) -> Option<i32> {
-        let mut status = 0;
-        // SAFETY: a child of ours, not reaped yet.
-        let rc = unsafe { libc::waitpid(self.pid, &mut status, libc::WNOHANG) };
-        (rc == self.pid).then(|| {
-            if libc::WIFEXITED(status) {
-                libc::WEXITSTATUS(status)
-            } else {
-                128 + libc::WTERMSIG(status)
-            }
-        })
-    }
-
-    /// Stops it (SIGTERM, then SIGKILL after 3 s) and removes `live.json`.
-    pub fn stop(&mut self) {
-        if self.stopped {
-            return;
-        }
-        self.stopped = true;
-        // SAFETY: a child of ours not yet reaped, so the pid is not reused.
-        unsafe { libc::kill(self.pid, libc::SIGTERM) };
-        let since = Instant::now();
-        let mut code = self.exited();
-        while code.is_none() && since.elapsed() < STOP_LIMIT {
-            std::thread::sleep(Duration::from_millis(10));
-            code = self.exited();
-        }
-        if code.is_none() {
-            // SAFETY: as above.
-            unsafe { libc::kill(self.pid, libc::SIGKILL) };
-            let mut status = 0;
-            // SAFETY: as above; blocks until it is gone (SIGKILL cannot be held off).
-            unsafe { libc::waitpid(self.pid, &mut status, 0) };
-            eprintln!("flexloop: the live server did not stop within {STOP_LIMIT:?}: killed");
-        } else if let Some(code) = code.filter(|c| *c != 0) {
-            eprintln!(
-                "flexloop: the live server exited with {code} (see {})",
-                self.run_dir.join(STDERR_FILE).display()
-            );
-        }
-        let _ = std::fs::remove_file(RunDir::new(&self.run_dir).live());
-    }
-}
-
-impl Drop for LiveServer {
-    fn drop(&mut self) {
-        self.stop();
     }
 }

@@ -4,11 +4,11 @@
 //! commands' stamps), so that the difference is what recording costs.
 
 use crate::ab_table::Options;
-use crate::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use anyhow::{Context, bail};
 use flexloop_runfiles::bench::LoggingCost;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runfiles::{PlantLatency, RunDir};
+use flexloop_supervisor::launch::{prepare, resolve_scenario, stamped_run_dir, supervise};
 use std::path::Path;
 
 /// The goal for what logging may add at p99.99 (docs/benchmarks.md).

@@ -1,34 +1,29 @@
 //! flexloop: starts, drives and measures the loop's processes. This file
-//! reads the command line and hands each command to its module.
+//! reads the command line and hands each command to its module; what the
+//! commands ask of a loop (start it, supervise it, attach to it) is
+//! flexloop-supervisor's.
 //!
-//! - [`launch`]: a loop's start, supervision and end, for every command that runs one.
-//! - [`live`]: `up`, and `down`, `status` and `swap` on a running loop.
+//! - [`loop_command`]: the flags shared by the commands that run or name a loop.
+//! - [`running`]: `up`, and `down`, `status` and `swap` on a running loop.
 //! - [`live_view`]: `up --live`, the loop served to Foxglove while it runs.
 //! - [`tune`]: `get` and `set`, live tuning of a running loop.
-//! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`], [`live_cost`],
-//!   [`probes`], [`live_cost`]: `bench`; [`chaos`]: `chaos`; [`report`], [`design`],
-//!   [`positions`], [`export`].
+//! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`],
+//!   [`live_cost`], [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`],
+//!   [`design`], [`positions`], [`export`].
 
 mod ab_table;
 mod bench;
 mod chaos;
-mod children;
-mod conductor;
-mod dead_loops;
 mod deadline_sweep;
 mod deployment;
 mod design;
 mod export;
-mod finish;
-mod launch;
 mod live_cost;
 mod live_view;
 mod logging_cost;
+mod loop_command;
 mod positions;
 mod probes;
-mod process_state;
-mod progress;
-mod registry;
 mod report;
 mod run;
 mod running;

@@ -8,7 +8,6 @@
 //! runs every position through the real processes in lockstep instead. The
 //! feed-forward error is discussed in flexloop_analysis::positions.
 
-use crate::launch::{LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise};
 use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::feedforward_fit::FittedFeedforward;
 use flexloop_analysis::positions::{
@@ -19,6 +18,9 @@ use flexloop_runfiles::RunDir;
 use flexloop_runfiles::json::write_json_atomically;
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{Mode, Overrides, Scenario};
+use flexloop_supervisor::launch::{
+    LoopArgs, prepare, resolve_scenario, stamped_run_dir, supervise,
+};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! summary. `flexloop tune-ff RUN`: fits the feedforward gains from a recorded
 //! run and writes them into a scenario file.
 
-use crate::launch::{LoopFlags, VERDICT_FAILED, prepare, supervise};
+use crate::loop_command::{LoopFlags, VERDICT_FAILED};
 use anyhow::{Context, bail};
 use flexloop_analysis::feedforward_fit::{FittedFeedforward, fit_from_run};
 use flexloop_analysis::modal_damping::{ModeDamping, modal_damping};
@@ -18,6 +18,7 @@ use flexloop_runfiles::metrics::{MetricsFile, MetricsTiming};
 use flexloop_runfiles::{RunDir, RunSummary};
 use flexloop_runtime::latency::Metric;
 use flexloop_scenario::{Mode, Overrides, Scenario};
+use flexloop_supervisor::launch::{prepare, supervise};
 use std::path::{Path, PathBuf};
 
 /// `run [SCENARIO] [loop flags] [--allow-invalid]`.
@@ -41,14 +42,15 @@ pub fn run(flags: RunFlags) -> anyhow::Result<i32> {
             args.scenario.display()
         );
     }
-    crate::launch::warn_about_design(&prepared);
+    crate::loop_command::warn_about_design(&prepared);
     eprintln!(
         "flexloop run: {} for {} s at {} Hz ({}{}), run directory {}",
         prepared.scenario.name,
         prepared.scenario.timing.duration_s,
         prepared.scenario.timing.rate_hz,
         prepared.scenario.timing.mode.as_str(),
-        crate::launch::pid_words(&prepared.design).map_or(String::new(), |w| format!(", {w}")),
+        crate::loop_command::pid_words(&prepared.design)
+            .map_or(String::new(), |w| format!(", {w}")),
         run_dir.path().display()
     );
     supervise(prepared, |_, _| None)?;

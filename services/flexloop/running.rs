@@ -2,9 +2,8 @@
 //! the foreground; `down`, `status` and `swap` find a running one through
 //! the registry and stop, show or change it.
 
-use crate::launch::{VERDICT_FAILED, prepare, resolve_scenario, supervise};
-use crate::registry;
-use crate::registry::PrefixArg;
+use crate::loop_command::PrefixArg;
+use crate::loop_command::VERDICT_FAILED;
 use anyhow::bail;
 use flexloop_analysis::verdict::GridCounts;
 use flexloop_protocol::Telemetry;
@@ -14,6 +13,8 @@ use flexloop_runfiles::json::read_json;
 use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
 use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_scenario::ProgramRole;
+use flexloop_supervisor::launch::{prepare, resolve_scenario, supervise};
+use flexloop_supervisor::registry;
 use flexloop_transport::{Domain, Inlet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -84,7 +85,7 @@ impl SwapRole {
 #[derive(Debug, clap::Args)]
 pub struct UpArgs {
     #[command(flatten)]
-    pub flags: crate::launch::LoopFlags,
+    pub flags: crate::loop_command::LoopFlags,
     #[command(flatten)]
     pub live: crate::live_view::LiveFlags,
 }
@@ -93,13 +94,14 @@ pub fn up(args: UpArgs) -> anyhow::Result<i32> {
     let live = args.live.options()?;
     let mut prepared = prepare(&args.flags.into_loop_args()?)?;
     prepared.live = live;
-    crate::launch::warn_about_design(&prepared);
+    crate::loop_command::warn_about_design(&prepared);
     eprintln!(
         "flexloop: {} at {} Hz ({}{}), run directory {}; Ctrl-C or `flexloop down` stops it",
         prepared.scenario.name,
         prepared.scenario.timing.rate_hz,
         prepared.scenario.timing.mode.as_str(),
-        crate::launch::pid_words(&prepared.design).map_or(String::new(), |w| format!(", {w}")),
+        crate::loop_command::pid_words(&prepared.design)
+            .map_or(String::new(), |w| format!(", {w}")),
         prepared.plan.run_dir.display()
     );
     let run_dir = prepared.run_dir();
@@ -129,7 +131,7 @@ pub fn down(args: DownArgs) -> anyhow::Result<i32> {
     }
     let loops = loops_to_stop(loops, &args)?;
     for entry in &loops {
-        crate::conductor::note_stop_request(&entry.run_dir);
+        flexloop_supervisor::conductor::note_stop_request(&entry.run_dir);
     }
     let mut code = 0;
     for entry in loops {
@@ -208,7 +210,7 @@ fn loops_to_stop(
 pub fn status(args: StatusArgs) -> anyhow::Result<i32> {
     let prefix = args.which.prefix;
     if args.scenario {
-        let (_, text) = crate::tune::current(prefix.as_deref())?;
+        let (_, text) = flexloop_supervisor::attach::current(prefix.as_deref())?;
         print!("{text}");
         return Ok(0);
     }
@@ -229,7 +231,7 @@ pub fn status(args: StatusArgs) -> anyhow::Result<i32> {
 
 /// Finishes the loops whose supervisor died, saying what it did.
 fn say_finished_dead_loops(command: &str) {
-    for line in crate::dead_loops::finish_dead_loops(command) {
+    for line in flexloop_supervisor::dead_loops::finish_dead_loops(command) {
         println!("flexloop: {line}");
     }
 }
@@ -259,7 +261,7 @@ pub fn swap(args: SwapArgs) -> anyhow::Result<i32> {
         }
         (scenario, None) => resolve_scenario(scenario)?,
     };
-    let answer = crate::conductor::request_swap(&entry.run_dir, role, &scenario)?;
+    let answer = flexloop_supervisor::conductor::request_swap(&entry.run_dir, role, &scenario)?;
     let switch = match (answer.ok, answer.switch) {
         (true, Some(switch)) => switch,
         _ => bail!(
@@ -307,7 +309,7 @@ fn with_program(
     exec: &[String],
     params: Option<toml::Table>,
 ) -> anyhow::Result<PathBuf> {
-    let (path, text) = crate::tune::current(prefix)?;
+    let (path, text) = flexloop_supervisor::attach::current(prefix)?;
     let mut table: toml::Table = toml::from_str(&text)?;
     flexloop_scenario::plant_description::anchor_files(&mut table, &path);
     let here = std::env::current_dir()?;
@@ -343,7 +345,7 @@ fn design_now(entry: &registry::Entry) -> Vec<String> {
     if !RunDir::new(&entry.run_dir).scenario_now().is_file() {
         return at_start();
     }
-    let now = crate::tune::current(Some(&entry.prefix))
+    let now = flexloop_supervisor::attach::current(Some(&entry.prefix))
         .ok()
         .and_then(|(path, text)| flexloop_analysis::loop_report::design_words(&path, &text).ok());
     match now {
@@ -486,7 +488,8 @@ fn program_name(role: &str, duty: &str, scenario: &str) -> Option<String> {
     if duty == "spare" {
         return None;
     }
-    let program = crate::children::own_program(role, std::path::Path::new(scenario)).ok()??;
+    let program =
+        flexloop_supervisor::children::own_program(role, std::path::Path::new(scenario)).ok()??;
     let name = program.program.file_name()?.to_string_lossy().into_owned();
     Some(match program.args.first() {
         // An interpreter: the script names it better.

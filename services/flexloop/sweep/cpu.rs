@@ -1,12 +1,12 @@
 //! The CPU time of each loop process over a sweep point's run, past its
 //! start-up, from the scheduler's own account.
 
-use crate::children::RunningLoop;
 use flexloop_node::Role;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
 use flexloop_runfiles::bench::PerRole;
 use flexloop_runtime::monotonic_ns;
+use flexloop_supervisor::children::RunningLoop;
 use flexloop_transport::{Domain, Inlet};
 use iceoryx2::prelude::{Node, ipc};
 

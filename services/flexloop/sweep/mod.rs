@@ -15,7 +15,6 @@
 mod cpu;
 mod results;
 
-use crate::launch::{LoopArgs, named_scenario, prepare, resolve_scenario, supervise};
 use crate::probes;
 use anyhow::{Context, bail};
 use cpu::CpuWindow;
@@ -26,6 +25,7 @@ use flexloop_runfiles::bench::{Floors, SweepFile, SweepMeasurement, SweepPoint, 
 use flexloop_runtime::latency::Metric;
 use flexloop_runtime::shutdown;
 use flexloop_scenario::{Mode, Overrides, Scenario};
+use flexloop_supervisor::launch::{LoopArgs, named_scenario, prepare, resolve_scenario, supervise};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -179,7 +179,7 @@ pub fn sweep(o: Options) -> anyhow::Result<i32> {
     let root = o
         .out
         .clone()
-        .unwrap_or_else(|| crate::launch::stamped_run_dir("sweep"));
+        .unwrap_or_else(|| flexloop_supervisor::launch::stamped_run_dir("sweep"));
     std::fs::create_dir_all(&root).with_context(|| root.display().to_string())?;
     let base = Scenario::load(&default_scenario()?, &base_overrides(&o, BASE_RATE_HZ))?;
     let profile = crate::deployment::profile_line(&base);

@@ -14,34 +14,6 @@ use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// Exit status of a command whose loop ran to its end but whose verdict
-/// failed: stalls dominated (`up`, `status`), or `run`'s control figures
-/// are not the design's (`flexloop_analysis::verdict`). 2 is an error.
-pub const VERDICT_FAILED: i32 = 3;
-
-/// `[SCENARIO] [--rate HZ] [--duration S] [--mode M] [--no-realtime] [--run-dir DIR]`:
-/// the command line of `up` and `run`.
-#[derive(Debug, Clone, clap::Args)]
-pub struct LoopFlags {
-    /// Scenario file, or its name under scenarios/ [default: scenarios/default.toml]
-    pub scenario: Option<PathBuf>,
-    #[command(flatten)]
-    pub overrides: OverrideFlags,
-    /// Where the run's files go [default: runs/<stamp>-<scenario>-<pid>]
-    #[arg(long, value_name = "DIR")]
-    pub run_dir: Option<PathBuf>,
-}
-
-impl LoopFlags {
-    pub fn into_loop_args(self) -> anyhow::Result<LoopArgs> {
-        Ok(LoopArgs {
-            scenario: resolve_scenario(self.scenario)?,
-            overrides: self.overrides.into(),
-            run_dir: self.run_dir,
-        })
-    }
-}
-
 /// What a loop is started from.
 #[derive(Debug, Clone)]
 pub struct LoopArgs {
@@ -250,37 +222,6 @@ fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The PID's f_bw in words ("PID f_bw 43.5 Hz (auto)"), None without one.
-pub fn pid_words(design: &flexloop_design::LoopDesign) -> Option<String> {
-    design.pid_bandwidth.map(|p| {
-        format!(
-            "PID f_bw {:.1} Hz{}",
-            p.hz,
-            if p.auto { " (auto)" } else { "" }
-        )
-    })
-}
-
-/// `up` and `run`: one line on stderr when the loop breaks the 6 dB rule or
-/// is close to unstable (flexloop-analysis' `LoopReport::warning`, which
-/// defines both). The loop still starts: the scenario is valid, its design
-/// only questionable.
-pub fn warn_about_design(prepared: &Prepared) {
-    // A program's law is its own: the built-in design's rule does not judge it.
-    let scenario = &prepared.scenario;
-    if scenario.controller.exec.is_some() || scenario.observer.exec.is_some() {
-        return;
-    }
-    match flexloop_analysis::loop_report::loop_check(&prepared.scenario, &prepared.design) {
-        Ok(report) => {
-            if let Some(line) = report.warning() {
-                eprintln!("flexloop: warning: {line}");
-            }
-        }
-        Err(e) => eprintln!("flexloop: warning: the loop's design could not be checked: {e}"),
-    }
-}
-
 /// A loop that ran to its end.
 pub struct Finished {
     pub running: RunningLoop,
@@ -381,7 +322,7 @@ fn run_to_the_end(
         let _ = flexloop_runtime::realtime::avoid_cpu(cpu);
     }
     let mut live_pending = prepared.live.clone();
-    let mut live_server: Option<crate::live_view::LiveServer> = None;
+    let mut live_server: Option<crate::live_server::LiveServer> = None;
     let mut running = children::start(prepared.plan)?;
     let mut progress = progress::Progress::open(&prefix);
     let wake_fds = conductor.wake_fds();
@@ -399,7 +340,7 @@ fn run_to_the_end(
             && let Some(options) = live_pending.take()
         {
             live_server =
-                crate::live_view::LiveServer::spawn(&options, &prefix, run_dir.path(), rate_hz)
+                crate::live_server::LiveServer::spawn(&options, &prefix, run_dir.path(), rate_hz)
                     .inspect_err(|e| eprintln!("flexloop: the live view is off: {e:#}"))
                     .ok();
         }

@@ -5,14 +5,6 @@
 
 use std::path::PathBuf;
 
-/// `[--prefix P]`: which running loop (default: every one, or the only one).
-#[derive(Debug, clap::Args)]
-pub struct PrefixArg {
-    /// The loop's iceoryx2 prefix, as `flexloop status` shows it
-    #[arg(long, value_name = "P")]
-    pub prefix: Option<String>,
-}
-
 const DIR: &str = "/tmp/flexloop/loops";
 
 /// One running loop: `/tmp/flexloop/loops/<prefix>.json`.
