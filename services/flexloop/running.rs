@@ -9,8 +9,9 @@ use flexloop_analysis::verdict::GridCounts;
 use flexloop_protocol::Telemetry;
 use flexloop_protocol::channels::TELEMETRY;
 use flexloop_runfiles::RunDir;
+use flexloop_runfiles::events::{EventKind, parse_events};
 use flexloop_runfiles::json::read_json;
-use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
+use flexloop_runfiles::supervision::Processes;
 use flexloop_runtime::latency::QUANTILE_LABELS;
 use flexloop_scenario::ProgramRole;
 use flexloop_supervisor::launch::{prepare, resolve_scenario, supervise};
@@ -501,21 +502,24 @@ fn program_name(role: &str, duty: &str, scenario: &str) -> Option<String> {
 /// Swaps, crashes and restarts so far, from the supervisor's events file.
 fn print_events(run_dir: &RunDir) {
     let text = std::fs::read_to_string(run_dir.events()).unwrap_or_default();
-    let events: Vec<SupervisorEvent> = text
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
-    let count = |kind: &str| events.iter().filter(|e| e.kind == kind).count();
+    let events = match parse_events(&text) {
+        Ok(events) => events,
+        Err(e) => {
+            println!("  events: {}: {e}", run_dir.events().display());
+            return;
+        }
+    };
+    let count = |which: fn(&EventKind) -> bool| events.iter().filter(|e| which(&e.kind)).count();
     println!(
         "  events: {} swaps, {} crashes, {} restarts",
-        count("swap"),
-        count("crash"),
-        count("restart")
+        count(|k| matches!(k, EventKind::Swap(_))),
+        count(|k| matches!(k, EventKind::Crash(_))),
+        count(|k| matches!(k, EventKind::Restart(_)))
     );
     if let Some(last) = events.last() {
         println!(
             "  last: {} of {} (generation {}) at {:.1} s",
-            last.kind,
+            last.kind.name(),
             last.role,
             last.generation
                 .map_or("null".to_string(), |g| g.to_string()),

@@ -15,7 +15,7 @@ use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::flexible::{FlexibleComparison, NoComparison};
 use flexloop_analysis::latency_log::LatencyLog;
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::supervision::SupervisorEvent;
+use flexloop_runfiles::events::parse_events;
 use std::path::{Path, PathBuf};
 
 /// `report RUN [--out DIR]`.
@@ -201,31 +201,32 @@ fn read_events(path: &Path, ts: f64) -> anyhow::Result<Vec<Event>> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
         Err(e) => return Err(e).with_context(|| path.display().to_string()),
     };
-    text.lines()
-        .enumerate()
-        .filter(|(_, line)| !line.trim().is_empty())
-        .map(|(i, line)| {
-            let e: SupervisorEvent = serde_json::from_str(line)
-                .with_context(|| format!("{} line {}", path.display(), i + 1))?;
+    let events = parse_events(&text).with_context(|| path.display().to_string())?;
+    Ok(events
+        .into_iter()
+        .map(|e| {
             let time_s = match e.seq {
                 Some(seq) => seq as f64 * ts,
                 None => e.t_s,
             };
-            let detail = match &e.detail {
-                serde_json::Value::Null => String::new(),
-                serde_json::Value::String(s) => s.clone(),
-                other => other.to_string(),
+            let detail = match serde_json::to_value(&e.kind) {
+                Ok(serde_json::Value::Object(mut line)) => match line.remove("detail") {
+                    Some(serde_json::Value::String(s)) => s,
+                    Some(other) => other.to_string(),
+                    None => String::new(),
+                },
+                _ => String::new(),
             };
-            Ok(Event {
+            Event {
                 time_s,
-                kind: e.kind,
+                kind: e.kind.name().to_string(),
                 role: e.role,
                 generation: e.generation.map_or(0, u64::from),
                 seq: e.seq,
                 detail: shorten(&detail, 120),
-            })
+            }
         })
-        .collect()
+        .collect())
 }
 
 fn shorten(text: &str, max: usize) -> String {

@@ -7,7 +7,8 @@
 //! - [`json`]: reading and atomically writing one JSON file, errors naming it.
 //! - [`latency`]: a histogram's count and percentiles, as every file keeps them.
 //! - [`summary`]: `summary.json` (the logger) and `plant_latency.json` (the plant).
-//! - [`supervision`]: `events.jsonl`, `processes.json` and the registry of running loops.
+//! - [`events`]: `events.jsonl`, what the supervisor did and saw, one typed event a line.
+//! - [`supervision`]: `processes.json`, swap and set requests and their answers.
 //! - [`metrics`]: `metrics.json` (`flexloop run`).
 //! - [`bench`]: `bench.json`, `logging_cost.json` and `sweep.json`.
 //! - [`chaos`]: `chaos.json`, what `flexloop chaos` did and what it cost.
@@ -18,6 +19,7 @@
 
 pub mod bench;
 pub mod chaos;
+pub mod events;
 pub mod json;
 pub mod latency;
 pub mod live;

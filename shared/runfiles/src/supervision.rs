@@ -1,23 +1,8 @@
-//! What the supervisor writes while the loop runs: `events.jsonl`,
-//! `processes.json`, and the swap requests and answers under `requests/`.
+//! What the supervisor writes while the loop runs: `processes.json`, and
+//! the swap and set requests and answers under `requests/` (its events are
+//! [`crate::events`]).
 
 use serde::{Deserialize, Serialize};
-
-/// One line of `events.jsonl`: a swap, crash, restart, spare, ...
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SupervisorEvent {
-    /// Seconds since the supervisor started the loop.
-    pub t_s: f64,
-    pub kind: String,
-    pub role: String,
-    /// The instance's generation; none for a spare that has served none.
-    pub generation: Option<u32>,
-    /// The loop's newest sample when it happened, if it had ticked.
-    pub seq: Option<u64>,
-    /// Free-form facts of the event (a switch, an exit code, an error).
-    #[serde(default)]
-    pub detail: serde_json::Value,
-}
 
 /// `processes.json`: the loop's live processes and their duties.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -30,11 +30,14 @@ use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::handover::ACTIVE;
 use flexloop_protocol::{Activation, Handover};
+use flexloop_runfiles::events::{Crash, EventKind, Silent, Spare, Standby};
 use flexloop_scenario::schema::RestartPolicy;
-use serde_json::{Value, json};
 use silence::SilenceWatch;
 use std::path::Path;
 use std::time::{Duration, Instant};
+
+/// What the supervisor does with a hung process, as its `silent` event says.
+const HUNG_ACTION: &str = "killed, then handled as a crash";
 
 /// How long a replacement may take to start and follow the loop in shadow.
 pub const SHADOW_TIMEOUT: Duration = Duration::from_secs(30);
@@ -258,32 +261,19 @@ impl Core {
         self.last_seq = Some(self.last_seq.map_or(seq, |s| s.max(seq)));
     }
 
-    fn record(
-        &self,
-        kind: &'static str,
-        role: Role,
-        generation: Option<u32>,
-        detail: Value,
-    ) -> Record {
+    fn record(&self, role: Role, generation: Option<u32>, kind: EventKind) -> Record {
         Record {
             kind,
             role,
             generation,
             seq: self.last_seq,
-            detail,
             clean_dead_nodes: false,
         }
     }
 
     /// A line for the events file, stamped with the loop's newest sample.
-    pub fn note(
-        &self,
-        kind: &'static str,
-        role: Role,
-        generation: Option<u32>,
-        detail: Value,
-    ) -> Action {
-        Action::Record(self.record(kind, role, generation, detail))
+    pub fn note(&self, role: Role, generation: Option<u32>, kind: EventKind) -> Action {
+        Action::Record(self.record(role, generation, kind))
     }
 
     // ---- crashes and restarts ----
@@ -327,8 +317,8 @@ impl Core {
                 (None, false) => "crashed",
             };
             if m.spare() || m.standby() {
-                let duty = if m.spare() { "spare" } else { "standby" };
-                let budget = if m.spare() {
+                let spare = m.spare();
+                let budget = if spare {
                     &mut self.spare_failures
                 } else {
                     &mut self.restarts
@@ -338,7 +328,13 @@ impl Core {
                 actions.push(self.crash_record(
                     role,
                     generation,
-                    json!({"exit": code, "found": found, duty: true}),
+                    Crash {
+                        exit: code,
+                        found: found.into(),
+                        spare,
+                        standby: !spare,
+                        ..Crash::default()
+                    },
                 ));
                 continue;
             }
@@ -372,7 +368,13 @@ impl Core {
                 actions.push(self.crash_record(
                     role,
                     generation,
-                    json!({"exit": code, "found": found, "cause": cause, "fatal": reason}),
+                    Crash {
+                        exit: code,
+                        found: found.into(),
+                        cause: Some(cause.into()),
+                        fatal: Some(reason),
+                        ..Crash::default()
+                    },
                 ));
                 continue;
             }
@@ -381,7 +383,13 @@ impl Core {
             actions.push(self.crash_record(
                 role,
                 generation,
-                json!({"exit": code, "found": found, "cause": cause, "restart_in_ms": wait.as_millis() as u64}),
+                Crash {
+                    exit: code,
+                    found: found.into(),
+                    cause: Some(cause.into()),
+                    restart_in_ms: Some(wait.as_millis() as u64),
+                    ..Crash::default()
+                },
             ));
             self.pending.push(PendingRestart {
                 role,
@@ -423,15 +431,16 @@ impl Core {
         if starved && non_finite.is_none() {
             return Vec::new();
         }
-        let mut detail = json!({
-            "pid": pid,
-            "ticks_without_output": silent.ticks,
-            "seconds_without_output": silent.since.as_secs_f64(),
-            "action": "killed, then handled as a crash",
-        });
+        let mut detail = Silent {
+            pid,
+            ticks_without_output: silent.ticks,
+            seconds_without_output: Some(silent.since.as_secs_f64()),
+            action: HUNG_ACTION.into(),
+            ..Silent::default()
+        };
         if let Some(n) = non_finite {
-            detail["cause"] = json!("non-finite output");
-            detail["non_finite_commands_in_a_row"] = json!(n);
+            detail.cause = Some("non-finite output".into());
+            detail.non_finite_commands_in_a_row = Some(n);
             if let Some(m) = self.roster.get_mut(pid) {
                 m.cause = Some("non-finite output");
             }
@@ -459,12 +468,13 @@ impl Core {
                 self.settle_crashes(now)
             }
             ProcessState::Stopped => {
-                let detail = json!({
-                    "pid": pid,
-                    "stopped": true,
-                    "ticks_without_output": self.silence.ticks_without(m.role),
-                    "action": "killed, then handled as a crash",
-                });
+                let detail = Silent {
+                    pid,
+                    stopped: true,
+                    ticks_without_output: self.silence.ticks_without(m.role),
+                    action: HUNG_ACTION.into(),
+                    ..Silent::default()
+                };
                 self.kill_hung(pid, Ending::Stopped, detail, now)
             }
         }
@@ -491,7 +501,7 @@ impl Core {
     }
 
     /// Kills the hung `pid` and deals with it as crashed now.
-    fn kill_hung(&mut self, pid: i32, how: Ending, detail: Value, now: Instant) -> Vec<Action> {
+    fn kill_hung(&mut self, pid: i32, how: Ending, detail: Silent, now: Instant) -> Vec<Action> {
         let Some(m) = self.roster.get_mut(pid) else {
             return Vec::new();
         };
@@ -500,7 +510,7 @@ impl Core {
         // Its replacement is judged from its own start.
         self.silence.restart_clock(role, now);
         let mut actions = vec![
-            self.note("silent", role, generation, detail),
+            self.note(role, generation, EventKind::Silent(detail)),
             Action::Kill(pid),
         ];
         actions.extend(self.settle_crashes(now));
@@ -531,10 +541,10 @@ impl Core {
             .collect()
     }
 
-    fn crash_record(&self, role: Role, generation: Option<u32>, detail: Value) -> Action {
+    fn crash_record(&self, role: Role, generation: Option<u32>, crash: Crash) -> Action {
         Action::Record(Record {
             clean_dead_nodes: true,
-            ..self.record("crash", role, generation, detail)
+            ..self.record(role, generation, EventKind::Crash(crash))
         })
     }
 
@@ -575,7 +585,7 @@ impl Core {
         shutting_down: bool,
     ) -> Vec<Action> {
         let error = format!("{error:#}");
-        let mut actions = vec![self.note("restart-failed", role, Some(0), json!(error))];
+        let mut actions = vec![self.note(role, Some(0), EventKind::RestartFailed(error))];
         if *self.restarts.get(role) >= self.policy.max_restarts || shutting_down {
             actions.push(Action::EndRun(Outcome::ChildFailed(role, -1)));
             return actions;
@@ -875,18 +885,20 @@ impl Core {
     ) -> Action {
         match result {
             Ok((pid, warm)) => self.note(
-                "standby",
                 Role::Controller,
                 Some(generation),
-                json!({"pid": pid, "warm": warm}),
+                EventKind::Standby(Standby {
+                    pid: *pid,
+                    warm: Some(*warm),
+                    ..Standby::default()
+                }),
             ),
             Err(e) => {
                 *self.restarts.get_mut(Role::Controller) += 1;
                 self.note(
-                    "standby-failed",
                     Role::Controller,
                     Some(generation),
-                    json!(format!("{e:#}")),
+                    EventKind::StandbyFailed(format!("{e:#}")),
                 )
             }
         }
@@ -915,10 +927,10 @@ impl Core {
     /// What became of [`Action::StartSpare`].
     pub fn spare_started(&mut self, role: Role, result: &anyhow::Result<i32>) -> Action {
         match result {
-            Ok(pid) => self.note("spare", role, None, json!({"pid": pid})),
+            Ok(pid) => self.note(role, None, EventKind::Spare(Spare { pid: *pid })),
             Err(e) => {
                 *self.spare_failures.get_mut(role) += 1;
-                self.note("spare-failed", role, None, json!(format!("{e:#}")))
+                self.note(role, None, EventKind::SpareFailed(format!("{e:#}")))
             }
         }
     }

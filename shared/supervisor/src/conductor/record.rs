@@ -5,7 +5,8 @@
 
 use super::decide::Record;
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::supervision::{Processes, SupervisorEvent};
+use flexloop_runfiles::events::SupervisorEvent;
+use flexloop_runfiles::supervision::Processes;
 use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
@@ -40,11 +41,10 @@ impl RunFiles {
     pub fn append(&mut self, record: &Record) {
         self.unwritten.push(SupervisorEvent {
             t_s: self.started.elapsed().as_secs_f64(),
-            kind: record.kind.to_string(),
+            kind: record.kind.clone(),
             role: record.role.name().to_string(),
             generation: record.generation,
             seq: record.seq,
-            detail: record.detail.clone(),
         });
     }
 
@@ -106,6 +106,7 @@ impl RunFiles {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use flexloop_runfiles::events::{EventKind, Spare, parse_events};
     use flexloop_runfiles::json::read_json;
     use flexloop_runfiles::supervision::ProcessEntry;
 
@@ -127,21 +128,16 @@ mod tests {
 
     fn spare_event(pid: i32) -> Record {
         Record {
-            kind: "spare",
+            kind: EventKind::Spare(Spare { pid }),
             role: flexloop_node::Role::Controller,
             generation: None,
             seq: None,
-            detail: serde_json::json!({ "pid": pid }),
             clean_dead_nodes: false,
         }
     }
 
     fn events(dir: &RunDir) -> Vec<SupervisorEvent> {
-        std::fs::read_to_string(dir.events())
-            .unwrap_or_default()
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect()
+        parse_events(&std::fs::read_to_string(dir.events()).unwrap_or_default()).unwrap()
     }
 
     /// A reader that sees an event finds the process it announces in the
@@ -171,7 +167,7 @@ mod tests {
         files.publish(list(&[11]));
         let written = events(&run_dir);
         assert_eq!(written.len(), 1);
-        assert_eq!(written[0].detail["pid"], 11);
+        assert_eq!(written[0].kind, EventKind::Spare(Spare { pid: 11 }));
         let shown: Processes = read_json(&run_dir.processes()).unwrap();
         assert_eq!(shown, list(&[11]));
         std::fs::remove_dir_all(&dir).unwrap();

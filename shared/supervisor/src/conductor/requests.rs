@@ -7,6 +7,7 @@ use super::decide::{DRAIN_TIMEOUT, SHADOW_TIMEOUT};
 use anyhow::{Context, Result, bail};
 use flexloop_node::Role;
 use flexloop_runfiles::FileError;
+pub use flexloop_runfiles::events::Sender;
 use flexloop_runfiles::json::{read_json, write_json_atomically};
 use flexloop_runfiles::supervision::{self, SetAnswer, SetRequest, SwapAnswer};
 use serde::Serialize;
@@ -29,14 +30,6 @@ const SET_EXTENSION: &str = "set";
 
 /// The extension of `flexloop down`'s note that it asked the loop to stop.
 const STOP_EXTENSION: &str = "stop";
-
-/// Who sent a request: the pid its file is named by and the user who owns
-/// the file (which no other user can forge).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-pub struct Sender {
-    pub pid: Option<u32>,
-    pub uid: u32,
-}
 
 /// The sender of the request file at `path` (None if it is gone).
 pub fn sender(path: &Path) -> Option<Sender> {

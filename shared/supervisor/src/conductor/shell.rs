@@ -21,11 +21,11 @@ use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runfiles::RunDir;
+use flexloop_runfiles::events::{EventKind, Restart, Set, Standby, Stop, Swap, Switched};
 use flexloop_runfiles::supervision::{SetAnswer, SetOutcome, SwapAnswer};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
 use flexloop_scenario::{Overrides, Scenario};
-use serde_json::json;
 use std::os::fd::RawFd;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -168,10 +168,11 @@ impl Conductor {
 
     fn record(&mut self, mut record: Record) {
         self.dead_nodes |= record.clean_dead_nodes;
-        if let (Some(sender), "swap" | "set") = (self.sender, record.kind)
-            && let Some(detail) = record.detail.as_object_mut()
-        {
-            detail.insert("sender".into(), json!(sender));
+        match &mut record.kind {
+            EventKind::Swap(Swap { sender, .. }) | EventKind::Set(Set { sender, .. }) => {
+                *sender = self.sender;
+            }
+            _ => {}
         }
         self.files.append(&record);
     }
@@ -180,11 +181,15 @@ impl Conductor {
     /// event, naming who asked when `flexloop down` left its note.
     pub fn note_stop(&mut self) {
         let sender = requests::take_stop_sender(self.files.run_dir());
-        let detail = match sender {
-            Some(sender) => json!({"by": "flexloop down", "sender": sender}),
-            None => json!({"by": "a signal (Ctrl-C, or SIGTERM from elsewhere)"}),
+        let stop = Stop {
+            by: match sender {
+                Some(_) => "flexloop down",
+                None => "a signal (Ctrl-C, or SIGTERM from elsewhere)",
+            }
+            .into(),
+            sender,
         };
-        self.record_action(self.core.note("stop", Role::Plant, None, detail));
+        self.record_action(self.core.note(Role::Plant, None, EventKind::Stop(stop)));
         self.publish_files();
     }
 
@@ -455,7 +460,14 @@ impl Conductor {
         };
         // The plant has no generation: it is never swapped.
         let generation = (role != Role::Plant).then_some(generation);
-        self.record_action(self.core.note("set", role, generation, json!(outcome)));
+        self.record_action(self.core.note(
+            role,
+            generation,
+            EventKind::Set(Set {
+                outcome: outcome.clone(),
+                sender: None,
+            }),
+        ));
         self.publish_files();
         Ok(outcome)
     }
@@ -521,10 +533,13 @@ impl Conductor {
             },
         )?;
         self.record_action(self.core.note(
-            "swap",
             role,
             Some(generation),
-            json!({"scenario": scenario_path.display().to_string(), "switch": switch.record()}),
+            EventKind::Swap(Swap {
+                scenario: scenario_path.display().to_string(),
+                switch: switch.record(),
+                sender: None,
+            }),
         ));
         self.switches.push(switch.clone());
         if role == Role::Controller {
@@ -734,50 +749,55 @@ impl Conductor {
         let is_program = |scenario: &Path| {
             crate::children::own_program(role, scenario).is_ok_and(|p| p.is_some())
         };
-        let (scenario, generation, owns_from, rolled_back_from) =
-            match self.core.plan_restart(role, &is_program)? {
-                RestartPlan::Promote { generation } => {
-                    let incoming = Incoming {
-                        role: Role::Controller,
-                        generation,
-                        start_seq,
-                        warm: true,
-                        old: None,
-                        announced: None,
-                    };
-                    let switch = self.activate(running, incoming)?;
-                    self.record_action(self.core.note(
-                        "promote-standby",
-                        Role::Controller,
-                        Some(generation),
-                        json!(switch.record()),
-                    ));
-                    self.switches.push(switch);
-                    return Ok(());
-                }
-                RestartPlan::Logger {
-                    scenario,
+        let (scenario, generation, owns_from, rolled_back_from) = match self
+            .core
+            .plan_restart(role, &is_program)?
+        {
+            RestartPlan::Promote { generation } => {
+                let incoming = Incoming {
+                    role: Role::Controller,
                     generation,
-                } => {
-                    // It only listens: nothing to hand over, no boundary to announce.
-                    self.clean_dead_nodes();
-                    running.launch(role, &scenario, generation, Joining::Restart)?;
-                    self.track(running);
-                    self.record_action(self.core.note(
-                        "restart",
-                        role,
-                        Some(generation),
-                        json!({"files": flexloop_runfiles::run_dir::logger_files(generation)}),
-                    ));
-                    return Ok(());
-                }
-                RestartPlan::Fresh {
-                    scenario,
-                    generation,
-                    owns_from,
-                    rolled_back_from,
-                } => (scenario, generation, owns_from, rolled_back_from),
-            };
+                    start_seq,
+                    warm: true,
+                    old: None,
+                    announced: None,
+                };
+                let switch = self.activate(running, incoming)?;
+                self.record_action(self.core.note(
+                    Role::Controller,
+                    Some(generation),
+                    EventKind::PromoteStandby(Switched {
+                        switch: switch.record(),
+                    }),
+                ));
+                self.switches.push(switch);
+                return Ok(());
+            }
+            RestartPlan::Logger {
+                scenario,
+                generation,
+            } => {
+                // It only listens: nothing to hand over, no boundary to announce.
+                self.clean_dead_nodes();
+                running.launch(role, &scenario, generation, Joining::Restart)?;
+                self.track(running);
+                self.record_action(self.core.note(
+                    role,
+                    Some(generation),
+                    EventKind::Restart(Restart {
+                        files: Some(flexloop_runfiles::run_dir::logger_files(generation).into()),
+                        ..Restart::default()
+                    }),
+                ));
+                return Ok(());
+            }
+            RestartPlan::Fresh {
+                scenario,
+                generation,
+                owns_from,
+                rolled_back_from,
+            } => (scenario, generation, owns_from, rolled_back_from),
+        };
         if let Some(from_seq) = owns_from {
             self.announce(role, generation, from_seq)?;
         }
@@ -790,10 +810,12 @@ impl Conductor {
                 return Err(e);
             }
             self.record_action(self.core.note(
-                "restart",
                 role,
                 Some(generation),
-                json!({"before_tick_0": true}),
+                EventKind::Restart(Restart {
+                    before_tick_0: true,
+                    ..Restart::default()
+                }),
             ));
             return Ok(());
         }
@@ -816,12 +838,18 @@ impl Conductor {
                 return Err(e);
             }
         };
-        let mut detail = json!(switch.record());
-        if let Some(program) = rolled_back_from {
-            detail["rolled_back_from"] = json!(program);
-            detail["scenario"] = json!(scenario);
-        }
-        self.record_action(self.core.note("restart", role, Some(generation), detail));
+        let restart = Restart {
+            switch: Some(switch.record()),
+            scenario: rolled_back_from
+                .is_some()
+                .then(|| scenario.display().to_string()),
+            rolled_back_from: rolled_back_from.map(|p| p.display().to_string()),
+            ..Restart::default()
+        };
+        self.record_action(
+            self.core
+                .note(role, Some(generation), EventKind::Restart(restart)),
+        );
         self.switches.push(switch);
         Ok(())
     }
@@ -857,18 +885,21 @@ impl Conductor {
                 }
                 let replaced: Vec<u32> = renewal.old.iter().map(|(_, g)| *g).collect();
                 self.core.note(
-                    "standby",
                     Role::Controller,
                     Some(generation),
-                    json!({"pid": pid, "scenario": renewal.scenario.display().to_string(), "replaces": replaced}),
+                    EventKind::Standby(Standby {
+                        pid,
+                        scenario: Some(renewal.scenario.display().to_string()),
+                        replaces: Some(replaced),
+                        ..Standby::default()
+                    }),
                 )
             }
             // The old standby stays: better one of the old design than none.
             Err(e) => self.core.note(
-                "standby-failed",
                 Role::Controller,
                 Some(generation),
-                json!(format!("{e:#}")),
+                EventKind::StandbyFailed(format!("{e:#}")),
             ),
         };
         self.record_action(record);

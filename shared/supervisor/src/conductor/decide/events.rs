@@ -5,7 +5,7 @@ use crate::process_state::ProcessState;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
 use flexloop_protocol::{Handover, MAX_INPUTS};
-use serde_json::Value;
+use flexloop_runfiles::events::EventKind;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -119,12 +119,11 @@ pub enum Action {
 /// One line of the run's events file, less its time stamp (the shell's).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Record {
-    pub kind: &'static str,
+    pub kind: EventKind,
     pub role: Role,
     pub generation: Option<u32>,
     /// The loop's newest sample when it was decided.
     pub seq: Option<u64>,
-    pub detail: Value,
     /// A process died: its node's shared memory is to be cleaned (now that
     /// no live process uses it; never from inside the loop), after the
     /// restart it brings is under way.
