@@ -10,7 +10,7 @@
 use anyhow::{Context, bail};
 use flexloop_analysis::run_log::JoinedLog;
 use flexloop_protocol::layout::{self, Field, MessageLayout, Scalar};
-use flexloop_recording::LogReader;
+use flexloop_recording::{EventMessage, LogReader};
 use flexloop_runfiles::RunDir;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -211,31 +211,22 @@ fn write_messages(
 fn write_events(path: &Path, log: &LogReader) -> std::io::Result<()> {
     let mut out = BufWriter::new(std::fs::File::create(path)?);
     writeln!(out, "log_time (ns),source,kind,phase,seq,event (json)")?;
-    let text = |v: &serde_json::Value| match v {
-        serde_json::Value::Null => String::new(),
-        serde_json::Value::String(s) => s.clone(),
-        other => other.to_string(),
-    };
     for e in &log.events {
-        let json = e.json.to_string().replace('"', "\"\"");
+        let message = &e.message;
+        let json = message.to_json().replace('"', "\"\"");
+        let phase = match message {
+            EventMessage::Logger(event) => event.edge().map_or("", |edge| edge.phase()),
+            _ => "",
+        };
         writeln!(
             out,
             "{},{},{},{},{},\"{json}\"",
             e.log_time_ns,
-            csv_text(&text(&e.json["source"])),
-            csv_text(&text(&e.json["kind"])),
-            csv_text(&text(&e.json["phase"])),
-            text(&e.json["seq"]),
+            message.source(),
+            message.kind(),
+            phase,
+            message.seq().map_or(String::new(), |seq| seq.to_string()),
         )?;
     }
     out.into_inner().map_err(|e| e.into_error())?.sync_all()
-}
-
-/// A text cell, quoted when it holds a separator or a quote.
-fn csv_text(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
 }

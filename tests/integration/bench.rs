@@ -4,12 +4,15 @@
 use crate::util::{
     assert_bench_ran, describe, flexloop, processes_mentioning, run_bounded, temp_dir,
 };
-use serde_json::Value;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::bench::{
+    BenchFile, LiveCost, LoggingCost, SweepFile, SweepMeasurement, SweepPoint, SweepResult,
+};
+use serde::de::DeserializeOwned;
 use std::time::Duration;
 
-fn json(path: &std::path::Path) -> Value {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap()
+fn json<T: DeserializeOwned>(path: &std::path::Path) -> T {
+    flexloop_runfiles::json::read_json(path).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// `flexloop bench ARGS thesis-mc` for half a second at 2 kHz, which must
@@ -43,17 +46,21 @@ fn bench_measures_the_loop_and_every_floor() {
     ] {
         assert!(stdout.contains(row), "no `{row}` in\n{stdout}");
     }
-    let bench = json(&run.join("bench.json"));
-    assert_eq!(bench["summary"]["ticks"], 1000);
+    let bench: BenchFile = json(&RunDir::new(&run).bench());
+    assert_eq!(bench.summary.ticks, 1000);
     // Each floor probes two seconds of ticks at the loop's rate; a polling
     // pong that never answers would leave its histogram empty.
-    for key in [
-        "timer_wakeup",
-        "iceoryx2_event_ping_pong",
-        "iceoryx2_polling_ping_pong",
-        "unix_socket_ring",
+    let probes = bench.probes.expect("bench.json without its probes");
+    for (key, floor) in [
+        ("timer_wakeup", probes.timer_wakeup),
+        ("iceoryx2_event_ping_pong", probes.iceoryx2_event_ping_pong),
+        (
+            "iceoryx2_polling_ping_pong",
+            probes.iceoryx2_polling_ping_pong,
+        ),
+        ("unix_socket_ring", probes.unix_socket_ring),
     ] {
-        let count = bench["probes"][key]["count"].as_u64().unwrap();
+        let count = floor.count;
         assert!(count > 0 && count <= 4000, "{key}: {count}");
     }
     assert!(processes_mentioning(&run.display().to_string()).is_empty());
@@ -83,12 +90,9 @@ fn the_sweep_runs_every_point_and_writes_tables_and_plots() {
     .arg(&out_dir);
     let out = run_bounded(cmd, Duration::from_secs(300));
     assert!(out.status.success(), "{}", describe(&out));
-    let sweep = json(&out_dir.join("sweep.json"));
-    let points = sweep["points"].as_array().unwrap();
-    let labels: Vec<&str> = points
-        .iter()
-        .map(|p| p["label"].as_str().unwrap())
-        .collect();
+    let sweep: SweepFile = json(&out_dir.join("sweep.json"));
+    let points = &sweep.points;
+    let labels: Vec<&str> = points.iter().map(|p| p.label.as_str()).collect();
     assert_eq!(
         labels,
         [
@@ -99,27 +103,24 @@ fn the_sweep_runs_every_point_and_writes_tables_and_plots() {
             "states-12"
         ]
     );
+    fn measured(p: &SweepPoint) -> &SweepMeasurement {
+        match &p.result {
+            SweepResult::Measured(r) => r,
+            SweepResult::Failed { error } => panic!("{}: {error}", p.label),
+        }
+    }
     for p in points {
-        let r = &p["result"];
-        assert!(r["error"].is_null(), "{}: {}", p["label"], r["error"]);
-        let rate = p["rate_hz"].as_f64().unwrap();
-        assert_eq!(
-            r["ticks"].as_f64().unwrap(),
-            (rate * 0.6).round(),
-            "{}",
-            p["label"]
-        );
-        assert!(r["round_trip"]["p50_ns"].as_u64().unwrap() > 0);
+        let r = measured(p);
+        let rate = p.rate_hz;
+        assert_eq!(r.ticks as f64, (rate * 0.6).round(), "{}", p.label);
+        assert!(r.round_trip.p50 > 0);
         // Every run is its own run directory with the logger's summary.
-        let label = p["label"].as_str().unwrap();
-        assert!(out_dir.join(label).join("summary.json").is_file());
+        let label = p.label.as_str();
+        assert!(RunDir::new(out_dir.join(label)).summary().is_file());
     }
     // The uniform chain of n/2 masses has an observer of exactly n states;
     // the thesis' reduced observer has 9 (rigid + 3 modes, a noise state).
-    let states: Vec<u64> = points
-        .iter()
-        .map(|p| p["result"]["states"].as_u64().unwrap())
-        .collect();
+    let states: Vec<usize> = points.iter().map(|p| measured(p).states).collect();
     assert_eq!(states, [9, 9, 9, 8, 12]);
     let markdown = std::fs::read_to_string(out_dir.join("sweep.md")).unwrap();
     assert!(markdown.contains("### Latency per point"), "{markdown}");
@@ -232,21 +233,22 @@ fn logging_cost_runs_the_loop_with_and_without_a_logger() {
     let out_dir = dir.join("cost");
     let stdout = bench_thesis_mc_briefly(&["--logging-cost"], &out_dir);
     assert!(stdout.contains("round trip, logger off"), "{stdout}");
-    let cost = json(&out_dir.join("logging_cost.json"));
-    for run in ["with_logger", "without_logger"] {
-        let r = &cost[run];
-        assert_eq!(r["ticks"], 1000, "{run}");
+    let cost: LoggingCost = json(&out_dir.join("logging_cost.json"));
+    for (run, r) in [
+        ("with_logger", &cost.with_logger),
+        ("without_logger", &cost.without_logger),
+    ] {
+        assert_eq!(r.ticks, 1000, "{run}");
         // One round trip per command of the active controller received: a
         // tick without one is a miss (the last one's may come after the
         // plant stopped).
-        let count = r["latency"]["round_trip"]["count"].as_u64().unwrap();
-        let missed = r["counters"]["misses"].as_u64().unwrap()
-            + r["counters"]["stall_misses"].as_u64().unwrap();
+        let count = r.latency["round_trip"].count;
+        let missed = r.counters.misses + r.counters.stall_misses;
         assert!(
             count <= 1000 && count + missed + 1 >= 1000,
             "{run}: {count}, {missed} missed"
         );
-        assert_eq!(r["latency"]["tick_lateness"]["count"], 1000, "{run}");
+        assert_eq!(r.latency["tick_lateness"].count, 1000, "{run}");
     }
     let with = out_dir.join("with-logger");
     let without = out_dir.join("without-logger");
@@ -284,15 +286,18 @@ fn live_cost_runs_the_loop_served_to_a_client_and_without_a_server() {
         stdout.contains("round trip, no live server") && stdout.contains("the live view costs"),
         "{stdout}"
     );
-    let cost = json(&out_dir.join("live_cost.json"));
-    for run in ["with_client", "without_server"] {
-        assert_eq!(cost[run]["ticks"], 5000, "{run}");
+    let cost: LiveCost = json(&out_dir.join("live_cost.json"));
+    for (run, r) in [
+        ("with_client", &cost.with_client),
+        ("without_server", &cost.without_server),
+    ] {
+        assert_eq!(r.ticks, 5000, "{run}");
     }
     // The client subscribed to everything and got what the server handed
     // it (a client that reads as fast as it can, at 1 kHz).
-    let handed = cost["server"]["messages_sent"].as_u64().unwrap();
-    let received = cost["client_messages"].as_u64().unwrap();
-    assert!(received > 0 && received <= handed, "{cost}");
+    let handed = cost.server.messages_sent;
+    let received = cost.client_messages;
+    assert!(received > 0 && received <= handed, "{cost:?}");
     // The server ran in the first run only, and left no file behind.
     let with = out_dir.join("with-client");
     assert!(with.join("live_summary.json").is_file());

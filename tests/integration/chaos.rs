@@ -5,6 +5,7 @@
 
 use crate::util::*;
 use flexloop_runfiles::chaos::ChaosFile;
+use flexloop_runfiles::events::{EventKind, SupervisorEvent};
 use std::time::Duration;
 
 #[test]
@@ -79,13 +80,13 @@ fn chaos_hangs_every_role_and_each_is_replaced() {
     assert!(chaos.kills.iter().all(|k| k.fault == "hang"), "{text}");
     assert!(chaos.kills.iter().all(|k| k.replaced), "{text}");
     assert_eq!(chaos.files_left, 0);
-    let silent: Vec<serde_json::Value> = events(&dir.join("loop"))
+    let silent: Vec<SupervisorEvent> = events(&dir.join("loop"))
         .into_iter()
-        .filter(|e| e["kind"] == "silent")
+        .filter(|e| matches!(e.kind, EventKind::Silent(_)))
         .collect();
     assert_eq!(silent.len(), 4, "{silent:?}");
     for (kill, event) in chaos.kills.iter().zip(&silent) {
-        assert_eq!(event["detail"]["pid"], kill.pid);
+        assert_eq!(silent_of(event).pid, kill.pid);
     }
     assert_clean(&dir.join("loop"));
 }

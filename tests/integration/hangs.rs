@@ -9,17 +9,17 @@
 //! chaos` measures it, no test asserts it.)
 
 use crate::util::*;
-use serde_json::Value;
+use flexloop_runfiles::events::SupervisorEvent;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// Waits (bounded) for the first event of `kind` for `role`.
-fn await_event(dir: &Path, kind: &str, role: &str) -> Value {
+fn await_event(dir: &Path, kind: &str, role: &str) -> SupervisorEvent {
     let since = Instant::now();
     loop {
         if let Some(e) = events(dir)
             .into_iter()
-            .find(|e| e["kind"] == kind && e["role"] == role)
+            .find(|e| e.kind.name() == kind && e.role == role)
         {
             return e;
         }
@@ -40,13 +40,17 @@ fn signal(pid: i32, signal: i32) {
 
 /// The hung `role` of a running loop in `dir` is detected, killed and
 /// replaced; the loop goes on; returns the silent event.
-fn hang_is_handled(dir: &Path, prefix: &str, up: Up, role: &str) -> Value {
+fn hang_is_handled(dir: &Path, prefix: &str, up: Up, role: &str) -> SupervisorEvent {
     let hung = pid_on_duty(dir, role, "active");
     signal(hung, libc::SIGSTOP);
     let silent = await_event(dir, "silent", role);
-    assert_eq!(silent["detail"]["pid"], hung, "{silent}");
+    assert_eq!(silent_of(&silent).pid, hung, "{silent:?}");
     let crash = await_event(dir, "crash", role);
-    assert_eq!(crash["detail"]["cause"], "silent", "{crash}");
+    assert_eq!(
+        crash_of(&crash).cause.as_deref(),
+        Some("silent"),
+        "{crash:?}"
+    );
     await_event(dir, "restart", role);
     // The stopped process is gone (SIGKILL reaches a stopped process).
     let since = Instant::now();
@@ -72,7 +76,7 @@ fn a_stopped_controller_is_found_silent_killed_and_restarted() {
     let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
     wait_for_ticks(&dir, 2_000);
     let silent = hang_is_handled(&dir, &prefix, up, "controller");
-    assert_eq!(silent["detail"]["stopped"], true, "{silent}");
+    assert!(silent_of(&silent).stopped, "{silent:?}");
 }
 
 #[test]
@@ -81,7 +85,7 @@ fn a_stopped_observer_is_found_silent_killed_and_restarted() {
     let (up, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "2000"]);
     wait_for_ticks(&dir, 2_000);
     let silent = hang_is_handled(&dir, &prefix, up, "observer");
-    assert_eq!(silent["detail"]["stopped"], true, "{silent}");
+    assert!(silent_of(&silent).stopped, "{silent:?}");
 }
 
 #[test]
@@ -94,7 +98,11 @@ fn in_lockstep_a_stopped_controller_is_found_silent_and_restarted() {
     // say so, nothing was lost from the record.
     let summary = summary(&dir);
     for channel in ["measurement", "estimate"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel}: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel}: {summary:?}"
+        );
     }
 }
 
@@ -102,7 +110,10 @@ fn in_lockstep_a_stopped_controller_is_found_silent_and_restarted() {
 /// controller serving before it) goes silent: it is found, killed and
 /// rolled back to the built-in controller, and the loop runs on with
 /// nothing left. Returns the `silent` and `crash` events.
-fn program_is_silenced_and_rolled_back(test: &str, law: &str) -> (Value, Value) {
+fn program_is_silenced_and_rolled_back(
+    test: &str,
+    law: &str,
+) -> (SupervisorEvent, SupervisorEvent) {
     let dir = temp_dir(test);
     let path = dir.join("law.py");
     std::fs::write(&path, law).unwrap();
@@ -117,12 +128,12 @@ fn program_is_silenced_and_rolled_back(test: &str, law: &str) -> (Value, Value) 
     assert!(out.status.success(), "{}", describe(&out));
     let program = pid_on_duty(&dir, "controller", "active");
     let silent = await_event(&dir, "silent", "controller");
-    assert_eq!(silent["detail"]["pid"], program, "{silent}");
+    assert_eq!(silent_of(&silent).pid, program, "{silent:?}");
     let crash = await_event(&dir, "crash", "controller");
     let restart = await_event(&dir, "restart", "controller");
     assert!(
-        restart["detail"]["rolled_back_from"].is_string(),
-        "a program is rolled back: {restart}"
+        restart_of(&restart).rolled_back_from.is_some(),
+        "a program is rolled back: {restart:?}"
     );
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 500);
@@ -150,11 +161,12 @@ fn a_program_whose_law_sleeps_is_rolled_back_to_the_built_in_controller() {
          \x20       return -100.0 * m.y[0]\n\n\
          flexloop.run(Sleepy)\n",
     );
-    assert!(
-        silent["detail"]["ticks_without_output"].as_u64().unwrap() >= 200,
-        "{silent}"
+    assert!(silent_of(&silent).ticks_without_output >= 200, "{silent:?}");
+    assert_eq!(
+        crash_of(&crash).cause.as_deref(),
+        Some("silent"),
+        "{crash:?}"
     );
-    assert_eq!(crash["detail"]["cause"], "silent", "{crash}");
 }
 
 /// A Python controller that sends NaN from its 500th sample: it answers
@@ -176,8 +188,16 @@ fn a_program_sending_non_finite_commands_is_diagnosed_and_rolled_back() {
          \x20       return -100.0 * m.y[0]\n\n\
          flexloop.run(NotANumber)\n",
     );
-    assert_eq!(silent["detail"]["cause"], "non-finite output", "{silent}");
-    assert_eq!(crash["detail"]["cause"], "non-finite output", "{crash}");
+    assert_eq!(
+        silent_of(&silent).cause.as_deref(),
+        Some("non-finite output"),
+        "{silent:?}"
+    );
+    assert_eq!(
+        crash_of(&crash).cause.as_deref(),
+        Some("non-finite output"),
+        "{crash:?}"
+    );
 }
 
 /// The loop owns what it started: when its supervisor is killed (kill -9),

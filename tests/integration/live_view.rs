@@ -15,6 +15,10 @@ use flexloop_protocol::WireBytes;
 use flexloop_protocol::layout;
 use flexloop_recording::LogReader;
 use flexloop_recording::sample_file::EVENT_SCHEMA;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::events::{EventKind, SupervisorEvent};
+use flexloop_runfiles::json::read_json;
+use flexloop_runfiles::live::{LiveEndpoint, LiveSummary};
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::Path;
@@ -26,15 +30,12 @@ const TOKEN: &str = "s3cret-0123456789abcdef";
 
 /// Where the loop's live server listens, once it does (`live.json`).
 fn live_url(dir: &Path, up: &mut Up) -> String {
-    format!(
-        "ws://{}",
-        live_endpoint(dir, up)["address"].as_str().unwrap()
-    )
+    format!("ws://{}", live_endpoint(dir, up).address)
 }
 
 /// The live server's pid (`live.json`), once it listens.
 fn live_pid(dir: &Path, up: &mut Up) -> String {
-    live_endpoint(dir, up)["pid"].to_string()
+    live_endpoint(dir, up).pid.to_string()
 }
 
 /// A file holding `token`, readable by its owner only.
@@ -47,8 +48,8 @@ fn token_file(dir: &Path, name: &str, token: &str) -> std::path::PathBuf {
 }
 
 /// `live_summary.json`, which the server writes when it stops.
-fn live_summary(dir: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("live_summary.json")).unwrap()).unwrap()
+fn live_summary(dir: &Path) -> LiveSummary {
+    read_json(&RunDir::new(dir).live_summary()).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// What the live server wrote to its log.
@@ -56,7 +57,7 @@ fn live_log(dir: &Path) -> String {
     std::fs::read_to_string(dir.join("live-server.stderr")).unwrap_or_default()
 }
 
-fn live_endpoint(dir: &Path, up: &mut Up) -> Value {
+fn live_endpoint(dir: &Path, up: &mut Up) -> LiveEndpoint {
     let since = Instant::now();
     loop {
         if let Some(out) = up.ended() {
@@ -65,8 +66,10 @@ fn live_endpoint(dir: &Path, up: &mut Up) -> Value {
                 describe(&out)
             );
         }
-        if let Ok(text) = std::fs::read_to_string(dir.join("live.json")) {
-            return serde_json::from_str(&text).unwrap();
+        let path = RunDir::new(dir).live();
+        if let Ok(text) = std::fs::read_to_string(&path) {
+            return serde_json::from_str(&text)
+                .unwrap_or_else(|e| panic!("{}: {e}\n{text}", path.display()));
         }
         assert!(
             since.elapsed() < Duration::from_secs(90),
@@ -270,14 +273,16 @@ fn live_clients_get_the_recorded_messages_at_their_rate_and_bad_clients_disturb_
 
     // Nothing of the loop lost anything to the clients.
     let s = summary(&dir);
-    for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(s["gaps"][channel], 0, "{channel} gaps: {s}");
-        assert_eq!(
-            s["recording"]["dropped_in_logger"][channel], 0,
-            "{channel}: {s}"
-        );
+    let dropped = s.recording.dropped_in_logger;
+    for (channel, dropped) in [
+        ("measurement", dropped.measurement),
+        ("estimate", dropped.estimate),
+        ("command", dropped.command),
+    ] {
+        assert_eq!(of_channel(&s.gaps, channel), 0, "{channel} gaps: {s:?}");
+        assert_eq!(dropped, 0, "{channel}: {s:?}");
     }
-    assert_eq!(s["recording"]["state"], "complete", "{s}");
+    assert_eq!(s.recording.sample_file.state, "complete", "{s:?}");
     assert_clean(&dir);
     assert!(!dir.join("live.json").exists());
 }
@@ -360,12 +365,19 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
         .filter(|e| e["kind"] == "set")
         .collect();
     assert_eq!(live_sets.len(), 1, "{}", seen["events"]);
-    let sets: Vec<Value> = events(&dir)
+    let sets: Vec<SupervisorEvent> = events(&dir)
         .into_iter()
-        .filter(|e| e["kind"] == "set")
+        .filter(|e| matches!(e.kind, EventKind::Set(_)))
         .collect();
     assert_eq!(sets.len(), 1);
-    assert_eq!(&sets[0], live_sets[0]);
+    // The same event: the live one read as the file's is (compared as
+    // written again, since a NaN |Δu| is not equal to itself).
+    let live_set: SupervisorEvent = serde_json::from_value(live_sets[0].clone())
+        .unwrap_or_else(|e| panic!("{e}: {}", live_sets[0]));
+    assert_eq!(
+        serde_json::to_string(&sets[0]).unwrap(),
+        serde_json::to_string(&live_set).unwrap()
+    );
     let now = scenario_now(&dir);
     assert_eq!(now["controller"]["bandwidth_hz"].as_float(), Some(35.5));
     assert_clean(&dir);
@@ -393,7 +405,11 @@ fn a_read_only_live_server_refuses_every_change_of_the_loop() {
     assert_eq!(parameter(&set["values"], "controller.bandwidth_hz"), 43.5);
     // A client's own rate is not a change of the loop.
     assert_eq!(parameter(&seen["rate"]["values"], "live.rate_hz"), 100.0);
-    assert!(events(&dir).iter().all(|e| e["kind"] != "set"));
+    assert!(
+        events(&dir)
+            .iter()
+            .all(|e| !matches!(e.kind, EventKind::Set(_)))
+    );
     assert_clean(&dir);
 }
 
@@ -581,12 +597,12 @@ fn live_connections_beyond_the_cap_are_refused_and_slow_clients_hold_bounded_mem
     );
     // Counted and logged.
     let summary = live_summary(&dir);
-    assert_eq!(summary["max_connections"], 16, "{summary}");
-    assert_eq!(summary["most_connections"], 16, "{summary}");
+    assert_eq!(summary.max_connections, 16, "{summary:?}");
+    assert_eq!(summary.most_connections, 16, "{summary:?}");
     assert!(
         // The 984 of the flood and the one more while they held every place.
-        summary["refused_connections"].as_u64().unwrap() > 1000 - 16,
-        "{summary}"
+        summary.refused_connections > 1000 - 16,
+        "{summary:?}"
     );
     let log = live_log(&dir);
     assert!(
@@ -650,25 +666,25 @@ fn live_token_guesses_are_throttled_and_a_large_set_is_refused_before_it_costs_m
     // server's own counts; the right one is refused while the lockout
     // holds and taken after it.
     let summary = live_summary(&dir);
-    let failures = summary["token_failures"].as_u64().unwrap();
-    let throttled = summary["token_throttled"].as_u64().unwrap();
-    let wall_s = summary["wall_s"].as_f64().unwrap();
+    let failures = summary.token_failures;
+    let throttled = summary.token_throttled;
+    let wall_s = summary.wall_s;
     eprintln!(
         "{} guesses sent in {:.1} s; {failures} compared, {throttled} refused unexamined \
          over the server's {wall_s:.1} s",
         brute["sent"], brute["elapsed_s"]
     );
-    assert!(failures >= 5, "{summary}");
+    assert!(failures >= 5, "{summary:?}");
     // 5 free, then one after each lockout (1, 2, 4, ... s): at most
     // 6 + log2(1 + T) in the server's T seconds.
     let bound = 6.0 + (1.0 + wall_s).log2();
     assert!(
         (failures as f64) <= bound,
-        "{failures} wrong tokens compared in {wall_s} s: {summary}"
+        "{failures} wrong tokens compared in {wall_s} s: {summary:?}"
     );
     let sent = brute["sent"].as_u64().unwrap();
     assert!(sent > 100, "{brute}");
-    assert!(failures + throttled >= sent, "{summary} {brute}");
+    assert!(failures + throttled >= sent, "{summary:?} {brute}");
     assert!(brute["throttled"].as_u64().unwrap() > 0, "{brute}");
     let during = brute["right_during"]["statuses"].as_array().unwrap();
     assert!(
@@ -684,10 +700,11 @@ fn live_token_guesses_are_throttled_and_a_large_set_is_refused_before_it_costs_m
     assert!(log.contains("a wrong live.token"), "{log}");
     assert!(log.contains("refused unexamined"), "{log}");
     assert!(log.contains("at most 65536 bytes"), "{log}");
+    assert!(summary.oversized_messages >= 1, "{summary:?}");
     assert!(
-        summary["oversized_messages"].as_u64().unwrap() >= 1,
-        "{summary}"
+        events(&dir)
+            .iter()
+            .all(|e| !matches!(e.kind, EventKind::Set(_)))
     );
-    assert!(events(&dir).iter().all(|e| e["kind"] != "set"));
     assert_clean(&dir);
 }

@@ -3,6 +3,7 @@
 
 use crate::util::*;
 use flexloop_recording::LogReader;
+use flexloop_runfiles::events::EventKind;
 use std::time::Duration;
 
 fn up(run_dir: &std::path::Path, extra: &[&str]) -> std::process::Output {
@@ -33,12 +34,12 @@ fn lockstep_run_records_every_sample_and_leaves_nothing() {
     // The logger polls and never slows the loop: when the machine starves it
     // (parallel tests on 2 cores) it may lose samples, but must count each one.
     let missing = |seqs: &[u64]| 5_000 - seqs.len() as u64;
-    assert_eq!(s["gaps"]["measurement"].as_u64().unwrap(), missing(&m));
-    assert_eq!(s["gaps"]["command"].as_u64().unwrap(), missing(&c));
+    assert_eq!(s.gaps.measurement, missing(&m));
+    assert_eq!(s.gaps.command, missing(&c));
     assert_eq!(m.last(), Some(&4_999), "0.5 s at 10 kHz");
     assert!(m.windows(2).all(|w| w[0] < w[1]) && c.windows(2).all(|w| w[0] < w[1]));
     assert!(e.windows(2).all(|w| w[0] < w[1]));
-    if s["gaps"]["measurement"] == 0 && s["gaps"]["command"] == 0 {
+    if s.gaps.measurement == 0 && s.gaps.command == 0 {
         assert!(contiguous(&m, 0) && contiguous(&c, 0));
     }
     // In lockstep every command is on time and every estimate fresh.
@@ -48,7 +49,7 @@ fn lockstep_run_records_every_sample_and_leaves_nothing() {
             .all(|m| m.command_seq + 1 == m.seq)
     );
     assert!(log.commands().all(|c| c.estimate_seq == c.seq));
-    assert_eq!(s["counters"]["misses"], 0);
+    assert_eq!(s.counters.misses, 0);
     assert_clean(&dir);
 }
 
@@ -174,10 +175,11 @@ fn swaps_and_stops_name_their_sender_and_another_users_are_refused() {
     let uid = unsafe { libc::geteuid() };
     let swapped = events(&dir)
         .into_iter()
-        .find(|e| e["kind"] == "swap")
+        .find(|e| matches!(e.kind, EventKind::Swap(_)))
         .unwrap();
-    assert_eq!(swapped["detail"]["sender"]["uid"], uid, "{swapped}");
-    assert!(swapped["detail"]["sender"]["pid"].as_u64().unwrap() > 0);
+    let sender = swap_of(&swapped).sender;
+    assert_eq!(sender.map(|s| s.uid), Some(uid), "{swapped:?}");
+    assert!(sender.and_then(|s| s.pid).unwrap() > 0);
     let registry = std::path::Path::new("/tmp/flexloop/loops").join(format!("{prefix}.json"));
     if uid == 0 {
         std::os::unix::fs::chown(&registry, Some(65534), None).unwrap();
@@ -205,9 +207,10 @@ fn swaps_and_stops_name_their_sender_and_another_users_are_refused() {
     stop(&prefix, up);
     let stopped = events(&dir)
         .into_iter()
-        .find(|e| e["kind"] == "stop")
+        .find(|e| matches!(e.kind, EventKind::Stop(_)))
         .unwrap_or_else(|| panic!("no stop event: {:?}", events(&dir)));
-    assert_eq!(stopped["detail"]["by"], "flexloop down", "{stopped}");
-    assert_eq!(stopped["detail"]["sender"]["uid"], uid, "{stopped}");
+    let stop = stop_of(&stopped);
+    assert_eq!(stop.by, "flexloop down", "{stopped:?}");
+    assert_eq!(stop.sender.map(|s| s.uid), Some(uid), "{stopped:?}");
     assert_clean(&dir);
 }

@@ -10,6 +10,8 @@ use flexloop_analysis::{ControlMetrics, MetricsOptions, RunTrace};
 use flexloop_components::InProcessLoop;
 use flexloop_design::LoopDesign;
 use flexloop_recording::LogReader;
+use flexloop_runfiles::RunDir;
+use flexloop_runfiles::metrics::MetricsFile;
 use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::time::Duration;
 
@@ -20,7 +22,7 @@ pub struct Runs {
     pub process: RunTrace,
     pub in_process: RunTrace,
     /// `flexloop run`'s metrics.json and its printed report.
-    pub metrics: serde_json::Value,
+    pub metrics: MetricsFile,
     pub stdout: String,
 }
 
@@ -42,8 +44,7 @@ pub fn run_file(path: &std::path::Path, label: &str, duration_s: Option<f64>) ->
     }
     let out = run_bounded(cmd, Duration::from_secs(240));
     assert!(out.status.success(), "{}", describe(&out));
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
+    let metrics = metrics(&dir);
     assert_clean(&dir);
 
     let overrides = Overrides {
@@ -55,7 +56,7 @@ pub fn run_file(path: &std::path::Path, label: &str, duration_s: Option<f64>) ->
     let s = Scenario::load(path, &overrides).unwrap();
     let design = LoopDesign::from_scenario(&s).unwrap();
     let ticks = s.ticks().unwrap() as usize;
-    let log = LogReader::open(&dir.join(flexloop_runfiles::RunDir::SAMPLES)).unwrap();
+    let log = LogReader::open(&dir.join(RunDir::SAMPLES)).unwrap();
     let process = RunTrace::from_log(&log, design.ts);
     let mut in_process_loop = InProcessLoop::new(&design).unwrap();
     let in_process = RunTrace::simulate(&mut in_process_loop, design.ts, ticks as u64);
@@ -143,12 +144,9 @@ impl Runs {
                 self.stdout
             );
         }
-        let axes = self.metrics["control"]["axes"].as_array().unwrap();
+        let axes = self.metrics.control["axes"].as_array().unwrap();
         assert_eq!(axes.len(), self.design.n_outputs);
-        assert_eq!(
-            self.metrics["outputs"].as_array().unwrap().len(),
-            axes.len()
-        );
+        assert_eq!(self.metrics.outputs.len(), axes.len());
         if self.design.n_outputs > 1 {
             assert!(self.stdout.contains("per axis"), "{}", self.stdout);
         }

@@ -11,7 +11,7 @@ use crate::own_components::{assert_gone, built, observer_scenario};
 use crate::util::*;
 use flexloop_protocol::Measurement;
 use flexloop_recording::LogReader;
-use serde_json::Value;
+use flexloop_runfiles::events::{EventKind, SupervisorEvent};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -144,10 +144,10 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
     unsafe { libc::kill(observer, libc::SIGKILL) };
     assert_gone(observer);
     let since = Instant::now();
-    let restart: Value = loop {
+    let restart: SupervisorEvent = loop {
         if let Some(e) = events(&dir)
             .into_iter()
-            .find(|e| e["kind"] == "restart" && e["role"] == "observer")
+            .find(|e| matches!(e.kind, EventKind::Restart(_)) && e.role == "observer")
         {
             break e;
         }
@@ -167,14 +167,18 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
         );
         std::thread::sleep(Duration::from_millis(20));
     };
-    assert_eq!(restart["generation"], 1, "{restart}");
+    assert_eq!(restart.generation, Some(1), "{restart:?}");
+    let switch = restart
+        .kind
+        .switch()
+        .unwrap_or_else(|| panic!("a restart without its switch: {restart:?}"));
     // A program is never a spare: a new process of it took over.
-    assert_eq!(restart["detail"]["warm"], false, "{restart}");
+    assert!(!switch.warm, "{restart:?}");
     assert!(
-        restart["detail"]["rolled_back_from"].is_null(),
-        "the loop started on the program: nothing to roll back to: {restart}"
+        restart_of(&restart).rolled_back_from.is_none(),
+        "the loop started on the program: nothing to roll back to: {restart:?}"
     );
-    let from_seq = restart["detail"]["from_seq"].as_u64().unwrap();
+    let from_seq = switch.from_seq;
     // The loop keeps running past the restart.
     let after = recorded_ticks_in(&dir, "samples.mcap");
     await_ticks(&mut up, &dir, after + 1_500);
@@ -182,19 +186,28 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
 
     // The restart's own words: the dead one's state, the replay, no hole.
     let said = std::fs::read_to_string(dir.join("observer.g1.stderr")).unwrap_or_default();
-    eprintln!("{test}: {restart}\n{said}");
+    eprintln!("{test}: {restart:?}\n{said}");
     assert!(
         said.contains("took over the state after sample") && !said.contains("hole"),
         "{said}"
     );
 
     let summary = summary(&dir);
-    for counter in ["misses", "stale_estimates", "rejected_commands"] {
-        assert_eq!(summary["counters"][counter], 0, "{counter}: {summary}");
+    let counters = summary.counters;
+    for (counter, count) in [
+        ("misses", counters.misses),
+        ("stale_estimates", counters.stale_estimates),
+        ("rejected_commands", counters.rejected_commands),
+    ] {
+        assert_eq!(count, 0, "{counter}: {summary:?}");
     }
     // Lockstep waits for the restart: it accounts for no lost sample.
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
 
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
@@ -219,7 +232,7 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
     assert_eq!(
         by_generation.keys().copied().collect::<Vec<_>>(),
         [0, 1],
-        "{summary}"
+        "{summary:?}"
     );
     let (first, second) = (&by_generation[&0], &by_generation[&1]);
     // One estimate for every tick, the restart's from its boundary on.

@@ -8,6 +8,7 @@
 use crate::util::*;
 use flexloop_protocol::{Command, Measurement};
 use flexloop_recording::LogReader;
+use flexloop_runfiles::events::EventKind;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Duration;
@@ -249,9 +250,13 @@ fn a_program_swapped_by_exec_to_itself_continues_its_own_state() {
     wait_for_ticks(&dir, after + 1_500);
     stop(&prefix, child);
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     let written = dir.join("tuned").join("exec-001.toml");
     let table: toml::Table = toml::from_str(&std::fs::read_to_string(&written).unwrap()).unwrap();
@@ -308,23 +313,26 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     // Into the program bumplessly: its integrator takes the old command
     // over (the law's `shift_output`), so the switch steps no more than an
     // ordinary sample does.
     let swaps: Vec<_> = events(&dir)
         .into_iter()
-        .filter(|e| e["kind"] == "swap")
+        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
         .collect();
     assert_eq!(swaps.len(), 2, "{swaps:?}");
-    let switch = &swaps[0]["detail"]["switch"];
-    let du = |k: &str| switch[k].as_f64().unwrap();
+    let switch = &swap_of(&swaps[0]).switch;
     assert!(
-        du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
-        "{switch}"
+        switch.du_switch <= 2.0 * switch.du_before.max(switch.du_after) + 1e-6,
+        "{switch:?}"
     );
     // The program's commands from the switch on are its law's: its state
     // at the switch is what the hand-over made it (two unknowns, the
@@ -380,13 +388,15 @@ fn the_example_controller_swaps_into_a_running_loop_and_back() {
     }
     let last_of_program = served.last().unwrap();
     assert_eq!(last_of_program.seq + 1, back[0].seq);
-    let du_switch = swaps[1]["detail"]["switch"]["du_switch"].as_f64().unwrap();
+    let du_switch = swap_of(&swaps[1]).switch.du_switch;
     assert!(
         (du_switch - (back[0].u[0] - last_of_program.u[0]).abs()).abs() < 1e-12,
         "{du_switch}"
     );
     assert!(
-        !events(&dir).iter().any(|e| e["kind"] == "crash"),
+        !events(&dir)
+            .iter()
+            .any(|e| matches!(e.kind, EventKind::Crash(_))),
         "{:?}",
         events(&dir)
     );
@@ -492,8 +502,8 @@ fn a_program_that_never_follows_the_loop_is_stopped_and_its_swap_refused() {
     // The supervisor stopped it; the built-in controller kept the loop.
     let silent_pids: Vec<i32> = processes(&dir)
         .iter()
-        .filter(|p| p["role"] == "controller" && p["generation"] == 1)
-        .filter_map(|p| p["pid"].as_i64().map(|pid| pid as i32))
+        .filter(|p| p.role == "controller" && p.generation == Some(1))
+        .map(|p| p.pid)
         .collect();
     for pid in silent_pids {
         assert_gone(pid);
@@ -521,7 +531,10 @@ fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
     // (a program that crashed once is likely to crash again).
     let since = std::time::Instant::now();
     let restart = loop {
-        if let Some(r) = events(&dir).into_iter().find(|e| e["kind"] == "restart") {
+        if let Some(r) = events(&dir)
+            .into_iter()
+            .find(|e| matches!(e.kind, EventKind::Restart(_)))
+        {
             break r;
         }
         assert!(
@@ -531,16 +544,18 @@ fn a_program_that_dies_mid_run_is_rolled_back_to_the_built_in_controller() {
         );
         std::thread::sleep(Duration::from_millis(50));
     };
+    let detail = restart_of(&restart);
     assert_eq!(
-        restart["detail"]["rolled_back_from"].as_str(),
+        detail.rolled_back_from.as_deref(),
         Some(program.to_str().unwrap()),
-        "{restart}"
+        "{restart:?}"
     );
     assert!(
-        restart["detail"]["scenario"]
-            .as_str()
+        detail
+            .scenario
+            .as_deref()
             .is_some_and(|s| s.ends_with("lecture-double-integrator.toml")),
-        "{restart}"
+        "{restart:?}"
     );
     let after = recorded_ticks_in(&dir, "samples.mcap");
     wait_for_ticks(&dir, after + 1_000);
@@ -633,7 +648,7 @@ fn the_example_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() 
     wait_for_ticks(&dir, after + 1_500);
     stop(&prefix, child);
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =
         log.estimates().map(|e| e.generation).collect();
@@ -691,21 +706,22 @@ fn a_port_of_the_wrong_type_is_refused_and_a_flood_is_counted_not_applied() {
     let summary = summary(&dir);
     // The plant rejected the flood; the logger counted it apart and kept it
     // out of the record: the loop's own commands, gaps and latencies only.
-    let counter = |name: &str| summary["counters"][name].as_u64().unwrap();
-    assert!(counter("rejected_commands") > 0, "{summary}");
-    assert!(counter("foreign_commands") > 0, "{summary}");
-    assert_eq!(counter("misses"), 0, "{summary}");
-    assert_eq!(counter("stale_estimates"), 0, "{summary}");
+    let counters = summary.counters;
+    assert!(counters.rejected_commands > 0, "{summary:?}");
+    assert!(counters.foreign_commands > 0, "{summary:?}");
+    assert_eq!(counters.misses, 0, "{summary:?}");
+    assert_eq!(counters.stale_estimates, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(log.measurements().all(|m| m.u_applied[0] != 50.0));
     assert!(log.commands().all(|c| c.generation == 0 && c.u[0] != 50.0));
-    assert_eq!(
-        log.commands().count() as u64,
-        summary["samples"]["command"].as_u64().unwrap()
-    );
+    assert_eq!(log.commands().count() as u64, summary.samples.command);
     assert_clean(&dir);
 }
 
@@ -768,17 +784,20 @@ fn a_programs_params_are_set_live_and_handed_over_bumplessly() {
     wait_for_ticks(&dir, after + 500);
     stop(&prefix, child);
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let sets: Vec<_> = events(&dir)
         .into_iter()
-        .filter(|e| e["kind"] == "set")
+        .filter(|e| matches!(e.kind, EventKind::Set(_)))
         .collect();
     assert_eq!(sets.len(), 1, "{sets:?}");
-    let switch = &sets[0]["detail"]["switches"][0];
-    let du = |k: &str| switch[k].as_f64().unwrap();
+    let switch = set_of(&sets[0])
+        .outcome
+        .switches
+        .first()
+        .unwrap_or_else(|| panic!("a set without a switch: {sets:?}"));
     assert!(
-        du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
-        "{switch}"
+        switch.du_switch <= 2.0 * switch.du_before.max(switch.du_after) + 1e-6,
+        "{switch:?}"
     );
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =

@@ -17,12 +17,10 @@ fn scan_rms_nm(scenario: &Path, run_dir: &Path) -> f64 {
         .arg(run_dir);
     let out = run_bounded(cmd, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run_dir.join("metrics.json")).unwrap())
-            .unwrap();
-    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
+    let metrics = metrics(run_dir);
+    assert!(metrics.valid, "{:?}", metrics.invalid_reasons);
     assert_clean(run_dir);
-    metrics["control"]["rms_e_true_scan"].as_f64().unwrap() * 1e9
+    metrics.control["rms_e_true_scan"].as_f64().unwrap() * 1e9
 }
 
 /// The thesis chain's sensor line in the Table 3.7 scenarios.
@@ -148,13 +146,11 @@ fn a_drive_train_of_its_own_runs_and_tracks_with_the_bandwidth_it_chose() {
         String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("(auto)"), "{text}");
     assert!(!text.contains("warning"), "{text}");
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("run/metrics.json")).unwrap())
-            .unwrap();
-    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
+    let metrics = metrics(&dir.join("run"));
+    assert!(metrics.valid, "{:?}", metrics.invalid_reasons);
     // A 50 mm scan followed to tens of nanometres; without the loop the
     // feedforward alone leaves micrometres (the modes ring at 212–700 Hz).
-    let rms = metrics["control"]["rms_e_true_scan"].as_f64().unwrap() * 1e9;
+    let rms = metrics.control["rms_e_true_scan"].as_f64().unwrap() * 1e9;
     assert!(rms < 50.0, "{rms} nm");
     assert_clean(&dir.join("run"));
 }

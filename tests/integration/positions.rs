@@ -33,11 +33,13 @@ fn a_sensor_between_masses_runs_through_the_processes_as_in_process() {
     // The metrics name the sensor measured, not the y5 of the files it came from.
     let report = String::from_utf8_lossy(&out.stdout);
     assert!(report.contains("output sensor at 4.25"), "{report}");
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
+    let metrics = metrics(&dir);
     assert_clean(&dir);
-    assert_eq!(metrics["outputs"][0], "sensor at 4.25");
-    let run = metrics["control"]["rms_e_true_scan"].as_f64().unwrap();
+    assert_eq!(
+        metrics.outputs.first().map(String::as_str),
+        Some("sensor at 4.25")
+    );
+    let run = metrics.control["rms_e_true_scan"].as_f64().unwrap();
 
     let mut cmd = flexloop();
     cmd.args([

@@ -19,6 +19,7 @@ use crate::util::*;
 use flexloop_components::ControllerCore;
 use flexloop_protocol::{Command, Estimate, MAX_INPUTS, Measurement};
 use flexloop_recording::LogReader;
+use flexloop_runfiles::events::EventKind;
 use flexloop_scenario::ProgramRole;
 use flexloop_scenario::program::served_by_program;
 use std::collections::HashMap;
@@ -260,25 +261,30 @@ fn run_cell(plant: &Plant, observer_program: bool, first: Controller) {
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{tag}: {summary}");
+    assert_eq!(summary.counters.misses, 0, "{tag}: {summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{tag}: {channel} gaps");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{tag}: {channel} gaps"
+        );
     }
     let swaps: Vec<_> = events(&dir)
         .into_iter()
-        .filter(|e| e["kind"] == "swap")
+        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
         .collect();
     assert_eq!(swaps.len(), 2, "{tag}: {swaps:?}");
     for swap in &swaps {
-        let switch = &swap["detail"]["switch"];
-        let du = |k: &str| switch[k].as_f64().unwrap();
+        let switch = &swap_of(swap).switch;
         assert!(
-            du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
-            "{tag}: a switch larger than ordinary steps: {switch}"
+            switch.du_switch <= 2.0 * switch.du_before.max(switch.du_after) + 1e-6,
+            "{tag}: a switch larger than ordinary steps: {switch:?}"
         );
     }
     assert!(
-        !events(&dir).iter().any(|e| e["kind"] == "crash"),
+        !events(&dir)
+            .iter()
+            .any(|e| matches!(e.kind, EventKind::Crash(_))),
         "{tag}: {:?}",
         events(&dir)
     );
@@ -540,7 +546,7 @@ fn a_program_serves_a_loop_with_a_command_deadline() {
     assert_ran(&out);
     let run = dir.join("run");
     let summary = summary(&run);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let design = design(&file);
     let tau = design.command_deadline_s.unwrap();
     assert_eq!(tau, 30e-6);

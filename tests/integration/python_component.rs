@@ -8,6 +8,7 @@
 
 use crate::util::*;
 use flexloop_recording::LogReader;
+use flexloop_runfiles::events::EventKind;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -175,11 +176,18 @@ fn the_python_pid_swapped_into_a_lockstep_loop_commands_its_law_and_hands_back()
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    for counter in ["misses", "rejected_commands"] {
-        assert_eq!(summary["counters"][counter], 0, "{counter}: {summary}");
+    for (counter, count) in [
+        ("misses", summary.counters.misses),
+        ("rejected_commands", summary.counters.rejected_commands),
+    ] {
+        assert_eq!(count, 0, "{counter}: {summary:?}");
     }
     for channel in ["measurement", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
@@ -244,7 +252,7 @@ fn the_python_pid_runs_a_lockstep_loop_from_its_start() {
     let out = run_bounded(cmd, Duration::from_secs(120));
     assert_ran(&out);
     let summary = summary(&run_dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let log = LogReader::open(&run_dir.join("samples.mcap")).unwrap();
     let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
     let mut commands: Vec<_> = log.commands().collect();
@@ -281,7 +289,7 @@ fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
     let mut commands: Vec<_> = log.commands().collect();
@@ -332,7 +340,10 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(active, libc::SIGKILL) };
     let since = std::time::Instant::now();
-    while !events(&dir).iter().any(|e| e["kind"] == "promote-standby") {
+    while !events(&dir)
+        .iter()
+        .any(|e| matches!(e.kind, EventKind::PromoteStandby(_)))
+    {
         assert!(
             since.elapsed() < Duration::from_secs(90),
             "standby not promoted: {:?}",
@@ -345,7 +356,7 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["rejected_commands"], 0, "{summary}");
+    assert_eq!(summary.counters.rejected_commands, 0, "{summary:?}");
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     // The standby published its commands, marked, for the safe action, and
     // after its promotion the loop's commands are its own.
@@ -359,16 +370,16 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
     );
     let promoted = events(&dir)
         .into_iter()
-        .find(|e| e["kind"] == "promote-standby")
+        .find(|e| matches!(e.kind, EventKind::PromoteStandby(_)))
         .unwrap();
-    let generation = promoted["generation"].as_u64().unwrap() as u32;
+    let generation = promoted.generation.unwrap();
     let served = log
         .commands()
         .filter(|c| c.generation == generation && c.flags & flexloop_protocol::flags::STANDBY == 0)
         .count();
     assert!(
         served > 100,
-        "{served} commands after the promotion: {promoted}"
+        "{served} commands after the promotion: {promoted:?}"
     );
     assert_clean(&dir);
 }

@@ -10,6 +10,7 @@
 
 use crate::util::*;
 use flexloop_design::reference::Reference;
+use flexloop_runfiles::events::EventKind;
 use flexloop_scenario::{Overrides, Scenario};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -470,9 +471,13 @@ fn the_python_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() {
     wait_for_ticks(&dir, after + 1_500);
     stop(&prefix, child);
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let generations: std::collections::BTreeSet<u32> =
@@ -552,9 +557,13 @@ fn the_python_observer_swaps_into_a_running_loop_and_back() {
     assert_gone(program);
     stop(&prefix, child);
     let summary = summary(&dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
     let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let mut served: Vec<u64> = log
@@ -606,7 +615,10 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
     unsafe { libc::kill(observer, libc::SIGKILL) };
     assert_gone(observer);
     let since = std::time::Instant::now();
-    while !events(&dir).iter().any(|e| e["kind"] == "restart") {
+    while !events(&dir)
+        .iter()
+        .any(|e| matches!(e.kind, EventKind::Restart(_)))
+    {
         assert!(
             since.elapsed() < Duration::from_secs(60),
             "no restart: {:?}",
@@ -630,7 +642,7 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
     assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
     assert!(assert_estimates_follow_the_predictor(&log, 0, &[0, 1]) > 3_000);
     let summary = summary(&dir);
-    assert_eq!(summary["gaps"]["estimate"], 0, "{summary}");
+    assert_eq!(summary.gaps.estimate, 0, "{summary:?}");
     assert_clean(&dir);
 }
 
@@ -643,11 +655,9 @@ fn scan_rms(scenario_file: &Path, run_dir: &Path) -> f64 {
         .arg(run_dir);
     let out = run_bounded(cmd, Duration::from_secs(300));
     assert!(out.status.success(), "{}", describe(&out));
-    let metrics: Value =
-        serde_json::from_str(&std::fs::read_to_string(run_dir.join("metrics.json")).unwrap())
-            .unwrap();
-    assert_eq!(metrics["valid"], true, "{}", metrics["invalid_reasons"]);
-    metrics["control"]["rms_e_true_scan"].as_f64().unwrap()
+    let metrics = metrics(run_dir);
+    assert!(metrics.valid, "{:?}", metrics.invalid_reasons);
+    metrics.control["rms_e_true_scan"].as_f64().unwrap()
 }
 
 /// The thesis' MC + AD scan (thesis-mc-ad-redesigned, f_bw 43.5 Hz, the

@@ -5,6 +5,11 @@
 
 use crate::util::*;
 use flexloop_recording::LogReader;
+use flexloop_runfiles::events::EventKind;
+use flexloop_runfiles::json::read_json;
+use flexloop_runfiles::summary::ClosedFile;
+use flexloop_runfiles::supervision::Processes;
+use flexloop_runfiles::{PlantLatency, RunDir};
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;
@@ -31,6 +36,13 @@ fn python_check(python: &str, script: &str, file: &Path) -> Value {
         describe(&out)
     );
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", describe(&out)))
+}
+
+/// The plant's own `plant_latency.json`, typed.
+fn plant_latency(dir: &Path) -> PlantLatency {
+    RunDir::new(dir)
+        .read_plant_latency()
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A finished lockstep run of the lecture loop.
@@ -96,12 +108,16 @@ fn the_sample_file_reads_back_with_the_official_mcap_reader() {
     let seen = assert_python_agrees(&python, &file, &log);
     for (topic, _, channel) in LOOP_TOPICS {
         let c = &seen["channels"][topic];
-        assert_eq!(c["count"], summary["samples"][channel], "{topic}");
+        assert_eq!(c["count"], of_channel(&summary.samples, channel), "{topic}");
         // Sequence continuity: whatever is missing is what the logger
         // counted as gaps (on a starved machine it may lose samples, never
         // silently: those it never received and those its writer's queue
         // had no room for).
-        assert_eq!(c["missing"], summary["gaps"][channel], "{topic}: {c}");
+        assert_eq!(
+            c["missing"],
+            of_channel(&summary.gaps, channel),
+            "{topic}: {c}"
+        );
         assert_eq!(c["in_order"], true, "{topic}");
     }
     let m = &seen["channels"]["/measurement"];
@@ -130,7 +146,7 @@ fn the_sample_file_reads_back_with_the_official_mcap_reader() {
     assert!(meta["cpu_count"].as_str().unwrap().parse::<u32>().unwrap() >= 1);
     assert!(meta["realtime_plant"].as_str().unwrap().contains("cpu="));
     assert_eq!(meta["flexloop_version"], env!("CARGO_PKG_VERSION"));
-    assert_eq!(summary["recording"]["state"], "complete");
+    assert_eq!(summary.recording.sample_file.state, "complete");
     assert_clean(&dir);
 }
 
@@ -140,21 +156,22 @@ fn the_latency_log_decodes_to_the_summary_percentiles() {
     let dir = lockstep_run("hlog-python", "0.3");
     let decoded = python_check(&python, "check_hlog.py", &dir.join("latency.hlog"));
     let summary = summary(&dir);
-    let latency = summary["latency"].as_object().unwrap();
+    let latency = &summary.latency;
     // Within the histograms' precision: 3 significant digits.
     let close = |a: u64, b: u64| a.abs_diff(b) <= a.max(b) / 1000 + 1;
     let mut compared = 0;
     for (metric, s) in latency {
-        let count = s["count"].as_u64().unwrap();
+        let count = s.count;
         if count == 0 {
             continue;
         }
         let d = &decoded[metric];
-        assert_eq!(d["count"].as_u64(), Some(count), "{metric}: {d} vs {s}");
+        assert_eq!(d["count"].as_u64(), Some(count), "{metric}: {d} vs {s:?}");
         assert!(d["intervals"].as_u64().unwrap() >= 1);
-        for label in ["p50", "p90", "p99", "p99.9", "p99.99", "max"] {
+        let labels = ["p50", "p90", "p99", "p99.9", "p99.99", "max"];
+        for (label, b) in labels.into_iter().zip(s.percentiles.values()) {
             let key = format!("{label}_ns");
-            let (a, b) = (d[&key].as_u64().unwrap(), s[&key].as_u64().unwrap());
+            let a = d[&key].as_u64().unwrap();
             assert!(close(a, b), "{metric} {label}: log {a} ns, summary {b} ns");
         }
         compared += 1;
@@ -330,35 +347,38 @@ fn a_full_disk_stops_the_recording_not_the_loop() {
         "{err}"
     );
     let s = summary(&dir);
-    let recording = &s["recording"];
-    assert_eq!(recording["state"], "stopped", "{recording}");
+    let recording = &s.recording.sample_file;
+    assert_eq!(recording.state, "stopped", "{recording:?}");
     assert!(
-        recording["error"]
-            .as_str()
+        recording
+            .error
+            .as_deref()
             .unwrap()
             .contains("File too large"),
-        "{recording}"
+        "{recording:?}"
     );
-    assert!(recording["dropped_messages"].as_u64().unwrap() > 0);
+    assert!(recording.dropped_messages > 0);
     let log = LogReader::open(&file).unwrap();
     assert!(!log.torn_tail, "{:?}", log.tail_error);
     let kept = seqs(&log);
     assert_eq!(kept.first(), Some(&0));
     assert!(kept.windows(2).all(|w| w[0] < w[1]));
     // The logger counted every tick after the recording stopped.
-    let ticks = s["samples"]["measurement"].as_u64().unwrap();
+    let ticks = s.samples.measurement;
     assert!(
         ticks > kept.len() as u64 + 100,
         "{ticks} ticks, {} kept",
         kept.len()
     );
-    assert_eq!(
-        recording["closed"]["messages"].as_u64().unwrap(),
-        (log.records.len() + log.events.len()) as u64
-    );
+    let Some(ClosedFile::Closed {
+        messages, indexed, ..
+    }) = recording.closed
+    else {
+        panic!("not closed: {recording:?}");
+    };
+    assert_eq!(messages, (log.records.len() + log.events.len()) as u64);
     // Indexed when the summary fitted in the room cutting the torn chunk made.
     let bytes = std::fs::read(&file).unwrap();
-    let indexed = recording["closed"]["indexed"].as_bool().unwrap();
     assert_eq!(mcap::Summary::read(&bytes).unwrap().is_some(), indexed);
     if indexed {
         assert_python_agrees(&python(), &file, &log);
@@ -389,8 +409,12 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(!log.torn_tail, "{:?}", log.tail_error);
     assert!(seqs(&log).len() >= 200);
-    assert_eq!(summary(&dir)["recording"]["state"], "complete");
-    assert!(log.events.iter().any(|e| e.json["kind"] == "recording-end"));
+    assert_eq!(summary(&dir).recording.sample_file.state, "complete");
+    assert!(
+        log.events
+            .iter()
+            .any(|e| e.message.kind() == "recording-end")
+    );
     assert_clean(&dir);
 
     // kill -9 of the plant: the supervisor stops the rest, the logger finishes.
@@ -409,7 +433,7 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(!log.torn_tail, "{:?}", log.tail_error);
     assert!(seqs(&log).len() >= 200);
-    assert_eq!(summary(&dir)["recording"]["state"], "complete");
+    assert_eq!(summary(&dir).recording.sample_file.state, "complete");
     assert_clean(&dir);
 }
 
@@ -456,13 +480,12 @@ fn the_next_down_finishes_a_loop_whose_supervisor_and_logger_were_killed() {
         "{}",
         describe(&status)
     );
-    let listed: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("processes.json")).unwrap())
-            .unwrap();
-    assert_eq!(listed["processes"], serde_json::json!([]), "{listed}");
+    let listed: Processes =
+        read_json(&RunDir::new(&*dir).processes()).unwrap_or_else(|e| panic!("{e}"));
+    assert!(listed.processes.is_empty(), "{listed:?}");
     assert!(
-        listed["ended"].as_str().unwrap().contains("died"),
-        "{listed}"
+        listed.ended.as_deref().unwrap().contains("died"),
+        "{listed:?}"
     );
     // The file is closed: the official reader's indexed read opens it.
     let file = dir.join("samples.mcap");
@@ -473,18 +496,16 @@ fn the_next_down_finishes_a_loop_whose_supervisor_and_logger_were_killed() {
     // The summary the logger could not write, rebuilt from the file: every
     // tick the plant counted is recorded or a gap.
     let s = summary(&dir);
-    let plant: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("plant_latency.json")).unwrap())
-            .unwrap();
-    assert_eq!(s["ticks"], plant["ticks"], "{s}");
-    let recorded = s["samples"]["measurement"].as_u64().unwrap();
+    let plant = plant_latency(&dir);
+    assert_eq!(s.ticks, plant.ticks, "{s:?}");
+    let recorded = s.samples.measurement;
     assert_eq!(recorded, seqs(&log).len() as u64);
+    assert_eq!(recorded + s.gaps.measurement, s.ticks, "{s:?}");
     assert_eq!(
-        recorded + s["gaps"]["measurement"].as_u64().unwrap(),
-        s["ticks"].as_u64().unwrap(),
-        "{s}"
+        s.generations.first().map(|g| g.state.as_str()),
+        Some("killed"),
+        "{s:?}"
     );
-    assert_eq!(s["generations"][0]["state"], "killed", "{s}");
 }
 
 #[test]
@@ -519,7 +540,7 @@ fn logger_killed_three_times(name: &str, mode: &[&str]) {
         let since = Instant::now();
         while events(&dir)
             .iter()
-            .filter(|e| e["kind"] == "restart" && e["role"] == "logger")
+            .filter(|e| matches!(e.kind, EventKind::Restart(_)) && e.role == "logger")
             .count()
             <= kill
         {
@@ -536,23 +557,16 @@ fn logger_killed_three_times(name: &str, mode: &[&str]) {
     // One summary for the run: every generation, every tick the plant
     // counted recorded or in a gap.
     let s = summary(&dir);
-    let generations: Vec<&str> = s["generations"]
-        .as_array()
-        .unwrap_or_else(|| panic!("{s}"))
-        .iter()
-        .map(|g| g["file"].as_str().unwrap())
-        .collect();
-    assert_eq!(generations, files, "{s}");
-    let plant: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("plant_latency.json")).unwrap())
-            .unwrap();
-    let ticks = s["ticks"].as_u64().unwrap();
-    assert_eq!(ticks, plant["ticks"].as_u64().unwrap(), "{s}");
+    let generations: Vec<&str> = s.generations.iter().map(|g| g.file.as_str()).collect();
+    assert_eq!(generations, files, "{s:?}");
+    let plant = plant_latency(&dir);
+    let ticks = s.ticks;
+    assert_eq!(ticks, plant.ticks, "{s:?}");
     for channel in ["measurement", "command"] {
         assert_eq!(
-            s["samples"][channel].as_u64().unwrap() + s["gaps"][channel].as_u64().unwrap(),
+            of_channel(&s.samples, channel) + of_channel(&s.gaps, channel),
             ticks,
-            "{channel}: {s}"
+            "{channel}: {s:?}"
         );
     }
     // The export joins the four files: its rows and its gap events add up
@@ -587,13 +601,12 @@ fn logger_killed_three_times(name: &str, mode: &[&str]) {
         assert_eq!(rows + gaps, ticks, "{channel}: {rows} rows, {gaps} in gaps");
     }
     // Every outage between two loggers is a gap event of the summary.
-    let outages = s["outages"].as_array().cloned().unwrap_or_default();
-    for o in &outages {
+    for o in &s.outages {
         assert!(
             gap_events
                 .iter()
-                .any(|e| e["cause"] == "logger-outage" && e["seq"] == o["seq"]),
-            "{o}"
+                .any(|e| e["cause"] == "logger-outage" && e["seq"] == o.seq),
+            "{o:?}"
         );
     }
     assert_clean(&dir);

@@ -111,36 +111,31 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
         "tick_lateness",
     ] {
         let cells = row(&md, metric);
-        let v = &s["latency"][metric];
-        assert_eq!(
-            cells[1],
-            v["count"].as_u64().unwrap().to_string(),
-            "{metric}"
-        );
-        for (i, label) in labels.iter().enumerate() {
+        let v = s
+            .latency
+            .get(metric)
+            .unwrap_or_else(|| panic!("no {metric} in summary.json"));
+        assert_eq!(cells[1], v.count.to_string(), "{metric}");
+        for (i, (label, ns)) in labels.iter().zip(v.percentiles.values()).enumerate() {
             let shown: f64 = cells[2 + i].parse().unwrap();
-            let ns = v[format!("{label}_ns")].as_u64().unwrap() as f64;
+            let ns = ns as f64;
             assert!(
                 (shown - ns / 1e3).abs() <= 0.05 + 1e-9,
                 "{metric} {label}: {shown} vs {ns} ns"
             );
         }
-        assert_eq!(cells[8], v["over_one_period"].as_u64().unwrap().to_string());
+        assert_eq!(cells[8], v.over_one_period.unwrap().to_string());
     }
-    assert_eq!(row(&md, "ticks")[1], s["ticks"].to_string());
-    assert_eq!(
-        row(&md, "loop misses")[1],
-        s["counters"]["misses"].to_string()
-    );
+    assert_eq!(row(&md, "ticks")[1], s.ticks.to_string());
+    assert_eq!(row(&md, "loop misses")[1], s.counters.misses.to_string());
     assert!(
         md.contains("every histogram's count equals the summary's"),
         "{md}"
     );
 
     // The control table says what `flexloop run` wrote into metrics.json.
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
-    let rms_nm = metrics["control"]["rms_e_true_scan"].as_f64().unwrap() * 1e9;
+    let metrics = metrics(&dir);
+    let rms_nm = metrics.control["rms_e_true_scan"].as_f64().unwrap() * 1e9;
     let shown: f64 = row(&md, "rms e_true over the scan window")[1]
         .parse()
         .unwrap();
@@ -148,7 +143,7 @@ fn report_of_a_lockstep_thesis_run_and_of_broken_ones() {
         (shown - rms_nm).abs() <= 0.0005 + 1e-9,
         "{shown} vs {rms_nm}"
     );
-    let u_rms = metrics["control"]["u"]["rms"].as_f64().unwrap();
+    let u_rms = metrics.control["u"]["rms"].as_f64().unwrap();
     let shown: f64 = row(&md, "effort: rms u")[1].parse().unwrap();
     assert!((shown - u_rms).abs() <= 0.0005 + 1e-9, "{shown} vs {u_rms}");
 

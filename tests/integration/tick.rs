@@ -6,13 +6,16 @@ use crate::util::{
     assert_bench_ran, describe, flexloop, processes_mentioning, run_bounded, temp_dir,
 };
 use flexloop_recording::LogReader;
-use serde_json::Value;
+use flexloop_runfiles::bench::BenchFile;
+use flexloop_runfiles::{PlantLatency, RunDir};
 use std::path::Path;
 use std::time::Duration;
 
-fn json(path: &Path) -> Value {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap()
+/// The plant's own `plant_latency.json`, typed.
+fn plant_latency(run: &Path) -> PlantLatency {
+    RunDir::new(run)
+        .read_plant_latency()
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// `flexloop bench thesis-mc --tick sleep-then-spin ARGS` for half a second
@@ -45,36 +48,40 @@ fn a_spinning_plant_keeps_the_tick_grid() {
     // controller 81), so that the plant does spin; bounded: at most the
     // margin (≤ 60 µs) plus 50 µs of every 500 µs period.
     let stdout = bench_spinning(&[], &run);
-    let plant = json(&run.join("plant_latency.json"));
+    let plant = plant_latency(&run);
     // ticks == duration × rate, each published once, in order.
-    assert_eq!(plant["ticks"], 1000);
-    assert_eq!(plant["latency"]["tick_lateness"]["count"], 1000);
+    assert_eq!(plant.ticks, 1000);
+    assert_eq!(plant.latency["tick_lateness"].count, 1000);
     assert_every_tick_once_in_order(&run, 1000);
-    let bench = json(&run.join("bench.json"));
-    assert_eq!(bench["sampling"]["published_after_tick"]["count"], 1000);
-    assert_eq!(bench["sampling"]["interval_error"]["count"], 999);
-    let wait = &plant["tick_wait"];
-    assert_eq!(bench["tick_wait"], *wait);
-    let setting = wait["setting"].as_str().unwrap();
+    let bench: BenchFile = flexloop_runfiles::json::read_json(&RunDir::new(&run).bench())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let sampling = bench.sampling.expect("bench.json without its sampling");
+    assert_eq!(sampling.published_after_tick.count, 1000);
+    assert_eq!(sampling.interval_error.count, 999);
+    assert_eq!(bench.tick_wait, plant.tick_wait);
+    let wait = plant
+        .tick_wait
+        .as_ref()
+        .expect("plant_latency.json without its tick_wait");
+    let setting = wait.setting.as_str();
     if setting == "sleep-then-spin" {
         // Every tick either spun up to its time or woke after it.
-        let spin = &wait["spin"];
-        let spun = spin["spun_ticks"].as_u64().unwrap();
-        let late = spin["late_wakeups"].as_u64().unwrap();
-        assert_eq!(spun + late, 1000, "{wait}");
-        let margin = spin["margin_ns"].as_u64().unwrap();
-        let (lo, hi) = (
-            spin["margin_lower_bound_ns"].as_u64().unwrap(),
-            spin["margin_upper_bound_ns"].as_u64().unwrap(),
-        );
-        assert!(lo <= margin && margin <= hi, "{wait}");
+        let spin = wait
+            .spin
+            .unwrap_or_else(|| panic!("sleep-then-spin without its spin: {wait:?}"));
+        let spun = spin.spun_ticks;
+        let late = spin.late_wakeups;
+        assert_eq!(spun + late, 1000, "{wait:?}");
+        let margin = spin.margin_ns;
+        let (lo, hi) = (spin.margin_lower_bound_ns, spin.margin_upper_bound_ns);
+        assert!(lo <= margin && margin <= hi, "{wait:?}");
         assert!(
             stdout.contains("tick wait sleep-then-spin; margin"),
             "{stdout}"
         );
     } else {
         // A machine that refuses SCHED_FIFO: the plant said why and slept.
-        assert!(setting.contains("refused its priority"), "{wait}");
+        assert!(setting.contains("refused its priority"), "{wait:?}");
     }
 }
 
@@ -93,11 +100,15 @@ fn without_real_time_the_spin_falls_back_to_sleep_and_says_so() {
         said[0].contains("cannot work here") && said[0].contains("--no-realtime"),
         "{stderr}"
     );
-    let plant = json(&run.join("plant_latency.json"));
-    let setting = plant["tick_wait"]["setting"].as_str().unwrap();
+    let plant = plant_latency(&run);
+    let wait = plant
+        .tick_wait
+        .as_ref()
+        .unwrap_or_else(|| panic!("no tick_wait: {plant:?}"));
+    let setting = wait.setting.as_str();
     assert!(setting.starts_with("sleep (fallback: "), "{setting}");
-    assert!(plant["tick_wait"].get("spin").is_none(), "{plant}");
-    assert_eq!(plant["ticks"], 1000);
+    assert!(wait.spin.is_none(), "{plant:?}");
+    assert_eq!(plant.ticks, 1000);
     assert!(stdout.contains("tick wait sleep (fallback: "), "{stdout}");
     // The run's recorded settings say the same.
     let log = LogReader::open(&run.join("samples.mcap")).unwrap();

@@ -4,7 +4,7 @@
 
 use crate::util::*;
 use flexloop_recording::LogReader;
-use serde_json::Value;
+use flexloop_runfiles::events::{EventKind, SupervisorEvent};
 use std::path::Path;
 use std::process::Output;
 use std::time::Duration;
@@ -32,14 +32,17 @@ fn refused_set(prefix: &str, assignment: &str) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-fn counter(summary: &Value, name: &str) -> u64 {
-    summary["counters"][name].as_u64().unwrap()
-}
-
-fn of_kind(dir: &Path, kind: &str) -> Vec<Value> {
+fn swaps(dir: &Path) -> Vec<SupervisorEvent> {
     events(dir)
         .into_iter()
-        .filter(|e| e["kind"] == kind)
+        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
+        .collect()
+}
+
+fn sets(dir: &Path) -> Vec<SupervisorEvent> {
+    events(dir)
+        .into_iter()
+        .filter(|e| matches!(e.kind, EventKind::Set(_)))
         .collect()
 }
 
@@ -139,37 +142,49 @@ fn a_set_bandwidth_hands_the_loop_over_and_stands_in_get_and_status() {
 
     let summary = summary(&dir);
     // Lockstep: a swap costs no sample (as `flexloop swap` today).
-    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
-    let swaps = of_kind(&dir, "swap");
+    let swaps = swaps(&dir);
     assert_eq!(swaps.len(), 4, "{swaps:?}");
-    let sets = of_kind(&dir, "set");
+    let sets = sets(&dir);
     assert_eq!(sets.len(), 3, "{sets:?}");
-    let set = &sets[0]["detail"];
-    assert_eq!(set["fields"][0]["field"], "controller.bandwidth_hz");
-    assert_eq!(set["fields"][0]["old"], "43.5");
-    assert_eq!(set["fields"][0]["new"], "35.5");
-    let file = Path::new(set["file"].as_str().unwrap());
+    let set = &set_of(&sets[0]).outcome;
+    let field = set.fields.first().unwrap_or_else(|| panic!("{sets:?}"));
+    assert_eq!(field.field, "controller.bandwidth_hz");
+    assert_eq!(field.old, "43.5");
+    assert_eq!(field.new, "35.5");
+    let file = Path::new(set.file.as_deref().unwrap());
     assert_eq!(file, dir.join("tuned").join("001.toml"));
     let written: toml::Table = toml::from_str(&std::fs::read_to_string(file).unwrap()).unwrap();
     assert_eq!(written["controller"]["bandwidth_hz"].as_float(), Some(35.5));
-    assert_eq!(swaps[0]["detail"]["scenario"], set["file"]);
+    assert_eq!(
+        Some(swap_of(&swaps[0]).scenario.as_str()),
+        set.file.as_deref()
+    );
     // Bumpless: the switch adds no step beyond the ordinary ones (as the
     // retuned swap of swap.rs measures it).
-    let switch = &set["switches"][0];
-    let du = |k: &str| switch[k].as_f64().unwrap();
+    let switch = set
+        .switches
+        .first()
+        .unwrap_or_else(|| panic!("a set without a switch: {sets:?}"));
     assert!(
-        du("du_switch") <= 2.0 * du("du_before").max(du("du_after")) + 1e-6,
-        "{switch}"
+        switch.du_switch <= 2.0 * switch.du_before.max(switch.du_after) + 1e-6,
+        "{switch:?}"
     );
     // The sample file's /events holds the set as events.jsonl does.
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(
-        log.events
-            .iter()
-            .any(|e| e.json["kind"] == "set" && e.json["detail"]["file"] == set["file"]),
+        log.events.iter().any(
+            |e| matches!(&e.message, flexloop_recording::EventMessage::Supervisor(event)
+                if matches!(&event.kind, flexloop_runfiles::events::EventKind::Set(s)
+                    if s.outcome.file == set.file))
+        ),
         "{:?}",
         log.events
     );
@@ -202,27 +217,26 @@ fn an_observer_set_continues_the_estimate_and_hands_over_without_a_step() {
     stop(&prefix, child);
 
     let summary = summary(&dir);
-    assert_eq!(counter(&summary, "misses"), 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(summary["gaps"][channel], 0, "{channel} gaps: {summary}");
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{channel} gaps: {summary:?}"
+        );
     }
-    let sets = of_kind(&dir, "set");
+    let sets = sets(&dir);
     assert_eq!(sets.len(), 1, "{sets:?}");
-    let set = &sets[0]["detail"];
-    let switches = set["switches"].as_array().unwrap();
-    let roles: Vec<&str> = switches
-        .iter()
-        .map(|s| s["role"].as_str().unwrap())
-        .collect();
+    let switches = &set_of(&sets[0]).outcome.switches;
+    let roles: Vec<&str> = switches.iter().map(|s| s.role.as_str()).collect();
     assert_eq!(roles, ["observer", "controller"]);
     // Bumpless: no larger than twice the ordinary steps around the switch,
     // or, where the loop stands still and those are millinewtons, than 1 %
     // of the 2 000 N input limit (the estimate started from zero: 3 100 N).
     for switch in switches {
-        let du = |k: &str| switch[k].as_f64().unwrap();
         assert!(
-            du("du_switch") <= (2.0 * du("du_before").max(du("du_after"))).max(20.0),
-            "{switch}"
+            switch.du_switch <= (2.0 * switch.du_before.max(switch.du_after)).max(20.0),
+            "{switch:?}"
         );
     }
     let now = scenario_now(&dir);
@@ -287,10 +301,10 @@ fn a_set_safe_action_is_what_the_plant_does_when_commands_stop() {
     for m in &fallback {
         assert_eq!(m.u_applied[0], 0.0, "tick {}: {:?}", m.seq, m.u_applied);
     }
-    let sets = of_kind(&dir, "set");
+    let sets = sets(&dir);
     assert_eq!(sets.len(), 1, "{sets:?}");
-    assert_eq!(sets[0]["role"], "plant");
-    assert!(sets[0]["detail"]["switches"].as_array().unwrap().is_empty());
+    assert_eq!(sets[0].role, "plant");
+    assert!(set_of(&sets[0]).outcome.switches.is_empty());
     let now = scenario_now(&dir);
     assert_eq!(now["supervision"]["safe_action"].as_str(), Some("zero"));
     assert_eq!(
@@ -379,9 +393,9 @@ fn a_refused_set_names_its_reason_and_the_loop_runs_on_unchanged() {
     assert!(!dir.join("tuned").exists());
     assert!(!dir.join("scenario-now.toml").exists());
     stop(&prefix, child);
-    assert!(of_kind(&dir, "swap").is_empty() && of_kind(&dir, "set").is_empty());
+    assert!(swaps(&dir).is_empty() && sets(&dir).is_empty());
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     assert!(log.commands().all(|c| c.generation == 0));
-    assert_eq!(counter(&summary(&dir), "misses"), 0);
+    assert_eq!(summary(&dir).counters.misses, 0);
     assert_clean(&dir);
 }

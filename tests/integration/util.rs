@@ -1,6 +1,12 @@
 //! Helpers: temp run directories, bounded process waits, leftover checks.
 
-use serde_json::Value;
+use flexloop_runfiles::events::{
+    Crash, EventKind, Restart, Set, Silent, Standby, Stop, SupervisorEvent, Swap, parse_events,
+};
+use flexloop_runfiles::metrics::MetricsFile;
+use flexloop_runfiles::summary::{PerChannel, RunSummary};
+use flexloop_runfiles::supervision::{ProcessEntry, Processes};
+use flexloop_runfiles::{FileError, RunDir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -180,8 +186,28 @@ pub fn prefix_of(run_dir: &Path) -> String {
     meta["prefix"].as_str().unwrap().to_string()
 }
 
-pub fn summary(run_dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(run_dir.join("summary.json")).unwrap()).unwrap()
+/// The logger's `summary.json`, typed.
+pub fn summary(run_dir: &Path) -> RunSummary {
+    RunDir::new(run_dir)
+        .read_summary()
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// `flexloop run`'s `metrics.json`, typed (its control figures and modal
+/// damping stay JSON: the analysis crate's types are not read back).
+pub fn metrics(run_dir: &Path) -> MetricsFile {
+    flexloop_runfiles::json::read_json(&RunDir::new(run_dir).metrics())
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The count of the channel named `channel` (`measurement`, `estimate`,
+/// `command`: [`PerChannel::NAMES`]).
+pub fn of_channel(counts: &PerChannel, channel: &str) -> u64 {
+    let i = PerChannel::NAMES
+        .iter()
+        .position(|name| *name == channel)
+        .unwrap_or_else(|| panic!("no channel {channel}"));
+    counts.get(i)
 }
 
 /// Asserts that nothing of the run is left: no process, no shared memory.
@@ -356,31 +382,52 @@ pub fn assert_bench_ran(out: &Output) {
 }
 
 /// The supervisor's events so far (complete lines only: it may be writing).
-pub fn events(dir: &Path) -> Vec<Value> {
-    let text = std::fs::read_to_string(dir.join("events.jsonl")).unwrap_or_default();
-    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
-    complete
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
+pub fn events(dir: &Path) -> Vec<SupervisorEvent> {
+    let path = RunDir::new(dir).events();
+    let text = std::fs::read_to_string(&path).unwrap_or_default();
+    parse_events(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// The run's live processes as its supervisor lists them (`processes.json`):
-/// objects with `role`, `pid`, `duty` (active, standby, spare), `scenario`.
-pub fn processes(dir: &Path) -> Vec<Value> {
-    std::fs::read_to_string(dir.join("processes.json"))
-        .ok()
-        .and_then(|text| serde_json::from_str::<Value>(&text).ok())
-        .and_then(|v| v["processes"].as_array().cloned())
-        .unwrap_or_default()
+/// The detail of an event that must be of one kind (a panic showing the
+/// event if it is not): `crash_of(&e).cause`, `swap_of(&e).switch`, ...
+macro_rules! detail_of {
+    ($($name:ident: $variant:ident($detail:ty);)*) => {$(
+        #[track_caller]
+        pub fn $name(event: &SupervisorEvent) -> &$detail {
+            match &event.kind {
+                EventKind::$variant(detail) => detail,
+                _ => panic!(concat!("not a ", stringify!($variant), " event: {:?}"), event),
+            }
+        }
+    )*};
+}
+
+detail_of! {
+    crash_of: Crash(Crash);
+    silent_of: Silent(Silent);
+    restart_of: Restart(Restart);
+    swap_of: Swap(Swap);
+    set_of: Set(Set);
+    standby_of: Standby(Standby);
+    stop_of: Stop(Stop);
+}
+
+/// The run's live processes as its supervisor lists them (`processes.json`;
+/// none before it wrote one).
+pub fn processes(dir: &Path) -> Vec<ProcessEntry> {
+    match flexloop_runfiles::json::read_json::<Processes>(&RunDir::new(dir).processes()) {
+        Ok(list) => list.processes,
+        Err(FileError::Io { .. }) => Vec::new(),
+        Err(e) => panic!("{e}"),
+    }
 }
 
 /// The pids the supervisor lists for `role` on `duty`.
 pub fn pids_on_duty(dir: &Path, role: &str, duty: &str) -> Vec<i32> {
     processes(dir)
         .iter()
-        .filter(|p| p["role"] == role && p["duty"] == duty)
-        .filter_map(|p| p["pid"].as_i64().map(|pid| pid as i32))
+        .filter(|p| p.role == role && p.duty == duty)
+        .map(|p| p.pid)
         .collect()
 }
 
@@ -466,7 +513,7 @@ pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, t
     wait_for_ticks(dir, after + ticks);
     stop(prefix, up);
     let summary = summary(dir);
-    assert_eq!(summary["counters"]["misses"], 0, "{summary}");
+    assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let mut commands_of_others = 0;
     flexloop_recording::LogReader::scan(&dir.join("samples.mcap"), |r| {
         if let flexloop_recording::Record::Command(c) = r {

@@ -29,10 +29,6 @@ fn kill_the_controller(dir: &std::path::Path, ticks: usize) {
     unsafe { libc::kill(pid, libc::SIGKILL) };
 }
 
-fn metrics(dir: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap()
-}
-
 #[test]
 fn a_run_whose_input_was_held_is_flagged_invalid_and_fails_unless_allowed() {
     let dir = temp_dir("verdict-invalid");
@@ -46,13 +42,12 @@ fn a_run_whose_input_was_held_is_flagged_invalid_and_fails_unless_allowed() {
     assert!(stdout.contains("invalid: the control figures"), "{stdout}");
     assert!(stderr.contains("--allow-invalid"), "{stderr}");
     let m = metrics(&dir);
-    assert_eq!(m["valid"], false, "{m}");
-    let reasons = m["invalid_reasons"].as_array().unwrap();
+    assert!(!m.valid, "{m:?}");
+    let reasons = &m.invalid_reasons;
     assert!(
-        reasons.iter().any(|r| {
-            let r = r.as_str().unwrap();
-            r.contains("held the input") || r.contains("safe action")
-        }),
+        reasons
+            .iter()
+            .any(|r| r.contains("held the input") || r.contains("safe action")),
         "{reasons:?}"
     );
     assert_clean(&dir);
@@ -63,7 +58,7 @@ fn a_run_whose_input_was_held_is_flagged_invalid_and_fails_unless_allowed() {
     kill_the_controller(&dir, 300);
     let out = wait_bounded(child, Duration::from_secs(180));
     assert!(out.status.success(), "{}", describe(&out));
-    assert_eq!(metrics(&dir)["valid"], false);
+    assert!(!metrics(&dir).valid);
     assert_clean(&dir);
 }
 

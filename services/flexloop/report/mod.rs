@@ -241,6 +241,7 @@ fn shorten(text: &str, max: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use flexloop_runfiles::events::{EventKind, Spare, SupervisorEvent};
 
     #[test]
     fn events_are_read_and_a_bad_line_is_named() {
@@ -248,20 +249,35 @@ mod tests {
             std::env::temp_dir().join(format!("flexloop-report-events-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("events.jsonl");
-        std::fs::write(
-            &path,
-            "{\"t_s\":1.5,\"kind\":\"swap\",\"role\":\"controller\",\"generation\":2,\"seq\":2000,\"detail\":{\"ok\":true}}\n\
-             {\"t_s\":2.5,\"kind\":\"crash\",\"role\":\"observer\",\"generation\":1,\"seq\":null,\"detail\":\"signal 9\"}\n",
-        )
-        .unwrap();
+        let swap = SupervisorEvent {
+            t_s: 1.5,
+            role: "controller".into(),
+            generation: Some(2),
+            seq: Some(2000),
+            kind: EventKind::Spare(Spare { pid: 7 }),
+        };
+        let crash = SupervisorEvent {
+            t_s: 2.5,
+            role: "observer".into(),
+            generation: Some(1),
+            seq: None,
+            kind: EventKind::RestartFailed("signal 9".into()),
+        };
+        let lines = [&swap, &crash]
+            .map(|e| serde_json::to_string(e).unwrap() + "\n")
+            .concat();
+        std::fs::write(&path, &lines).unwrap();
         let events = read_events(&path, 1e-4).unwrap();
         assert_eq!(events.len(), 2);
         assert!((events[0].time_s - 0.2).abs() < 1e-12, "placed by its tick");
-        assert_eq!(events[0].detail, "{\"ok\":true}");
+        assert_eq!(events[0].kind, "spare");
+        assert_eq!(events[0].detail, "{\"pid\":7}");
         assert_eq!(events[1].time_s, 2.5);
-        std::fs::write(&path, "{\"t_s\":0.5,\"kind\":\"swap\",\"role\":\"observer\",\"generation\":null,\"seq\":null}\nnot json\n").unwrap();
+        assert_eq!(events[1].detail, "signal 9");
+        let good = serde_json::to_string(&swap).unwrap();
+        std::fs::write(&path, format!("{good}\nnot json\n")).unwrap();
         let e = format!("{:#}", read_events(&path, 1e-4).unwrap_err());
-        assert!(e.contains("events.jsonl line 2"), "{e}");
+        assert!(e.contains("events.jsonl: line 2"), "{e}");
         assert!(
             read_events(&dir.join("absent.jsonl"), 1e-4)
                 .unwrap()

@@ -7,6 +7,7 @@
 //! ([`joined_summary`]).
 
 use crate::latency_log::LatencyLog;
+use flexloop_recording::event_message::{EventMessage, Gap, GapCause, JoinEvent};
 use flexloop_recording::{LogEvent, LogReader, Record};
 use flexloop_runfiles::summary::{
     Counters, DroppedInLogger, GenerationAccount, Outage, PerChannel, Recording, SampleFileState,
@@ -322,8 +323,11 @@ impl JoinedLog {
                 torn.push((path.clone(), log.tail_error.clone().unwrap_or_default()));
             }
             // Each logger copies the supervisor's events file from its start.
-            events.extend(log.events.into_iter().filter(|e| {
-                e.json["source"] != "supervisor" || supervisor_events.insert(e.json.to_string())
+            events.extend(log.events.into_iter().filter(|e| match &e.message {
+                EventMessage::Supervisor(event) => {
+                    supervisor_events.insert(serde_json::to_string(event).unwrap_or_default())
+                }
+                _ => true,
             }));
             if metadata.is_none() {
                 metadata = Some((log.metadata, log.metadata_json));
@@ -353,14 +357,14 @@ impl JoinedLog {
         for (channel, name) in PerChannel::NAMES.iter().enumerate() {
             let mut reported: Vec<(u64, u64)> = events
                 .iter()
-                .filter(|e| e.json["kind"] == "gap" && e.json["channel"] == *name)
-                .filter_map(|e| {
-                    let first = e.json["seq"].as_u64()?;
-                    let count = match e.json["last_seq"].as_u64() {
-                        Some(last) => last.checked_sub(first)? + 1,
-                        None => e.json["count"].as_u64()?,
+                .filter_map(|e| e.message.gap())
+                .filter(|g| g.channel == *name)
+                .filter_map(|g| {
+                    let count = match g.last_seq {
+                        Some(last) => last.checked_sub(g.seq)? + 1,
+                        None => g.count,
                     };
-                    Some((first, count))
+                    Some((g.seq, count))
                 })
                 .collect();
             reported.extend(
@@ -384,21 +388,31 @@ impl JoinedLog {
         for o in &outages {
             events.push(LogEvent {
                 log_time_ns: at(o.seq),
-                json: serde_json::from_str(&o.event_json()).expect("valid JSON"),
+                message: EventMessage::Flexloop(JoinEvent::Gap(Gap {
+                    channel: o.channel.clone(),
+                    seq: o.seq,
+                    count: o.count,
+                    cause: Some(GapCause::LoggerOutage),
+                    last_seq: None,
+                    after_generation: Some(o.after_generation),
+                })),
             });
         }
-        for (cause, runs) in [("unreported", &unreported), ("not-sent", &not_sent)] {
+        for (cause, runs) in [
+            (GapCause::Unreported, &unreported),
+            (GapCause::NotSent, &not_sent),
+        ] {
             for (channel, first, count) in runs {
                 events.push(LogEvent {
                     log_time_ns: at(*first),
-                    json: serde_json::json!({
-                        "source": "flexloop",
-                        "kind": "gap",
-                        "cause": cause,
-                        "channel": channel,
-                        "seq": first,
-                        "count": count,
-                    }),
+                    message: EventMessage::Flexloop(JoinEvent::Gap(Gap {
+                        channel: channel.to_string(),
+                        seq: *first,
+                        count: *count,
+                        cause: Some(cause),
+                        last_seq: None,
+                        after_generation: None,
+                    })),
                 });
             }
         }
@@ -642,14 +656,16 @@ pub fn joined_summary(dir: &Path) -> Result<RunSummary, RunLogError> {
 fn logger_queue_drops(events: &[LogEvent]) -> DroppedInLogger {
     let mut d = DroppedInLogger::default();
     for e in events {
-        if e.json["kind"] != "gap" || e.json["cause"] != "logger-queue" {
+        let Some(gap) = e.message.gap() else {
+            continue;
+        };
+        if gap.cause != Some(GapCause::LoggerQueue) {
             continue;
         }
-        let count = e.json["count"].as_u64().unwrap_or(0);
-        match e.json["channel"].as_str() {
-            Some("measurement") => d.measurement += count,
-            Some("estimate") => d.estimate += count,
-            Some("command") => d.command += count,
+        match gap.channel.as_str() {
+            "measurement" => d.measurement += gap.count,
+            "estimate" => d.estimate += gap.count,
+            "command" => d.command += gap.count,
             _ => {}
         }
     }

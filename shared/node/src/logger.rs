@@ -18,6 +18,7 @@ use crate::summary::run_summary;
 use crate::{NodeError, await_peers};
 use flexloop_protocol::channels::{COMMAND, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT, TELEMETRY};
 use flexloop_protocol::{Command, Estimate, Measurement, Telemetry, flags};
+use flexloop_recording::event_message::{EventMessage, LoggerEvent};
 use flexloop_recording::{Recorder, SampleWriter};
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::json::write_json_atomically;
@@ -119,10 +120,10 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     )));
     recorder.event(
         monotonic_ns(),
-        &format!(
-            r#"{{"source":"logger","kind":"recording-start","generation":{},"file":"{samples_name}"}}"#,
-            args.generation
-        ),
+        &EventMessage::Logger(LoggerEvent::RecordingStart {
+            generation: args.generation,
+            file: samples_name.clone(),
+        }),
     );
     let start_ns = monotonic_ns();
     let mut inlets = Inlets {
@@ -143,17 +144,12 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         Ok(None) => "stopped".to_string(),
         Err(e) => format!("error: {e}"),
     };
-    recorder.event(
-        now,
-        &serde_json::json!({
-            "source": "logger",
-            "kind": "recording-end",
-            "seq": recorder.last_measurement.map_or(0, |m| m.seq),
-            "reason": reason,
-            "gaps": recorder.total_gaps(),
-        })
-        .to_string(),
-    );
+    let end = LoggerEvent::RecordingEnd {
+        seq: recorder.last_measurement.map_or(0, |m| m.seq),
+        reason,
+        gaps: recorder.total_gaps(),
+    };
+    recorder.event(now, &EventMessage::Logger(end));
     let totals = Box::new(recorder.latencies.clone());
     let queue = recorder.sink();
     queue.send_blocking(Item::Interval {

@@ -12,14 +12,15 @@
 //! copy each message once and make no system call; the writer polls them.
 
 use flexloop_protocol::{Command, Estimate, Measurement};
+use flexloop_recording::event_message::{EventMessage, Gap, GapCause, LoggerEvent};
 use flexloop_recording::{RecordSink, SampleWriter};
+use flexloop_runfiles::events::SupervisorEvent;
 use flexloop_runfiles::summary::{DroppedInLogger, SampleFileState};
 use flexloop_runtime::latency::{LoopLatencies, Metric};
 use flexloop_runtime::monotonic_ns;
 use flexloop_runtime::spsc;
 use hdrhistogram::serialization::V2DeflateSerializer;
 use hdrhistogram::serialization::interval_log::{IntervalLogWriter, IntervalLogWriterBuilder, Tag};
-use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -45,9 +46,10 @@ const CHANNELS: [&str; 3] = ["measurement", "estimate", "command"];
 
 /// What the drainer hands the writer besides the messages.
 pub enum Item {
+    /// Boxed: the largest event is larger than every other item.
     Event {
         at_ns: u64,
-        json: String,
+        message: Box<EventMessage>,
     },
     Metadata(BTreeMap<String, String>),
     /// The latency histograms since the start, `elapsed` after it: the
@@ -90,7 +92,7 @@ impl Queue {
                 .tx
                 .try_send(Item::Event {
                     at_ns,
-                    json: dropped_json(CHANNELS[channel], run),
+                    message: Box::new(dropped(CHANNELS[channel], run)),
                 })
                 .is_ok()
         {
@@ -102,9 +104,9 @@ impl Queue {
     pub fn close(&mut self, at_ns: u64) {
         for (channel, name) in CHANNELS.iter().enumerate() {
             if let Some(run) = self.pending[channel].take() {
-                let json = dropped_json(name, run);
+                let message = Box::new(dropped(name, run));
                 // Blocking is fine now: the loop is over.
-                let _ = self.tx.send(Item::Event { at_ns, json });
+                let _ = self.tx.send(Item::Event { at_ns, message });
             }
         }
         let _ = self.tx.send(Item::Finish);
@@ -132,10 +134,16 @@ impl Queue {
     }
 }
 
-fn dropped_json(channel: &str, (first, last, count): (u64, u64, u64)) -> String {
-    format!(
-        r#"{{"source":"logger","kind":"gap","cause":"logger-queue","channel":"{channel}","seq":{first},"last_seq":{last},"count":{count}}}"#
-    )
+/// The gap event of the samples the writer queue had no room for.
+fn dropped(channel: &str, (first, last, count): (u64, u64, u64)) -> EventMessage {
+    EventMessage::Logger(LoggerEvent::Gap(Gap {
+        channel: channel.into(),
+        seq: first,
+        count,
+        cause: Some(GapCause::LoggerQueue),
+        last_seq: Some(last),
+        after_generation: None,
+    }))
 }
 
 impl RecordSink for Queue {
@@ -154,10 +162,10 @@ impl RecordSink for Queue {
         self.pushed(2, c.seq, c.published_ns, pushed);
     }
 
-    fn event(&mut self, at_ns: u64, json: &str) {
+    fn event(&mut self, at_ns: u64, message: &EventMessage) {
         let item = Item::Event {
             at_ns,
-            json: json.to_string(),
+            message: Box::new(message.clone()),
         };
         if self.tx.try_send(item).is_err() {
             self.dropped_events += 1;
@@ -261,7 +269,7 @@ fn write(mut files: Files, mut queues: Queues) -> Outcome {
         queues.drain(samples);
         loop {
             match queues.control.try_recv() {
-                Ok(Item::Event { at_ns, json }) => samples.event(at_ns, &json),
+                Ok(Item::Event { at_ns, message }) => samples.event(at_ns, &message),
                 Ok(Item::Metadata(entries)) => samples.metadata(entries),
                 Ok(Item::Interval { totals, elapsed }) => {
                     if let Some(writer) = &mut hlog
@@ -351,13 +359,10 @@ fn write_interval(
 }
 
 /// A line of the supervisor's events file as a `/events` message.
-fn supervisor_event(line: &str) -> String {
-    match serde_json::from_str::<Value>(line) {
-        Ok(Value::Object(mut map)) => {
-            map.insert("source".into(), "supervisor".into());
-            Value::Object(map).to_string()
-        }
-        _ => json!({"source": "supervisor", "kind": "unreadable", "detail": line}).to_string(),
+fn supervisor_event(line: &str) -> EventMessage {
+    match serde_json::from_str::<SupervisorEvent>(line) {
+        Ok(event) => EventMessage::Supervisor(event),
+        Err(_) => EventMessage::Logger(LoggerEvent::UnreadableSupervisorLine { line: line.into() }),
     }
 }
 

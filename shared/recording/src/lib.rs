@@ -7,14 +7,18 @@
 //! - [`mcap_repair`]: closes a sample file its writer left unfinished.
 //! - [`storage`]: where a sample file lives (a file, or memory), as the
 //!   writer and the repair both use it.
+//! - [`event_message`]: one `/events` message, typed: the logger's, flexloop's
+//!   and the supervisor's events.
 //! - [`loop_events`]: conditions of the loop (misses, stalls, fallbacks, ...)
 //!   read off the samples.
 
+pub mod event_message;
 pub mod loop_events;
 pub mod mcap_repair;
 pub mod recorder;
 pub mod sample_file;
 pub mod storage;
 
+pub use event_message::EventMessage;
 pub use recorder::{RecordSink, Recorder};
 pub use sample_file::{LogEvent, LogReader, Record, SampleWriter};

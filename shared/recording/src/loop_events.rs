@@ -6,78 +6,87 @@
 //! carries, so the events need nothing but the samples; a condition that
 //! lasts gives two events (begin, end) instead of one per tick.
 
+use crate::event_message::{Edge, EventMessage, LoggerEvent};
 use flexloop_protocol::{Command, Measurement, flags};
 
-/// Whether a condition began or ended at `seq`.
+/// A condition of the loop that the samples show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Phase {
-    Begin,
-    /// `ticks`: how long it held.
-    End {
-        ticks: u64,
-    },
+pub enum Condition {
+    Miss,
+    LateCommand,
+    RejectedCommand,
+    Stall,
+    Fallback,
+    ObserverFallback,
+    Clamped,
+    StaleEstimate,
+}
+
+impl Condition {
+    /// The condition's begin or end as the logger's event.
+    pub fn at(self, edge: Edge) -> LoggerEvent {
+        match self {
+            Self::Miss => LoggerEvent::Miss(edge),
+            Self::LateCommand => LoggerEvent::LateCommand(edge),
+            Self::RejectedCommand => LoggerEvent::RejectedCommand(edge),
+            Self::Stall => LoggerEvent::Stall(edge),
+            Self::Fallback => LoggerEvent::Fallback(edge),
+            Self::ObserverFallback => LoggerEvent::ObserverFallback(edge),
+            Self::Clamped => LoggerEvent::Clamped(edge),
+            Self::StaleEstimate => LoggerEvent::StaleEstimate(edge),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LoopEvent {
-    pub kind: &'static str,
-    pub phase: Phase,
-    pub seq: u64,
+    pub condition: Condition,
+    pub edge: Edge,
     /// When the message that showed it was published (CLOCK_MONOTONIC).
     pub at_ns: u64,
 }
 
 impl LoopEvent {
-    pub fn json(&self) -> String {
-        match self.phase {
-            Phase::Begin => format!(
-                r#"{{"source":"logger","kind":"{}","phase":"begin","seq":{}}}"#,
-                self.kind, self.seq
-            ),
-            Phase::End { ticks } => format!(
-                r#"{{"source":"logger","kind":"{}","phase":"end","seq":{},"ticks":{ticks}}}"#,
-                self.kind, self.seq
-            ),
-        }
+    pub fn message(&self) -> EventMessage {
+        EventMessage::Logger(self.condition.at(self.edge))
     }
 }
 
 /// One condition: holding since which tick.
 #[derive(Debug, Clone, Copy)]
-struct Condition {
-    kind: &'static str,
+struct Tracked {
+    condition: Condition,
     since: Option<u64>,
 }
 
-impl Condition {
-    const fn new(kind: &'static str) -> Self {
-        Self { kind, since: None }
+impl Tracked {
+    const fn new(condition: Condition) -> Self {
+        Self {
+            condition,
+            since: None,
+        }
     }
 
     fn update(&mut self, on: bool, seq: u64, at_ns: u64, emit: &mut impl FnMut(LoopEvent)) {
-        match (self.since, on) {
+        let edge = match (self.since, on) {
             (None, true) => {
                 self.since = Some(seq);
-                emit(LoopEvent {
-                    kind: self.kind,
-                    phase: Phase::Begin,
-                    seq,
-                    at_ns,
-                });
+                Edge::Begin { seq }
             }
             (Some(since), false) => {
                 self.since = None;
-                emit(LoopEvent {
-                    kind: self.kind,
-                    phase: Phase::End {
-                        ticks: seq.saturating_sub(since),
-                    },
+                Edge::End {
                     seq,
-                    at_ns,
-                });
+                    ticks: seq.saturating_sub(since),
+                }
             }
-            _ => {}
-        }
+            _ => return,
+        };
+        emit(LoopEvent {
+            condition: self.condition,
+            edge,
+            at_ns,
+        });
     }
 }
 
@@ -88,9 +97,9 @@ const COMMAND_CONDITIONS: usize = 3;
 #[derive(Debug, Clone)]
 pub struct LoopEvents {
     /// miss, late-command, rejected-command (counter rises), stall, fallback (flags).
-    measurement: [Condition; MEASUREMENT_CONDITIONS],
+    measurement: [Tracked; MEASUREMENT_CONDITIONS],
     /// observer-fallback, clamped, stale-estimate (flags).
-    command: [Condition; COMMAND_CONDITIONS],
+    command: [Tracked; COMMAND_CONDITIONS],
     /// The previous measurement's counters (misses, late, rejected).
     counters: Option<[u64; 3]>,
     last_measurement: Option<u64>,
@@ -101,16 +110,16 @@ impl Default for LoopEvents {
     fn default() -> Self {
         Self {
             measurement: [
-                Condition::new("miss"),
-                Condition::new("late-command"),
-                Condition::new("rejected-command"),
-                Condition::new("stall"),
-                Condition::new("fallback"),
+                Tracked::new(Condition::Miss),
+                Tracked::new(Condition::LateCommand),
+                Tracked::new(Condition::RejectedCommand),
+                Tracked::new(Condition::Stall),
+                Tracked::new(Condition::Fallback),
             ],
             command: [
-                Condition::new("observer-fallback"),
-                Condition::new("clamped"),
-                Condition::new("stale-estimate"),
+                Tracked::new(Condition::ObserverFallback),
+                Tracked::new(Condition::Clamped),
+                Tracked::new(Condition::StaleEstimate),
             ],
             counters: None,
             last_measurement: None,
@@ -191,13 +200,13 @@ mod tests {
             out.push((
                 format!(
                     "{}:{}",
-                    e.kind,
-                    match e.phase {
-                        Phase::Begin => "begin".to_string(),
-                        Phase::End { ticks } => format!("end{ticks}"),
+                    e.message().kind(),
+                    match e.edge {
+                        Edge::Begin { .. } => "begin".to_string(),
+                        Edge::End { ticks, .. } => format!("end{ticks}"),
                     }
                 ),
-                e.seq,
+                e.edge.seq(),
             ))
         };
         for m in ms {
@@ -251,7 +260,7 @@ mod tests {
                 flags: f,
                 ..Default::default()
             };
-            events.command(&c, |e| out.push(e.json()));
+            events.command(&c, |e| out.push(e.message().to_json()));
         }
         assert_eq!(
             out,

@@ -2,6 +2,7 @@
 //! latency histograms, the events the loop's flags and counters show; every
 //! message and event goes on to a [`RecordSink`] (the sample file).
 
+use crate::event_message::{EventMessage, Gap, GapCause, LoggerEvent};
 use crate::loop_events::LoopEvents;
 use crate::sample_file::SampleWriter;
 use crate::storage::Storage;
@@ -153,8 +154,8 @@ pub trait RecordSink {
     fn measurement(&mut self, m: &Measurement);
     fn estimate(&mut self, e: &Estimate);
     fn command(&mut self, c: &Command);
-    /// One JSON event at `at_ns` (CLOCK_MONOTONIC).
-    fn event(&mut self, at_ns: u64, json: &str);
+    /// One `/events` message at `at_ns` (CLOCK_MONOTONIC).
+    fn event(&mut self, at_ns: u64, message: &EventMessage);
 }
 
 impl<S: Storage> RecordSink for SampleWriter<S> {
@@ -170,8 +171,8 @@ impl<S: Storage> RecordSink for SampleWriter<S> {
         SampleWriter::command(self, c);
     }
 
-    fn event(&mut self, at_ns: u64, json: &str) {
-        SampleWriter::event(self, at_ns, json);
+    fn event(&mut self, at_ns: u64, message: &EventMessage) {
+        SampleWriter::event(self, at_ns, message);
     }
 }
 
@@ -194,10 +195,16 @@ pub struct Recorder<O: RecordSink> {
     pub foreign_commands: u64,
 }
 
-fn gap_json(channel: &str, first: u64, count: u64) -> String {
-    format!(
-        r#"{{"source":"logger","kind":"gap","channel":"{channel}","seq":{first},"count":{count}}}"#
-    )
+/// The logger's gap event: `count` samples of `channel` from `first`.
+pub fn gap(channel: &str, first: u64, count: u64, cause: Option<GapCause>) -> EventMessage {
+    EventMessage::Logger(LoggerEvent::Gap(Gap {
+        channel: channel.into(),
+        seq: first,
+        count,
+        cause,
+        last_seq: None,
+        after_generation: None,
+    }))
 }
 
 impl<O: RecordSink> Recorder<O> {
@@ -227,10 +234,10 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.measurement(m);
         self.measurements.see(m.seq, |first, count| {
-            out.event(m.published_ns, &gap_json("measurement", first, count))
+            out.event(m.published_ns, &gap("measurement", first, count, None))
         });
         self.events
-            .measurement(m, |e| out.event(e.at_ns, &e.json()));
+            .measurement(m, |e| out.event(e.at_ns, &e.message()));
         self.latencies.observe_measurement(m);
         self.last_measurement = Some(*m);
     }
@@ -239,7 +246,7 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.estimate(e);
         self.estimates.see(e.seq, |first, count| {
-            out.event(e.published_ns, &gap_json("estimate", first, count))
+            out.event(e.published_ns, &gap("estimate", first, count, None))
         });
         // The initial estimate answers no measurement.
         if e.source_published_ns != 0 {
@@ -251,9 +258,9 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.command(c);
         self.commands.see(c.seq, |first, count| {
-            out.event(c.published_ns, &gap_json("command", first, count))
+            out.event(c.published_ns, &gap("command", first, count, None))
         });
-        self.events.command(c, |e| out.event(e.at_ns, &e.json()));
+        self.events.command(c, |e| out.event(e.at_ns, &e.message()));
         if c.estimate_seq != c.seq {
             self.stale_estimates += 1;
         }
@@ -268,9 +275,9 @@ impl<O: RecordSink> Recorder<O> {
         self.foreign_commands += 1;
     }
 
-    /// An event from elsewhere (the supervisor's, the logger's own), as JSON.
-    pub fn event(&mut self, at_ns: u64, json: &str) {
-        self.out.event(at_ns, json);
+    /// An event from elsewhere (the supervisor's, the logger's own).
+    pub fn event(&mut self, at_ns: u64, message: &EventMessage) {
+        self.out.event(at_ns, message);
     }
 
     pub fn total_gaps(&self) -> u64 {
@@ -302,7 +309,8 @@ impl<O: RecordSink> Recorder<O> {
     pub fn finish(&mut self, at_ns: u64) {
         let never_sent = self.never_sent();
         let out = &mut self.out;
-        self.events.finish(at_ns, |e| out.event(e.at_ns, &e.json()));
+        self.events
+            .finish(at_ns, |e| out.event(e.at_ns, &e.message()));
         for (i, (name, count)) in [
             ("measurement", &mut self.measurements),
             ("estimate", &mut self.estimates),
@@ -311,14 +319,9 @@ impl<O: RecordSink> Recorder<O> {
         .into_iter()
         .enumerate()
         {
-            count.unsettled_gaps(|first, n| out.event(at_ns, &gap_json(name, first, n)));
+            count.unsettled_gaps(|first, n| out.event(at_ns, &gap(name, first, n, None)));
             if let Some((first, n)) = never_sent[i] {
-                out.event(
-                    at_ns,
-                    &format!(
-                        r#"{{"source":"logger","kind":"gap","cause":"not-sent","channel":"{name}","seq":{first},"count":{n}}}"#
-                    ),
-                );
+                out.event(at_ns, &gap(name, first, n, Some(GapCause::NotSent)));
             }
         }
     }
@@ -327,6 +330,7 @@ impl<O: RecordSink> Recorder<O> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::event_message::Edge;
     use crate::sample_file::LogReader;
     use std::collections::BTreeMap;
     use std::io::Cursor;
@@ -363,34 +367,34 @@ mod tests {
         assert_eq!(seqs, vec![0, 1, 2, 5]);
         assert_eq!(log.measurements().last().unwrap().y[3], 5.0);
         assert_eq!(log.commands().count(), 1);
-        let kinds: Vec<String> = log
-            .events
-            .iter()
-            .map(|e| format!("{} {} {}", e.json["kind"], e.json["seq"], e.json["count"]))
-            .collect();
-        assert!(kinds.contains(&r#""miss" 2 null"#.to_string()), "{kinds:?}");
+        let messages: Vec<&EventMessage> = log.events.iter().map(|e| &e.message).collect();
+        let miss = EventMessage::Logger(LoggerEvent::Miss(Edge::Begin { seq: 2 }));
+        assert!(messages.contains(&&miss), "{messages:?}");
         // The gap 3..=4 is still inside the reorder window at the end.
-        assert!(kinds.contains(&r#""gap" 3 2"#.to_string()), "{kinds:?}");
+        assert!(
+            messages.contains(&&gap("measurement", 3, 2, None)),
+            "{messages:?}"
+        );
         // No command after 0, no estimate at all, up to the last tick (5):
         // never sent, and gaps all the same.
         assert_eq!(r.never_sent(), [None, Some((0, 7)), Some((1, 5))]);
-        let not_sent: Vec<String> = log
-            .events
+        let not_sent: Vec<&EventMessage> = messages
             .iter()
-            .filter(|e| e.json["cause"] == "not-sent")
-            .map(|e| {
-                format!(
-                    "{} {} {}",
-                    e.json["channel"], e.json["seq"], e.json["count"]
-                )
-            })
+            .copied()
+            .filter(|m| m.gap().is_some_and(|g| g.cause == Some(GapCause::NotSent)))
             .collect();
-        assert_eq!(not_sent, [r#""estimate" 0 7"#, r#""command" 1 5"#]);
+        assert_eq!(
+            not_sent,
+            [
+                &gap("estimate", 0, 7, Some(GapCause::NotSent)),
+                &gap("command", 1, 5, Some(GapCause::NotSent))
+            ]
+        );
         // Log time: the message's publish stamp plus the offset.
         assert_eq!(
             log.events
                 .iter()
-                .find(|e| e.json["kind"] == "miss")
+                .find(|e| e.message == miss)
                 .unwrap()
                 .log_time_ns,
             1_012

@@ -22,6 +22,7 @@
 //! leaves complete chunks and at most one torn one, which
 //! [`crate::mcap_repair`] cuts off before it writes the missing index.
 
+use crate::event_message::EventMessage;
 use crate::mcap_repair::{self, Closed};
 use crate::storage::Storage;
 use flexloop_protocol::layout::{self, MessageLayout};
@@ -196,13 +197,13 @@ impl<S: Storage> SampleWriter<S> {
     }
 
     /// One JSON event at `at_ns` (CLOCK_MONOTONIC).
-    pub fn event(&mut self, at_ns: u64, json: &str) {
+    pub fn event(&mut self, at_ns: u64, message: &EventMessage) {
         self.event_seq = self.event_seq.wrapping_add(1);
         self.write(
             self.ids.events,
             u64::from(self.event_seq),
             at_ns,
-            json.as_bytes(),
+            message.to_json().as_bytes(),
         );
     }
 
@@ -381,7 +382,7 @@ impl Record {
 pub struct LogEvent {
     /// The file's log time (wall clock, ns).
     pub log_time_ns: u64,
-    pub json: serde_json::Value,
+    pub message: EventMessage,
 }
 
 /// Reads a sample file back, up to its last complete chunk when the writer
@@ -503,9 +504,13 @@ impl LogReader {
                     Some(Topic::Command) => each(Record::Command(decode(&data)?)),
                     Some(Topic::Events) => out.events.push(LogEvent {
                         log_time_ns: header.log_time,
-                        json: serde_json::from_slice(&data).unwrap_or_else(|_| {
-                            serde_json::Value::String(String::from_utf8_lossy(&data).into())
-                        }),
+                        message: serde_json::from_slice(&data).map_err(|e| {
+                            bad(format!(
+                                "/events message {}: not an event ({e}): {}",
+                                header.sequence,
+                                String::from_utf8_lossy(&data)
+                            ))
+                        })?,
                     }),
                     None => {}
                 },

@@ -72,16 +72,6 @@ pub struct Outage {
     pub before_generation: Option<u32>,
 }
 
-impl Outage {
-    /// As a `/events` gap event (cause `logger-outage`).
-    pub fn event_json(&self) -> String {
-        format!(
-            r#"{{"source":"flexloop","kind":"gap","cause":"logger-outage","channel":"{}","seq":{},"count":{},"after_generation":{}}}"#,
-            self.channel, self.seq, self.count, self.after_generation
-        )
-    }
-}
-
 impl RunSummary {
     /// The histogram of the metric named `name` (empty if the run has none).
     pub fn latency(&self, name: &str) -> Histogram {

@@ -320,7 +320,7 @@ mod tests {
     }
 
     fn shipped(name: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenarios/{name}.toml"))
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../scenarios/{name}.toml"))
     }
 
     /// A run directory holding the default scenario's copy, and the
