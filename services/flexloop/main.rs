@@ -7,7 +7,7 @@
 //! - [`running`]: `up`, and `down`, `status` and `swap` on a running loop.
 //! - [`live_view`]: `up --live`, the loop served to Foxglove while it runs.
 //! - [`tune`]: `get` and `set`, live tuning of a running loop.
-//! - [`run`]: `run` and `tune-ff`; [`bench`], [`sweep`], [`logging_cost`],
+//! - [`run`]: `run` and `fit-ff`; [`bench`], [`sweep`], [`logging_cost`],
 //!   [`live_cost`], [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`],
 //!   [`design`], [`positions`], [`export`].
 
@@ -52,7 +52,8 @@ enum Command {
     /// A finished run as report.md (with SVG figures) and a self-contained report.html.
     Report(report::ReportArgs),
     /// Fit the four feedforward gains from a recorded run and write them into a scenario file.
-    TuneFf(run::TuneFfArgs),
+    #[command(alias = "tune-ff")]
+    FitFf(run::FitFfArgs),
     /// Design report of the scenario's loop (and the thesis chain's) before anything runs.
     Design(design::DesignArgs),
     /// Table 4.1: rms e_true over the scan with the sensor along the chain.
@@ -131,7 +132,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Up(args) => running::up(args),
         Command::Run(flags) => run::run(flags),
         Command::Report(args) => report::report(args),
-        Command::TuneFf(args) => run::tune_ff(args),
+        Command::FitFf(args) => run::fit_ff(args),
         Command::Design(args) => design::design(args),
         Command::Positions(args) => positions::positions(args),
         Command::Export(args) => export::export(args),

@@ -1,6 +1,6 @@
 //! `flexloop run SCENARIO`: runs a scenario's trajectory through the real
 //! processes, then prints the control metrics from the log beside the timing
-//! summary. `flexloop tune-ff RUN`: fits the feedforward gains from a recorded
+//! summary. `flexloop fit-ff RUN`: fits the feedforward gains from a recorded
 //! run and writes them into a scenario file.
 
 use crate::loop_command::{LoopFlags, VERDICT_FAILED};
@@ -415,9 +415,9 @@ fn ring_down_window(design: &LoopDesign, end_s: f64) -> (f64, f64) {
     }
 }
 
-/// `tune-ff RUN_DIR [--into SCENARIO]`.
+/// `fit-ff RUN_DIR [--into SCENARIO]`.
 #[derive(Debug, clap::Args)]
-pub struct TuneFfArgs {
+pub struct FitFfArgs {
     /// The recorded run's directory
     pub run_dir: PathBuf,
     /// The scenario file to write the gains into [default: the one the run used]
@@ -425,16 +425,16 @@ pub struct TuneFfArgs {
     pub into: Option<PathBuf>,
 }
 
-pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
+pub fn fit_ff(args: FitFfArgs) -> anyhow::Result<i32> {
     let run_dir = args.run_dir;
     let report = RunReport::load(&RunDir::new(&run_dir))?;
     if let Some(joined) = &report.joined {
-        eprintln!("flexloop tune-ff: {joined}");
+        eprintln!("flexloop fit-ff: {joined}");
     }
     let programs = flexloop_design::loop_design::unanalysed_roles(&report.scenario);
     if !programs.is_empty() {
         bail!(
-            "{}: tune-ff fits the built-in controller's four feedforward gains through the \
+            "{}: fit-ff fits the built-in controller's four feedforward gains through the \
              built-in loop; a program of one's own served the {} of this run (its feedforward \
              is its own)",
             run_dir.display(),
@@ -443,7 +443,7 @@ pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
     }
     if report.design.n_inputs != 1 || report.design.n_outputs != 1 {
         bail!(
-            "{}: tune-ff fits the four-gain feedforward of a loop with one input and one \
+            "{}: fit-ff fits the four-gain feedforward of a loop with one input and one \
              output; `{}` has {} and {} (it uses the rigid-body feedforward)",
             run_dir.display(),
             report.scenario.plant.model,
@@ -471,7 +471,9 @@ pub fn tune_ff(args: TuneFfArgs) -> anyhow::Result<i32> {
     Ok(0)
 }
 
-const FIT_NOTE: &str = "# Fitted by `flexloop tune-ff`";
+const FIT_NOTE: &str = "# Fitted by `flexloop fit-ff`";
+/// The note a fit wrote before the command was named `fit-ff`.
+const EARLIER_FIT_NOTE: &str = "# Fitted by `flexloop tune-ff`";
 
 /// Replaces (or adds) the `[controller.feedforward]` table of a scenario
 /// file, keeping everything else as written; the result is parsed before it
@@ -484,7 +486,7 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> anyhow::Result
     {
         bail!(
             "{}: field controller.feedforward is an inline table; write it as a \
-             [controller.feedforward] table so that tune-ff can replace it",
+             [controller.feedforward] table so that fit-ff can replace it",
             path.display()
         );
     }
@@ -496,7 +498,7 @@ pub fn write_feedforward(path: &Path, fit: &FittedFeedforward) -> anyhow::Result
             skipping = line.trim() == "[controller.feedforward]";
         }
         // The note above the table is rewritten with it.
-        let fit_note = line.starts_with(FIT_NOTE);
+        let fit_note = line.starts_with(FIT_NOTE) || line.starts_with(EARLIER_FIT_NOTE);
         if !skipping && !fit_note {
             out.push_str(line);
             out.push('\n');
@@ -535,8 +537,9 @@ mod tests {
     }
 
     #[test]
-    fn tune_ff_replaces_the_table_and_its_note_and_keeps_the_rest() {
-        let dir = std::env::temp_dir().join(format!("flexloop-tuneff-{}", std::process::id()));
+    fn fit_ff_replaces_the_table_and_its_note_and_keeps_the_rest() {
+        let dir =
+            std::env::temp_dir().join(format!("flexloop-fitff-replace-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("s.toml");
         let source = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/thesis-ad.toml");
@@ -555,5 +558,23 @@ mod tests {
             scenario.name,
             Scenario::parse(Path::new(source), &original).unwrap().name
         );
+    }
+
+    #[test]
+    fn a_fit_under_the_command_s_earlier_name_is_replaced_too() {
+        let dir = std::env::temp_dir().join(format!("flexloop-fitff-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.toml");
+        let source = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/thesis-ad.toml");
+        let earlier = std::fs::read_to_string(source)
+            .unwrap()
+            .replace(FIT_NOTE, EARLIER_FIT_NOTE);
+        assert_eq!(earlier.matches(EARLIER_FIT_NOTE).count(), 1);
+        std::fs::write(&path, earlier).unwrap();
+        write_feedforward(&path, &fit(12.5)).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(text.matches(EARLIER_FIT_NOTE).count(), 0, "{text}");
+        assert_eq!(text.matches(FIT_NOTE).count(), 1, "{text}");
     }
 }

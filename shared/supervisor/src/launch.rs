@@ -143,7 +143,7 @@ pub fn prepare(args: &LoopArgs) -> anyhow::Result<Prepared> {
 /// its relative paths hold from the run directory too; otherwise (a model
 /// file outside the scenario's directory, `../plant.npz`; a program of
 /// one's own, its path and working directory) its TOML with those paths
-/// made absolute, so that `run`'s metrics, `report` and `tune-ff`, which
+/// made absolute, so that `run`'s metrics, `report` and `fit-ff`, which
 /// read the copy, find them. (A model file inside the scenario's directory
 /// is copied beside it: [`copy_model_file`].)
 fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyhow::Result<()> {
@@ -191,7 +191,7 @@ fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyho
 
 /// The plant's model file and the IO observer's correction file beside the
 /// run's copy of the scenario, where the copy's relative `plant.file` and
-/// `observer.correction_file` find them (`run`, `report` and `tune-ff`
+/// `observer.correction_file` find them (`run`, `report` and `fit-ff`
 /// design the run again from the copy). An absolute path, or one leaving the
 /// scenario's directory, is read where it is.
 fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {

@@ -28,7 +28,7 @@ pub enum RigidBodyPlan {
     /// One input, one output, one rigid mode: a PID on 1/(m s²) with m from
     /// the rigid mode (m = 1/(φ_s φ_a), the total mass for a free chain),
     /// and the four-gain feedforward with m on the acceleration, so that
-    /// `[controller.feedforward]` and `tune-ff` work as on the thesis chain.
+    /// `[controller.feedforward]` and `fit-ff` work as on the thesis chain.
     Mass,
     /// One PID per rigid-body-decoupled axis and the rigid-body inverse as
     /// feedforward (docs/control.md (4.12)).
