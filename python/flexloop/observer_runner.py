@@ -25,7 +25,6 @@ modules live it, around a user's :class:`flexloop.Observer`.
 """
 
 import ctypes
-import gc
 import sys
 import time
 
@@ -34,6 +33,7 @@ from . import realtime, transport
 from .launch import RESTART
 from .observer import Estimated
 from .process import (
+    InstanceProcess,
     ActivationView,
     HandoverRing,
     LawError,
@@ -45,7 +45,6 @@ from .process import (
     make_law,
     freeze_collector,
     saved_state,
-    serve_wakeups,
     stop_requested,
 )
 
@@ -153,7 +152,9 @@ def _is_number(v):
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-class _Process:
+class _Process(InstanceProcess):
+    PORTS = ("estimates", "states_out", "states_in", "replay", "measurements")
+
     def __init__(self, program, observer_class, args):
         self.program = program
         self.args = args
@@ -235,34 +236,6 @@ class _Process:
         if not self.restart:
             while self.states_in.receive_into(self.handovers.scratch):
                 pass
-
-    def serve(self):
-        started = time.monotonic()
-        if not self._open():
-            return
-        rt = self.settings.realtime
-        try:
-            if self.late:
-                self._drop_stale()
-                # Follows off the loop's CPU, without priority, until named.
-                realtime.avoid_loop_cpu(rt)
-            else:
-                realtime.raise_priority(rt)
-            if not self._enter():
-                return
-            if self.late:
-                self.program.say(
-                    f"start-up {(time.monotonic() - started) * 1e3:.1f} ms, "
-                    f"{time.process_time() * 1e3:.1f} ms of CPU"
-                )
-            self.cpu_at_start = time.process_time()
-            self._resume()
-            self._loop()
-        finally:
-            gc.enable()
-            realtime.step_down()
-            self._report()
-            self._close()
 
     def _measured_within(self, wait_s):
         """Whether a measurement arrives within ``wait_s``."""
@@ -362,11 +335,6 @@ class _Process:
         self.end_of_run |= caught.end_of_run
         self._publish_state(caught.last_seq)
 
-    def _loop(self):
-        serve_wakeups(
-            self.measurements, self.standing, self._on_wakeup, lambda: self.end_of_run
-        )
-
     def _report(self):
         if self.stepped:
             cpu_s = time.process_time() - self.cpu_at_start
@@ -380,16 +348,6 @@ class _Process:
             self.program.say(
                 f"generation {self.generation}: {skipped} measurements never arrived"
             )
-
-    def _close(self):
-        for port in ("estimates", "states_out", "states_in", "replay", "measurements"):
-            p = getattr(self, port, None)
-            if p is not None:
-                p.close()
-        if getattr(self, "activation", None) is not None:
-            self.activation.close()
-        self.node = None
-        gc.collect()
 
     # ---- each measurement ----
 

@@ -88,6 +88,71 @@ def serve_wakeups(measurements, standing, on_wakeup, is_over):
         on_wakeup()
 
 
+class InstanceProcess:
+    """The life a controller's and an observer's process share (shared/node
+    ``instance``): open the ports; a late joiner drops what queued before it
+    and follows off the loop's CPU until named, a first instance takes its
+    priority at once; the rest of the handshake; then every wake-up until
+    the run ends; and whatever happens, step down, report and close.
+
+    A role gives ``_open``, ``_drop_stale``, ``_on_wakeup`` and ``_report``,
+    the ports it closes (:attr:`PORTS`), and, where it needs them,
+    ``_joined_late``, ``_enter`` and ``_resume``."""
+
+    #: The ports the process opened, closed in this order at its end.
+    PORTS = ()
+
+    def serve(self):
+        started = time.monotonic()
+        if not self._open():
+            return
+        rt = self.settings.realtime
+        try:
+            if self.late:
+                self._drop_stale()
+                realtime.avoid_loop_cpu(rt)
+                self._joined_late()
+            else:
+                realtime.raise_priority(rt)
+            if not self._enter():
+                return
+            if self.late:
+                self.program.say(
+                    f"start-up {(time.monotonic() - started) * 1e3:.1f} ms, "
+                    f"{time.process_time() * 1e3:.1f} ms of CPU"
+                )
+            self.cpu_at_start = time.process_time()
+            self._resume()
+            serve_wakeups(
+                self.measurements, self.standing, self._on_wakeup, lambda: self.end_of_run
+            )
+        finally:
+            gc.enable()
+            realtime.step_down()
+            self._report()
+            self._close()
+
+    def _joined_late(self):
+        """After a late joiner moved off the loop's CPU."""
+
+    def _enter(self):
+        """The rest of the handshake; False: a shutdown came first."""
+        return True
+
+    def _resume(self):
+        """Before the first wake-up: what a restart takes over."""
+
+    def _close(self):
+        for port in self.PORTS:
+            p = getattr(self, port, None)
+            if p is not None:
+                p.close()
+        if getattr(self, "activation", None) is not None:
+            self.activation.close()
+        self.node = None
+        gc.collect()
+
+
 class Program:
     """The process's name on its stderr lines (``flexloop-controller: …``)."""
 

@@ -20,7 +20,6 @@ modules live it, around a user's :class:`flexloop.Controller`.
   SIGINT.
 """
 
-import gc
 import math
 import sys
 import time
@@ -30,6 +29,7 @@ from . import realtime, transport
 from .controller import Output
 from .launch import RESTART, STANDBY
 from .process import (
+    InstanceProcess,
     WAKEUP_TIMEOUT_S,
     ActivationView,
     HandoverRing,
@@ -43,7 +43,6 @@ from .process import (
     make_law,
     freeze_collector,
     saved_state,
-    serve_wakeups,
     stop_requested,
 )
 
@@ -112,7 +111,9 @@ class _EstimateRing:
         return best
 
 
-class _Process:
+class _Process(InstanceProcess):
+    PORTS = ("commands", "estimates", "states_out", "states_in", "measurements")
+
     def __init__(self, program, controller_class, args):
         self.program = program
         self.args = args
@@ -203,38 +204,11 @@ class _Process:
             pass
         self.estimates_ring = _EstimateRing(FOLLOW_DEPTH)
 
-    def serve(self):
-        started = time.monotonic()
-        if not self._open():
-            return
-        rt = self.settings.realtime
-        try:
-            if self.late:
-                self._drop_stale()
-                # Follows off the loop's CPU, without priority, until named;
-                # a standby keeps its priority: its commands are the plant's
-                # safe action and must be on time.
-                realtime.avoid_loop_cpu(rt)
-                if self.args.joining == STANDBY:
-                    realtime.raise_priority(rt, cpu=False)
-                self.program.say(
-                    f"start-up {(time.monotonic() - started) * 1e3:.1f} ms, "
-                    f"{time.process_time() * 1e3:.1f} ms of CPU"
-                )
-            else:
-                realtime.raise_priority(rt)
-            self._loop()
-        finally:
-            gc.enable()
-            realtime.step_down()
-            self._report()
-            self._close()
-
-    def _loop(self):
-        self.cpu_at_start = time.process_time()
-        serve_wakeups(
-            self.measurements, self.standing, self._on_wakeup, lambda: self.end_of_run
-        )
+    def _joined_late(self):
+        # A standby keeps its priority: its commands are the plant's safe
+        # action and must be on time.
+        if self.args.joining == STANDBY:
+            realtime.raise_priority(self.settings.realtime, cpu=False)
 
     def _report(self):
         if self.stepped:
@@ -256,16 +230,6 @@ class _Process:
                 f"generation {self.generation}: {self.stale_estimates} stale estimates, "
                 f"{skipped} measurements skipped"
             )
-
-    def _close(self):
-        for port in ("commands", "estimates", "states_out", "states_in", "measurements"):
-            p = getattr(self, port, None)
-            if p is not None:
-                p.close()
-        if getattr(self, "activation", None) is not None:
-            self.activation.close()
-        self.node = None
-        gc.collect()
 
     # ---- each wake-up ----
 
