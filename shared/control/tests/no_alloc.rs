@@ -137,3 +137,31 @@ fn input_output_observer_does_not_allocate() {
         .fold(0.0, f64::max);
     assert!(err < 1e-9, "{err}");
 }
+
+/// The measurement's excitation, sample by sample, through its fade in, its
+/// steady periods, a stop and its fade out.
+#[test]
+fn the_multisine_source_does_not_allocate() {
+    use flexloop_control::multisine::{Multisine, MultisineSource, MultisineSpec, Phases};
+    let signal = Multisine::design(&MultisineSpec {
+        rate_hz: 10_000.0,
+        period_samples: 1_000,
+        f_min_hz: 10.0,
+        f_max_hz: 2_000.0,
+        max_lines: 30,
+        amplitude: 0.1,
+        phases: Phases::Schroeder,
+    })
+    .unwrap();
+    let mut source = MultisineSource::new(signal, 500);
+    let mut sum = 0.0;
+    assert_no_alloc(|| {
+        for k in 0..5_000 {
+            if k == 3_000 {
+                source.stop();
+            }
+            sum += source.next_value();
+        }
+    });
+    assert!(sum.is_finite());
+}
