@@ -576,7 +576,9 @@ impl Core {
     }
 
     /// A restart failed: another attempt after the back-off, within the
-    /// budget; else (or if the supervisor is stopping) the run ends.
+    /// budget; else the run ends on the failure. If the supervisor is
+    /// stopping (the restart's wait gave way to the stop), the run ends as
+    /// asked, not as failed: the stop was the user's.
     pub fn restart_failed(
         &mut self,
         role: Role,
@@ -586,7 +588,11 @@ impl Core {
     ) -> Vec<Action> {
         let error = format!("{error:#}");
         let mut actions = vec![self.note(role, Some(0), EventKind::RestartFailed(error))];
-        if *self.restarts.get(role) >= self.policy.max_restarts || shutting_down {
+        if shutting_down {
+            actions.push(Action::EndRun(Outcome::Interrupted));
+            return actions;
+        }
+        if *self.restarts.get(role) >= self.policy.max_restarts {
             actions.push(Action::EndRun(Outcome::ChildFailed(role, -1)));
             return actions;
         }

@@ -328,7 +328,7 @@ fn a_failed_restart_is_tried_again_after_a_back_off() {
 }
 
 #[test]
-fn a_failed_restart_past_the_budget_or_at_shutdown_ends_the_run() {
+fn a_failed_restart_past_the_budget_ends_the_run_and_one_at_a_stop_ends_it_as_asked() {
     let mut f = Fixture::new(Policy {
         max_restarts: 1,
         ..policy()
@@ -343,7 +343,19 @@ fn a_failed_restart_past_the_budget_or_at_shutdown_ends_the_run() {
     let actions = g
         .core
         .restart_failed(Role::Observer, &anyhow::anyhow!("no"), g.at(100), true);
-    assert!(actions.contains(&Action::EndRun(Outcome::ChildFailed(Role::Observer, -1))));
+    assert!(
+        actions.contains(&Action::EndRun(Outcome::Interrupted)),
+        "{actions:?}"
+    );
+    assert_eq!(kinds(&actions), ["restart-failed"]);
+    // Past the budget too: the stop was asked first.
+    let actions = f
+        .core
+        .restart_failed(Role::Controller, &anyhow::anyhow!("no"), f.at(200), true);
+    assert!(
+        actions.contains(&Action::EndRun(Outcome::Interrupted)),
+        "{actions:?}"
+    );
 }
 
 // ---- spares ----
