@@ -2,6 +2,8 @@
 
 use crate::TransportError;
 use iceoryx2::prelude::*;
+use procfs_core::FromRead;
+use procfs_core::process::{ProcState, Stat};
 use std::path::{Path, PathBuf};
 
 /// Where iceoryx2 keeps its node, service and port files and its event
@@ -191,12 +193,10 @@ pub fn dead_prefixes() -> Vec<String> {
             .trim_start_matches("flxsweep")
             .trim_start_matches("flx")
             .trim_end_matches('_');
-        let stat = std::fs::read_to_string(Path::new("/proc").join(pid).join("stat"));
-        match stat {
+        // procfs-core parses the line (a process's name may hold ") ").
+        match Stat::from_file(Path::new("/proc").join(pid).join("stat")) {
             Err(_) => true,
-            Ok(stat) => stat
-                .rsplit_once(") ")
-                .is_some_and(|(_, rest)| rest.starts_with('Z')),
+            Ok(stat) => matches!(stat.state(), Ok(ProcState::Zombie)),
         }
     });
     dead.sort();
@@ -238,6 +238,45 @@ fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>, depth: u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A prefix whose supervisor is gone, or a zombie, is dead; one whose
+    /// supervisor runs is not.
+    #[test]
+    fn a_prefix_is_dead_once_its_supervisor_is_gone_or_a_zombie() {
+        let mut zombie = std::process::Command::new("true").spawn().unwrap();
+        let gone = {
+            let mut child = std::process::Command::new("true").spawn().unwrap();
+            let pid = child.id();
+            child.wait().unwrap();
+            pid
+        };
+        // Not reaped: a zombie once it has exited (bounded wait).
+        let since = std::time::Instant::now();
+        while !matches!(
+            Stat::from_file(format!("/proc/{}/stat", zombie.id())).and_then(|s| Ok(s.state()?)),
+            Ok(ProcState::Zombie)
+        ) {
+            assert!(since.elapsed() < std::time::Duration::from_secs(10));
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        let pids = [std::process::id(), zombie.id(), gone];
+        let files: Vec<PathBuf> = pids
+            .iter()
+            .map(|pid| Path::new("/dev/shm").join(format!("flx{pid}_dead_prefix_test")))
+            .collect();
+        for file in &files {
+            std::fs::write(file, b"").unwrap();
+        }
+        let dead = dead_prefixes();
+        for file in &files {
+            let _ = std::fs::remove_file(file);
+        }
+        zombie.wait().unwrap();
+        let prefix = |pid: u32| format!("flx{pid}_");
+        assert!(!dead.contains(&prefix(pids[0])), "{dead:?}");
+        assert!(dead.contains(&prefix(pids[1])), "a zombie: {dead:?}");
+        assert!(dead.contains(&prefix(pids[2])), "gone: {dead:?}");
+    }
 
     /// The node directories holding a file of `prefix`.
     fn node_dirs_of(prefix: &str) -> Vec<PathBuf> {
