@@ -22,6 +22,7 @@
 
 use crate::noise::Gaussian;
 use flexloop_control::lti::LtiRunner;
+use flexloop_control::multisine::MultisineSource;
 use flexloop_design::LoopDesign;
 use flexloop_design::reference::Reference;
 use flexloop_design::sensor_scan::SensorScan;
@@ -114,6 +115,10 @@ pub struct PlantCore {
     y_true: [f64; MAX_OUTPUTS],
     previous_tick_stalled: bool,
     applied_seq: u64,
+    /// An excitation added to the first input as a force, for a frequency-
+    /// response measurement (docs/control.md §14), and its value this tick.
+    excitation: Option<MultisineSource>,
+    excitation_now: f64,
     pub counters: PlantCounters,
     pub latencies: PlantLatencies,
 }
@@ -156,9 +161,24 @@ impl PlantCore {
             y_true: [0.0; MAX_OUTPUTS],
             previous_tick_stalled: false,
             applied_seq: NO_SEQ,
+            excitation: None,
+            excitation_now: 0.0,
             counters: PlantCounters::default(),
             latencies: PlantLatencies::default(),
         }
+    }
+
+    /// Adds `source` to the first input from the next tick on, as a force
+    /// beside the applied command (None: no excitation). The recorded
+    /// `u_applied` stays the command; the plant's input is both.
+    pub fn set_input_excitation(&mut self, source: Option<MultisineSource>) {
+        self.excitation = source;
+        self.excitation_now = 0.0;
+    }
+
+    /// The excitation added to the first input at the last tick (0 without).
+    pub fn input_excitation(&self) -> f64 {
+        self.excitation_now
     }
 
     /// Which controller generation's commands are accepted, by sequence.
@@ -330,6 +350,10 @@ impl PlantCore {
         }
         self.previous_tick_stalled = stalled;
         self.counters.ticks += 1;
+        self.excitation_now = self
+            .excitation
+            .as_mut()
+            .map_or(0.0, MultisineSource::next_value);
 
         match &mut self.scanned {
             // The one output of a scanned sensor: its row at this tick's
@@ -350,6 +374,7 @@ impl PlantCore {
                 if self.deadline_before_tick_ns.is_some() {
                     // y(k) = C z(k) + C G_new u_a(k): the input present at t_k.
                     self.model_input[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
+                    self.model_input[0] += self.excitation_now;
                 }
                 let y = self.model.output(&self.model_input);
                 self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
@@ -394,6 +419,7 @@ impl PlantCore {
     pub fn advance(&mut self) {
         let n = self.n_inputs;
         self.model_input[..n].copy_from_slice(&self.held[..n]);
+        self.model_input[0] += self.excitation_now;
         for i in 0..n {
             self.model_input[n + i] = if self.force_sigma > 0.0 {
                 self.force_sigma * self.noise.sample()

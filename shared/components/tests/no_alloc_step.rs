@@ -278,3 +278,33 @@ fn an_io_observer_does_not_allocate() {
     );
     assert_eq!(l.plant.counters.misses, 0);
 }
+
+/// The plant with a frequency-response measurement's excitation added to
+/// its input (docs/control.md §14), through the excitation's fade in.
+#[test]
+fn an_excited_plant_does_not_allocate() {
+    use flexloop_control::multisine::{Multisine, MultisineSource, MultisineSpec, Phases};
+    let design = LoopDesign::from_scenario(&default_scenario()).unwrap();
+    let signal = Multisine::design(&MultisineSpec {
+        rate_hz: 1.0 / design.ts,
+        period_samples: 1_000,
+        f_min_hz: 10.0,
+        f_max_hz: 2_000.0,
+        max_lines: 30,
+        amplitude: 0.05 * design.input_limit,
+        phases: Phases::Schroeder,
+    })
+    .unwrap();
+    let mut l = InProcessLoop::new(&design).unwrap();
+    l.plant
+        .set_input_excitation(Some(MultisineSource::new(signal, 500)));
+    let mut largest = 0.0_f64;
+    assert_no_alloc(|| {
+        for _ in 0..TICKS {
+            l.tick();
+            largest = largest.max(l.plant.input_excitation().abs());
+        }
+    });
+    assert!(largest > 0.0);
+    assert_eq!(l.plant.counters.misses, 0);
+}
