@@ -42,7 +42,7 @@ pub enum EventKind {
     /// A restart could not be made; why.
     RestartFailed(String),
     /// The standby controller took over from a crashed active one.
-    PromoteStandby(Switched),
+    PromoteStandby(SwitchRecord),
     /// `flexloop swap`: the role is served by another scenario's instance.
     Swap(Swap),
     /// `flexloop set`: tunables changed and handed over.
@@ -82,7 +82,7 @@ impl EventKind {
     pub fn switch(&self) -> Option<&SwitchRecord> {
         match self {
             Self::Restart(r) => r.switch.as_ref(),
-            Self::PromoteStandby(s) => Some(&s.switch),
+            Self::PromoteStandby(s) => Some(s),
             Self::Swap(s) => Some(&s.switch),
             _ => None,
         }
@@ -139,12 +139,13 @@ pub struct Silent {
     pub action: String,
 }
 
-/// A `restart`: the new instance's switch, or what stands for it.
+/// A `restart`: the new instance's switch (its fields in the detail, as a
+/// promotion's), or what stands for it.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Restart {
     /// Where the new instance took over (none for a logger's restart, or
     /// one before the loop's first tick).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(flatten)]
     pub switch: Option<SwitchRecord>,
     /// A restarted logger's files.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -157,12 +158,6 @@ pub struct Restart {
     pub rolled_back_from: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scenario: Option<String>,
-}
-
-/// A switch to another instance.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Switched {
-    pub switch: SwitchRecord,
 }
 
 /// Who sent a request: the pid its file is named by and the user who owns
@@ -313,7 +308,7 @@ mod tests {
                 ..Restart::default()
             }),
             EventKind::RestartFailed("no luck".into()),
-            EventKind::PromoteStandby(Switched { switch: switch() }),
+            EventKind::PromoteStandby(switch()),
             EventKind::Swap(Swap {
                 scenario: "b.toml".into(),
                 switch: switch(),
@@ -360,6 +355,29 @@ mod tests {
             // NaN is not equal to itself: compare the lines again.
             assert_eq!(serde_json::to_string(&back).unwrap(), line);
         }
+    }
+
+    #[test]
+    fn a_restart_s_switch_sits_in_its_detail_as_a_promotion_s_does() {
+        let restart = EventKind::Restart(Restart {
+            switch: Some(switch()),
+            ..Restart::default()
+        });
+        let value = serde_json::to_value(&restart).unwrap();
+        assert_eq!(value["detail"]["from_seq"], 20, "{value}");
+        let promotion = serde_json::to_value(EventKind::PromoteStandby(switch())).unwrap();
+        assert_eq!(promotion["detail"]["from_seq"], 20, "{promotion}");
+        let logger: EventKind = serde_json::from_str(
+            r#"{"kind":"restart","detail":{"files":["samples.g1.mcap","latency.g1.hlog"]}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            logger,
+            EventKind::Restart(Restart {
+                files: Some(vec!["samples.g1.mcap".into(), "latency.g1.hlog".into()]),
+                ..Restart::default()
+            })
+        );
     }
 
     #[test]

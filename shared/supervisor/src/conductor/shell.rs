@@ -21,7 +21,7 @@ use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::events::{EventKind, Restart, Set, Standby, Stop, Swap, Switched};
+use flexloop_runfiles::events::{EventKind, Restart, Set, Standby, Stop, Swap};
 use flexloop_runfiles::supervision::{SetAnswer, SetOutcome, SwapAnswer};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
@@ -766,9 +766,7 @@ impl Conductor {
                 self.record_action(self.core.note(
                     Role::Controller,
                     Some(generation),
-                    EventKind::PromoteStandby(Switched {
-                        switch: switch.record(),
-                    }),
+                    EventKind::PromoteStandby(switch.record()),
                 ));
                 self.switches.push(switch);
                 return Ok(());
