@@ -99,7 +99,9 @@ pub struct Crash {
     /// The exit code (128 + signal); none when the end was found before
     /// the kernel's exit report (in its exit, stopped, silent).
     pub exit: Option<i32>,
-    /// How the end was found: `exit report`, `exiting`, `silent`, `stopped`.
+    /// How the end was found: `exit report`, `exiting`, `silent`, `stopped`
+    /// (empty in runs recorded before it was said).
+    #[serde(default)]
     pub found: String,
     /// Why: `crashed`, `silent`, `non-finite output`; none for a spare's
     /// or the standby's.
