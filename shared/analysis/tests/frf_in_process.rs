@@ -5,7 +5,7 @@
 //! exact ZOH model and the design's loop report.
 
 use flexloop_analysis::loop_report::loop_check;
-use flexloop_components::InProcessLoop;
+use flexloop_components::{InProcessLoop, InjectionPoint};
 use flexloop_control::freq::freq_response_discrete;
 use flexloop_control::frf::{Frf, LineSpectra};
 use flexloop_control::multisine::{Multisine, MultisineSource, MultisineSpec, Phases};
@@ -51,7 +51,7 @@ fn default_loop(noise: bool) -> (Scenario, LoopDesign) {
 /// What a measurement of the default loop found: the largest error of the
 /// measured P against the exact ZOH model over the lines at coherence ≥
 /// 0.99 (dB, degrees), how many lines those were, and the peak of |S^I|
-/// measured and designed (dB).
+/// and of |S^O|, measured and designed (dB).
 struct Found {
     worst_db: f64,
     worst_degrees: f64,
@@ -60,38 +60,61 @@ struct Found {
     si_peak_db: f64,
     si_peak_designed_db: f64,
     si_at_lowest_line_db: f64,
+    so_peak_db: f64,
+    so_peak_designed_db: f64,
 }
 
-fn measure(noise: bool) -> Found {
-    let (scenario, design) = default_loop(noise);
-    let signal = Multisine::design(&MultisineSpec {
+/// The loop run with `signal` added at `point` for the transient and the
+/// measured periods: the excitation's, the plant input's and the measured
+/// output's line spectra.
+fn excite(
+    design: &LoopDesign,
+    signal: &Multisine,
+    point: InjectionPoint,
+) -> (LineSpectra, LineSpectra, LineSpectra) {
+    let n = signal.period_samples();
+    let mut l = InProcessLoop::new(design).unwrap();
+    l.plant
+        .set_excitation(Some((point, MultisineSource::new(signal.clone(), 0))));
+    let ticks = n * (TRANSIENT_PERIODS + PERIODS);
+    let (mut d, mut u, mut y) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..ticks {
+        l.tick();
+        let excitation = l.plant.excitation();
+        d.push(excitation);
+        // The plant's input over [t_k, t_k+1): the command it held, and the
+        // force if the excitation is one.
+        let force = if point == InjectionPoint::PlantInput {
+            excitation
+        } else {
+            0.0
+        };
+        u.push(l.measurement.u_applied[0] + force);
+        y.push(l.measurement.y[0]);
+    }
+    assert_eq!(l.plant.counters.misses, 0);
+    let lines = |x: &[f64]| LineSpectra::of(x, signal, TRANSIENT_PERIODS, PERIODS).unwrap();
+    (lines(&d), lines(&u), lines(&y))
+}
+
+fn multisine(design: &LoopDesign, amplitude: f64) -> Multisine {
+    Multisine::design(&MultisineSpec {
         rate_hz: 1.0 / design.ts,
         period_samples: 2_000,
         f_min_hz: 5.0,
         f_max_hz: 2_000.0,
         max_lines: 60,
-        // A tenth of the actuator's range.
-        amplitude: 0.1 * design.input_limit,
+        amplitude,
         phases: Phases::Schroeder,
     })
-    .unwrap();
-    let n = signal.period_samples();
-    let mut l = InProcessLoop::new(&design).unwrap();
-    l.plant
-        .set_input_excitation(Some(MultisineSource::new(signal.clone(), 0)));
-    let ticks = n * (TRANSIENT_PERIODS + PERIODS);
-    let (mut d, mut u, mut y) = (Vec::new(), Vec::new(), Vec::new());
-    for _ in 0..ticks {
-        l.tick();
-        let excitation = l.plant.input_excitation();
-        d.push(excitation);
-        // The plant's input over [t_k, t_k+1): the command it held and the force.
-        u.push(l.measurement.u_applied[0] + excitation);
-        y.push(l.measurement.y[0]);
-    }
-    assert_eq!(l.plant.counters.misses, 0);
-    let lines = |x: &[f64]| LineSpectra::of(x, &signal, TRANSIENT_PERIODS, PERIODS).unwrap();
-    let (d, u, y) = (lines(&d), lines(&u), lines(&y));
+    .unwrap()
+}
+
+fn measure(noise: bool) -> Found {
+    let (scenario, design) = default_loop(noise);
+    // A tenth of the actuator's range.
+    let signal = multisine(&design, 0.1 * design.input_limit);
+    let (d, u, y) = excite(&design, &signal, InjectionPoint::PlantInput);
     let plant = Frf::between(&signal, &y, &u).unwrap();
     let (mut checked, mut worst_db, mut worst_degrees) = (0, 0.0_f64, 0.0_f64);
     for ((f, h), c) in plant
@@ -113,6 +136,11 @@ fn measure(noise: bool) -> Found {
     // The input sensitivity U/D = 1/(1 + L), and the design's peak of it
     // (the 6 dB rule's |S^I|).
     let input_sensitivity = Frf::between(&signal, &u, &d).unwrap();
+    // At the sensor (10 µm): the measured output over the excitation is the
+    // output sensitivity 1/(1 + L_o), the 6 dB rule's |S^O|.
+    let sensor_signal = multisine(&design, 1e-5);
+    let (n, _, y_measured) = excite(&design, &sensor_signal, InjectionPoint::Sensor);
+    let output_sensitivity = Frf::between(&sensor_signal, &y_measured, &n).unwrap();
     let report = loop_check(&scenario, &design).unwrap();
     Found {
         worst_db,
@@ -122,11 +150,14 @@ fn measure(noise: bool) -> Found {
         si_peak_db: input_sensitivity.peak_db(0.99).unwrap().0,
         si_peak_designed_db: report.axes[0].peak_si_db,
         si_at_lowest_line_db: input_sensitivity.magnitude_db()[0],
+        so_peak_db: output_sensitivity.peak_db(0.99).unwrap().0,
+        so_peak_designed_db: report.axes[0].peak_so_db,
     }
 }
 
 /// Without noise the measurement is the model's: P to 0.01 dB and 0.1°,
-/// the |S^I| peak to 0.01 dB of the design's (lines 5 Hz apart near it).
+/// the |S^I| and |S^O| peaks to 0.01 dB of the design's (lines 5 Hz apart
+/// near them).
 #[test]
 fn without_noise_the_measured_loop_is_the_designed_one() {
     let found = measure(false);
@@ -143,10 +174,16 @@ fn without_noise_the_measured_loop_is_the_designed_one() {
         found.si_peak_db,
         found.si_peak_designed_db
     );
+    assert!(
+        (found.so_peak_db - found.so_peak_designed_db).abs() <= 0.01,
+        "|S^O| peak measured {} dB, designed {} dB",
+        found.so_peak_db,
+        found.so_peak_designed_db
+    );
 }
 
 /// With a machine's noise: P within 0.5 dB and 2° wherever coherence ≥ 0.99
-/// (most lines), the |S^I| peak within 0.3 dB of the design's, and a loop
+/// (most lines), the |S^I| and |S^O| peaks within 0.3 dB of the design's, and a loop
 /// that rejects an input disturbance well below its bandwidth.
 #[test]
 fn with_noise_the_plant_and_the_input_sensitivity_are_measured_closely() {
@@ -168,6 +205,12 @@ fn with_noise_the_plant_and_the_input_sensitivity_are_measured_closely() {
         "|S^I| peak measured {} dB, designed {} dB",
         found.si_peak_db,
         found.si_peak_designed_db
+    );
+    assert!(
+        (found.so_peak_db - found.so_peak_designed_db).abs() <= 0.3,
+        "|S^O| peak measured {} dB, designed {} dB",
+        found.so_peak_db,
+        found.so_peak_designed_db
     );
     assert!(
         found.si_at_lowest_line_db < -20.0,

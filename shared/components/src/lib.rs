@@ -36,4 +36,4 @@ pub use estimation_law::{EstimationLaw, ObserverSetup};
 pub use in_process::InProcessLoop;
 pub use law_setup::{LawSetup, SetupError};
 pub use observer::ObserverCore;
-pub use plant::{CommandVerdict, PlantCore, PlantCounters};
+pub use plant::{CommandVerdict, InjectionPoint, PlantCore, PlantCounters};

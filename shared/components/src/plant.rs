@@ -75,6 +75,15 @@ struct ScannedSensor {
     row: Vec<f64>,
 }
 
+/// Where a measurement's excitation enters the loop (docs/control.md §14).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InjectionPoint {
+    /// Added to the first input, as a force beside the applied command.
+    PlantInput,
+    /// Added to the first measured output, as a sensor error would be.
+    Sensor,
+}
+
 pub struct PlantCore {
     model: LtiRunner,
     scanned: Option<ScannedSensor>,
@@ -115,9 +124,9 @@ pub struct PlantCore {
     y_true: [f64; MAX_OUTPUTS],
     previous_tick_stalled: bool,
     applied_seq: u64,
-    /// An excitation added to the first input as a force, for a frequency-
-    /// response measurement (docs/control.md §14), and its value this tick.
-    excitation: Option<MultisineSource>,
+    /// An excitation for a frequency-response measurement (docs/control.md
+    /// §14), where it is added, and its value this tick.
+    excitation: Option<(InjectionPoint, MultisineSource)>,
     excitation_now: f64,
     pub counters: PlantCounters,
     pub latencies: PlantLatencies,
@@ -168,17 +177,26 @@ impl PlantCore {
         }
     }
 
-    /// Adds `source` to the first input from the next tick on, as a force
-    /// beside the applied command (None: no excitation). The recorded
-    /// `u_applied` stays the command; the plant's input is both.
-    pub fn set_input_excitation(&mut self, source: Option<MultisineSource>) {
-        self.excitation = source;
+    /// Adds `source` at `point` from the next tick on (None: no
+    /// excitation). At the plant input the recorded `u_applied` stays the
+    /// command and the plant's input is both; at the sensor the recorded `y`
+    /// is the measurement with it, `y_true` without.
+    pub fn set_excitation(&mut self, excitation: Option<(InjectionPoint, MultisineSource)>) {
+        self.excitation = excitation;
         self.excitation_now = 0.0;
     }
 
-    /// The excitation added to the first input at the last tick (0 without).
-    pub fn input_excitation(&self) -> f64 {
+    /// The excitation added at the last tick (0 without).
+    pub fn excitation(&self) -> f64 {
         self.excitation_now
+    }
+
+    /// The excitation at the plant input this tick (0 at the sensor or without).
+    fn input_excitation(&self) -> f64 {
+        match self.excitation {
+            Some((InjectionPoint::PlantInput, _)) => self.excitation_now,
+            _ => 0.0,
+        }
     }
 
     /// Which controller generation's commands are accepted, by sequence.
@@ -353,7 +371,7 @@ impl PlantCore {
         self.excitation_now = self
             .excitation
             .as_mut()
-            .map_or(0.0, MultisineSource::next_value);
+            .map_or(0.0, |(_, source)| source.next_value());
 
         match &mut self.scanned {
             // The one output of a scanned sensor: its row at this tick's
@@ -374,7 +392,7 @@ impl PlantCore {
                 if self.deadline_before_tick_ns.is_some() {
                     // y(k) = C z(k) + C G_new u_a(k): the input present at t_k.
                     self.model_input[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
-                    self.model_input[0] += self.excitation_now;
+                    self.model_input[0] += self.input_excitation();
                 }
                 let y = self.model.output(&self.model_input);
                 self.y_true[..self.n_outputs].copy_from_slice(&y[..self.n_outputs]);
@@ -409,6 +427,9 @@ impl PlantCore {
             out.y_true[i] = self.y_true[i];
             out.y[i] = self.y_true[i] - v + d;
         }
+        if let Some((InjectionPoint::Sensor, _)) = self.excitation {
+            out.y[0] += self.excitation_now;
+        }
         out.u_applied[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
         if self.extra_delay {
             out.u_pending[..self.n_inputs].copy_from_slice(&self.pending[..self.n_inputs]);
@@ -419,7 +440,7 @@ impl PlantCore {
     pub fn advance(&mut self) {
         let n = self.n_inputs;
         self.model_input[..n].copy_from_slice(&self.held[..n]);
-        self.model_input[0] += self.excitation_now;
+        self.model_input[0] += self.input_excitation();
         for i in 0..n {
             self.model_input[n + i] = if self.force_sigma > 0.0 {
                 self.force_sigma * self.noise.sample()

@@ -296,13 +296,15 @@ fn an_excited_plant_does_not_allocate() {
     })
     .unwrap();
     let mut l = InProcessLoop::new(&design).unwrap();
-    l.plant
-        .set_input_excitation(Some(MultisineSource::new(signal, 500)));
+    l.plant.set_excitation(Some((
+        flexloop_components::InjectionPoint::PlantInput,
+        MultisineSource::new(signal, 500),
+    )));
     let mut largest = 0.0_f64;
     assert_no_alloc(|| {
         for _ in 0..TICKS {
             l.tick();
-            largest = largest.max(l.plant.input_excitation().abs());
+            largest = largest.max(l.plant.excitation().abs());
         }
     });
     assert!(largest > 0.0);
