@@ -13,7 +13,7 @@
 //! measurement steps the signal no more than its own sample-to-sample steps.
 
 use nalgebra::Complex;
-use realfft::RealFftPlanner;
+use realfft::{ComplexToReal, RealFftPlanner};
 use std::f64::consts::PI;
 
 /// Why a multisine cannot be made as asked.
@@ -160,8 +160,7 @@ impl Multisine {
                 (0..count).map(|_| rng.rand_float() * 2.0 * PI).collect()
             }
         };
-        let phases = lower_crest_factor(n, &bins, phases);
-        let mut period = synthesize(n, &bins, &phases);
+        let (phases, mut period) = lower_crest_factor(n, &bins, phases);
         let peak = period.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
         let scale = spec.amplitude / peak;
         for v in &mut period {
@@ -193,9 +192,9 @@ impl Multisine {
     }
 }
 
-/// The period of unit lines at `bins` with `phases`: Σ cos(2π b k / N + φ).
-fn synthesize(n: usize, bins: &[usize], phases: &[f64]) -> Vec<f64> {
-    let inverse = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
+/// The period of unit lines at `bins` with `phases`: Σ cos(2π b k / N + φ),
+/// by `inverse`, a plan for the period's length.
+fn synthesize(inverse: &dyn ComplexToReal<f64>, bins: &[usize], phases: &[f64]) -> Vec<f64> {
     let mut spectrum = inverse.make_input_vec();
     for (&bin, &phi) in bins.iter().zip(phases) {
         // The inverse real FFT adds each bin's conjugate twin: half each.
@@ -218,14 +217,17 @@ fn crest(period: &[f64]) -> f64 {
 /// Lowers the crest factor from the phases given by clipping iterations
 /// (Van der Ouderaa, Schoukens and Renneboog, 1988): clip the period's
 /// peaks, keep the clipped signal's phases at the lines, restore the
-/// lines' equal amplitudes; the best of the iterations is kept.
-fn lower_crest_factor(n: usize, bins: &[usize], start: Vec<f64>) -> Vec<f64> {
+/// lines' equal amplitudes; the best of the iterations is kept, with its
+/// period of unit lines.
+fn lower_crest_factor(n: usize, bins: &[usize], start: Vec<f64>) -> (Vec<f64>, Vec<f64>) {
     const ITERATIONS: usize = 200;
-    let forward = RealFftPlanner::<f64>::new().plan_fft_forward(n);
+    let mut planner = RealFftPlanner::<f64>::new();
+    let forward = planner.plan_fft_forward(n);
+    let inverse = planner.plan_fft_inverse(n);
     let mut spectrum = forward.make_output_vec();
     let mut phases = start;
-    let mut period = synthesize(n, bins, &phases);
-    let mut best = (crest(&period), phases.clone());
+    let mut period = synthesize(inverse.as_ref(), bins, &phases);
+    let mut best = (crest(&period), phases.clone(), period.clone());
     for _ in 0..ITERATIONS {
         let peak = period.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
         let level = 0.8 * peak;
@@ -238,13 +240,13 @@ fn lower_crest_factor(n: usize, bins: &[usize], start: Vec<f64>) -> Vec<f64> {
         for (phi, &bin) in phases.iter_mut().zip(bins) {
             *phi = spectrum[bin].arg();
         }
-        period = synthesize(n, bins, &phases);
+        period = synthesize(inverse.as_ref(), bins, &phases);
         let now = crest(&period);
         if now < best.0 {
-            best = (now, phases.clone());
+            best = (now, phases.clone(), period.clone());
         }
     }
-    best.1
+    (best.1, best.2)
 }
 
 /// Where the source is in its life.
@@ -421,7 +423,8 @@ mod tests {
                     m.bins.iter().map(|_| rng.rand_float() * 2.0 * PI).collect()
                 }
             };
-            let start = crest(&synthesize(n, &m.bins, &start));
+            let inverse = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
+            let start = crest(&synthesize(inverse.as_ref(), &m.bins, &start));
             assert!(
                 m.crest_factor() < 2.5 && m.crest_factor() < start,
                 "{phases:?}: {} from {start}",

@@ -120,7 +120,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     )));
     recorder.event(
         monotonic_ns(),
-        &EventMessage::Logger(LoggerEvent::RecordingStart {
+        EventMessage::Logger(LoggerEvent::RecordingStart {
             generation: args.generation,
             file: samples_name.clone(),
         }),
@@ -149,7 +149,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         reason,
         gaps: recorder.total_gaps(),
     };
-    recorder.event(now, &EventMessage::Logger(end));
+    recorder.event(now, EventMessage::Logger(end));
     let totals = Box::new(recorder.latencies.clone());
     let queue = recorder.sink();
     queue.send_blocking(Item::Interval {

@@ -162,10 +162,10 @@ impl RecordSink for Queue {
         self.pushed(2, c.seq, c.published_ns, pushed);
     }
 
-    fn event(&mut self, at_ns: u64, message: &EventMessage) {
+    fn event(&mut self, at_ns: u64, message: EventMessage) {
         let item = Item::Event {
             at_ns,
-            message: Box::new(message.clone()),
+            message: Box::new(message),
         };
         if self.tx.try_send(item).is_err() {
             self.dropped_events += 1;

@@ -155,7 +155,7 @@ pub trait RecordSink {
     fn estimate(&mut self, e: &Estimate);
     fn command(&mut self, c: &Command);
     /// One `/events` message at `at_ns` (CLOCK_MONOTONIC).
-    fn event(&mut self, at_ns: u64, message: &EventMessage);
+    fn event(&mut self, at_ns: u64, message: EventMessage);
 }
 
 impl<S: Storage> RecordSink for SampleWriter<S> {
@@ -171,8 +171,8 @@ impl<S: Storage> RecordSink for SampleWriter<S> {
         SampleWriter::command(self, c);
     }
 
-    fn event(&mut self, at_ns: u64, message: &EventMessage) {
-        SampleWriter::event(self, at_ns, message);
+    fn event(&mut self, at_ns: u64, message: EventMessage) {
+        SampleWriter::event(self, at_ns, &message);
     }
 }
 
@@ -234,10 +234,10 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.measurement(m);
         self.measurements.see(m.seq, |first, count| {
-            out.event(m.published_ns, &gap("measurement", first, count, None))
+            out.event(m.published_ns, gap("measurement", first, count, None))
         });
         self.events
-            .measurement(m, |e| out.event(e.at_ns, &e.message()));
+            .measurement(m, |e| out.event(e.at_ns, e.message()));
         self.latencies.observe_measurement(m);
         self.last_measurement = Some(*m);
     }
@@ -246,7 +246,7 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.estimate(e);
         self.estimates.see(e.seq, |first, count| {
-            out.event(e.published_ns, &gap("estimate", first, count, None))
+            out.event(e.published_ns, gap("estimate", first, count, None))
         });
         // The initial estimate answers no measurement.
         if e.source_published_ns != 0 {
@@ -258,9 +258,9 @@ impl<O: RecordSink> Recorder<O> {
         let out = &mut self.out;
         out.command(c);
         self.commands.see(c.seq, |first, count| {
-            out.event(c.published_ns, &gap("command", first, count, None))
+            out.event(c.published_ns, gap("command", first, count, None))
         });
-        self.events.command(c, |e| out.event(e.at_ns, &e.message()));
+        self.events.command(c, |e| out.event(e.at_ns, e.message()));
         if c.estimate_seq != c.seq {
             self.stale_estimates += 1;
         }
@@ -276,7 +276,7 @@ impl<O: RecordSink> Recorder<O> {
     }
 
     /// An event from elsewhere (the supervisor's, the logger's own).
-    pub fn event(&mut self, at_ns: u64, message: &EventMessage) {
+    pub fn event(&mut self, at_ns: u64, message: EventMessage) {
         self.out.event(at_ns, message);
     }
 
@@ -310,7 +310,7 @@ impl<O: RecordSink> Recorder<O> {
         let never_sent = self.never_sent();
         let out = &mut self.out;
         self.events
-            .finish(at_ns, |e| out.event(e.at_ns, &e.message()));
+            .finish(at_ns, |e| out.event(e.at_ns, e.message()));
         for (i, (name, count)) in [
             ("measurement", &mut self.measurements),
             ("estimate", &mut self.estimates),
@@ -319,9 +319,9 @@ impl<O: RecordSink> Recorder<O> {
         .into_iter()
         .enumerate()
         {
-            count.unsettled_gaps(|first, n| out.event(at_ns, &gap(name, first, n, None)));
+            count.unsettled_gaps(|first, n| out.event(at_ns, gap(name, first, n, None)));
             if let Some((first, n)) = never_sent[i] {
-                out.event(at_ns, &gap(name, first, n, Some(GapCause::NotSent)));
+                out.event(at_ns, gap(name, first, n, Some(GapCause::NotSent)));
             }
         }
     }
