@@ -11,11 +11,13 @@
 
 mod events;
 mod policy;
+mod sequence;
 mod silence;
 mod steps;
 
 pub use events::{Action, Event, Record, Stage};
 pub use policy::{Policy, backoff};
+pub use sequence::{Carried, Command, Look, Order, Step};
 #[cfg(test)]
 pub use silence::SilenceRule;
 pub use steps::{DrainStep, Engagement, Failure, Renewal, RestartPlan, Retirement, ShadowStep};
@@ -92,6 +94,8 @@ pub struct Core {
     /// A swap or restart is under way: crashes wait for its end to be
     /// settled (it may be the one that deals with them).
     busy: bool,
+    /// That swap, restart or standby's start, where it stands.
+    sequence: Option<sequence::Sequence>,
     /// What the loop shows of the controller's and observer's output.
     silence: SilenceWatch,
     /// The generation whose last commands were not finite (the plant
@@ -119,6 +123,7 @@ impl Core {
             pace: Pace::default(),
             applied,
             busy: false,
+            sequence: None,
             silence: SilenceWatch::default(),
             non_finite: None,
         }
@@ -134,6 +139,7 @@ impl Core {
     }
 
     /// The loop's newest sample, once it ticks.
+    #[cfg(test)]
     pub fn last_seq(&self) -> Option<u64> {
         self.last_seq
     }
@@ -883,31 +889,28 @@ impl Core {
         })
     }
 
-    /// What became of [`Action::StartStandby`]: `Ok((pid, warm))`.
-    pub fn standby_engaged(
-        &mut self,
-        generation: u32,
-        result: &anyhow::Result<(i32, bool)>,
-    ) -> Action {
-        match result {
-            Ok((pid, warm)) => self.note(
-                Role::Controller,
-                Some(generation),
-                EventKind::Standby(Standby {
-                    pid: *pid,
-                    warm: Some(*warm),
-                    ..Standby::default()
-                }),
-            ),
-            Err(e) => {
-                *self.restarts.get_mut(Role::Controller) += 1;
-                self.note(
-                    Role::Controller,
-                    Some(generation),
-                    EventKind::StandbyFailed(format!("{e:#}")),
-                )
-            }
-        }
+    /// The standby `generation` was engaged: `pid`, a warm spare or not.
+    fn standby_started(&mut self, generation: u32, pid: i32, warm: bool) -> Action {
+        self.note(
+            Role::Controller,
+            Some(generation),
+            EventKind::Standby(Standby {
+                pid,
+                warm: Some(warm),
+                ..Standby::default()
+            }),
+        )
+    }
+
+    /// The standby `generation` could not be engaged: it costs the restart
+    /// budget (a standby that never starts must not be retried forever).
+    fn standby_failed(&mut self, generation: u32, why: String) -> Action {
+        *self.restarts.get_mut(Role::Controller) += 1;
+        self.note(
+            Role::Controller,
+            Some(generation),
+            EventKind::StandbyFailed(why),
+        )
     }
 
     /// With warm spares, one spare controller and one spare observer, before

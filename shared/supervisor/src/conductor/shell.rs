@@ -1,11 +1,12 @@
 //! The conductor's shell: it watches the loop over IPC and feeds what it
 //! sees to the decision core (`decide.rs`), carries out the core's actions
 //! (orders, announcements, processes started and stopped, the run's files),
-//! and waits where a swap or restart must wait, asking the core at each step.
+//! and runs a swap's, restart's or standby's sequence
+//! (`decide/sequence.rs`): it looks when the core says to, carries out the
+//! core's commands and reports how they went; the core decides every step.
 
 use super::decide::{
-    Action, Core, DRAIN_TIMEOUT, DrainStep, Engagement, Event, Failure, Policy, Record,
-    RestartPlan, Retirement, SHADOW_TIMEOUT, ShadowStep, Stage,
+    Action, Carried, Command, Core, Event, Failure, Look, Order, Policy, Record, Stage, Step,
 };
 use super::ports::Ports;
 use super::record::RunFiles;
@@ -21,7 +22,7 @@ use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::events::{EventKind, Restart, Set, Standby, Stop, Swap};
+use flexloop_runfiles::events::{EventKind, Set, Stop, Swap};
 use flexloop_runfiles::supervision::{SetAnswer, SetOutcome, SwapAnswer};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
@@ -30,27 +31,11 @@ use std::os::fd::RawFd;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// How long a swap or restart waits for a spare that is still starting.
-const SPARE_START_WAIT: Duration = Duration::from_secs(5);
 /// How far back the supervisor keeps measurements for a restarted observer:
 /// the crash noticed (20 ms), the back-off (100 ms, doubled per restart), the
 /// replacement's start-up (tens of ms), with room to spare.
 const REPLAY_SPAN: Duration = Duration::from_secs(2);
 const MAX_REPLAY_SAMPLES: usize = 1 << 16;
-
-/// A new instance on its way in.
-struct Incoming {
-    role: Role,
-    generation: u32,
-    /// The loop's sample when it was started or ordered.
-    start_seq: u64,
-    /// A warm spare (or a running standby), not a new process.
-    warm: bool,
-    /// The instance it replaces, alive (a swap).
-    old: Option<i32>,
-    /// The boundary, if already announced (a restart owns samples at once).
-    announced: Option<u64>,
-}
 
 pub struct Conductor {
     ports: Ports,
@@ -212,8 +197,7 @@ impl Conductor {
                 Action::Kill(pid) => running.kill(pid),
                 Action::EndRun(outcome) => return Some(outcome),
                 Action::Restart(role) => {
-                    let result = self.operation(running, |c, running| c.restart(running, role));
-                    if let Err(e) = result {
+                    if let Err(e) = self.conduct(running, Order::Restart(role)) {
                         eprintln!(
                             "flexloop: restart of flexloop-{} failed: {e:#}",
                             role.name()
@@ -240,37 +224,134 @@ impl Conductor {
                     scenario,
                     generation,
                 } => {
-                    let engaged = self.operation(running, |c, running| {
-                        c.engage(
-                            running,
-                            Role::Controller,
-                            &scenario,
-                            generation,
-                            Joining::Standby,
-                        )
-                    });
-                    let record = self.core.standby_engaged(generation, &engaged);
-                    self.record_action(record);
+                    // Its failure is an event of its own (`standby-failed`).
+                    let order = Order::Standby {
+                        scenario,
+                        generation,
+                    };
+                    if let Err(e) = self.conduct(running, order) {
+                        eprintln!("flexloop: the standby controller: {e:#}");
+                    }
                 }
             }
         }
         None
     }
 
-    /// Runs a swap, restart or standby's start (one at a time, never one
-    /// inside another): crashes seen meanwhile are settled once it is over
-    /// (it may be the one that deals with them).
-    fn operation<T>(
-        &mut self,
-        running: &mut RunningLoop,
-        work: impl FnOnce(&mut Self, &mut RunningLoop) -> T,
-    ) -> T {
-        self.core.begin_operation();
-        let result = work(self, running);
-        let settled = self.core.end_operation(Instant::now());
-        self.record_all(settled);
-        self.track(running);
-        result
+    /// Runs a swap, restart or standby's start to its end (one at a time,
+    /// never one inside another): the core advances it at each look and
+    /// says what to carry out; crashes seen meanwhile are settled at its end
+    /// (it may be the one that deals with them). Returns its switch.
+    fn conduct(&mut self, running: &mut RunningLoop, order: Order) -> Result<Option<Switch>> {
+        let role = order.role();
+        let is_program = |scenario: &Path| {
+            crate::children::own_program(role, scenario)
+                .map(|program| program.is_some())
+                .map_err(|e| format!("{e:#}"))
+        };
+        self.core.begin(order, look(), &is_program)?;
+        loop {
+            match self.core.advance(look()) {
+                Step::Carry(command) => {
+                    let carried = self.carry_out(running, command);
+                    self.core.carried(carried, Instant::now());
+                    self.track(running);
+                }
+                Step::Wait(wait) => {
+                    std::thread::sleep(wait);
+                    self.observe(running);
+                }
+                Step::Done(end) => {
+                    for action in end.actions {
+                        match action {
+                            Action::Record(record) => self.record(record),
+                            Action::Stop(pid) => running.terminate(pid),
+                            other => unreachable!("a sequence's end asked for {other:?}"),
+                        }
+                    }
+                    self.track(running);
+                    return match end.result {
+                        Ok(switch) => {
+                            self.switches.extend(switch.clone());
+                            Ok(switch)
+                        }
+                        Err(failure) => Err(self.explain(running, failure)),
+                    };
+                }
+            }
+        }
+    }
+
+    /// Carries out one of a sequence's commands.
+    fn carry_out(&mut self, running: &mut RunningLoop, command: Command) -> Carried {
+        let failed = |e: anyhow::Error| Carried::Failed(format!("{e:#}"));
+        match command {
+            Command::Launch {
+                role,
+                scenario,
+                generation,
+                joining,
+            } => {
+                self.clean_dead_nodes();
+                let launched = running.launch(role, &scenario, generation, joining);
+                self.track(running);
+                launched.map_or_else(failed, Carried::Launched)
+            }
+            Command::Order {
+                pid,
+                generation,
+                joining,
+                scenario,
+            } => self
+                .order(pid, generation, joining, &scenario)
+                .map_or_else(failed, |()| Carried::Done),
+            Command::Publish(activation) => self
+                .ports
+                .publish_activation(activation)
+                .map_or_else(failed, Carried::Published),
+            Command::HandOver {
+                role,
+                generation,
+                state,
+            } => {
+                self.ports.hand_over(role, &state);
+                if role == Role::Observer {
+                    self.ports
+                        .feed_replay(&mut self.replay, generation, state.seq);
+                }
+                Carried::Done
+            }
+            Command::Retire(pid) => {
+                let order = SpareOrder {
+                    pid: pid as u32,
+                    // To a serving standby: stop, and idle as a spare.
+                    joining: Joining::Spare.wire(),
+                    ..SpareOrder::default()
+                };
+                self.ports
+                    .send_order(order)
+                    .map_or_else(failed, |()| Carried::Done)
+            }
+            Command::Stop(pid) => {
+                running.terminate(pid);
+                Carried::Done
+            }
+        }
+    }
+
+    /// A failure as the user reads it: a new instance that exited points to
+    /// its stderr file.
+    fn explain(&self, running: &RunningLoop, failure: Failure) -> anyhow::Error {
+        if let Failure::NewInstanceExited { pid, .. } = failure {
+            let stderr = running
+                .children
+                .iter()
+                .find(|c| c.pid == pid)
+                .map(|c| self.files.run_dir().join(&c.stderr_file))
+                .unwrap_or_default();
+            return anyhow!("{failure}; see {}", stderr.display());
+        }
+        failure.into()
     }
 
     /// Stops one process whose exit is dealt with.
@@ -477,75 +558,23 @@ impl Conductor {
         self.files.publish(list);
     }
 
-    /// Replaces the active `role` by an instance running `scenario_path`.
+    /// Replaces the active `role` by an instance running `scenario`.
     pub fn swap(
         &mut self,
         running: &mut RunningLoop,
         role: Role,
         scenario_path: &Path,
     ) -> Result<Switch> {
-        let switch = self.operation(running, |c, running| {
-            c.swap_to(running, role, scenario_path)
-        });
-        self.publish_files();
-        switch
-    }
-
-    fn swap_to(
-        &mut self,
-        running: &mut RunningLoop,
-        role: Role,
-        scenario_path: &Path,
-    ) -> Result<Switch> {
         self.check_compatible(role, scenario_path)?;
-        let (old, generation) = self.core.plan_swap(role)?;
-        // A replacement follows a ticking loop (and a spare serves only then).
-        let since = Instant::now();
+        // The loop's newest sample: a replacement follows a ticking loop.
         self.poll();
-        while !self.core.ticking() {
-            if since.elapsed() > SHADOW_TIMEOUT || shutdown::requested() {
-                bail!("the loop did not start within {SHADOW_TIMEOUT:?}: nothing to swap into");
-            }
-            std::thread::sleep(Duration::from_millis(5));
-            self.poll();
-        }
-        let start_seq = self.core.last_seq().unwrap_or(0);
-        let (pid, warm) = self.engage(
-            running,
+        let order = Order::Swap {
             role,
-            scenario_path,
-            generation,
-            Joining::Replacement,
-        )?;
-        if let Err(e) = self.await_shadow(running, role, generation) {
-            self.stop(running, pid);
-            return Err(e);
-        }
-        let switch = self.activate(
-            running,
-            Incoming {
-                role,
-                generation,
-                start_seq,
-                warm,
-                old: Some(old),
-                announced: None,
-            },
-        )?;
-        self.record_action(self.core.note(
-            role,
-            Some(generation),
-            EventKind::Swap(Swap {
-                scenario: scenario_path.display().to_string(),
-                switch: switch.record(),
-                sender: None,
-            }),
-        ));
-        self.switches.push(switch.clone());
-        if role == Role::Controller {
-            self.renew_standby(running);
-        }
-        Ok(switch)
+            scenario: scenario_path.to_path_buf(),
+        };
+        let switch = self.conduct(running, order);
+        self.publish_files();
+        switch?.ok_or_else(|| anyhow!("the swap of flexloop-{} made no switch", role.name()))
     }
 
     fn record_action(&mut self, action: Action) {
@@ -576,47 +605,6 @@ impl Conductor {
         Ok(())
     }
 
-    /// Brings up `role` as `generation` running `scenario`, as the core
-    /// chooses: an idle warm spare, or a new process. Returns its pid and
-    /// whether it was a spare.
-    fn engage(
-        &mut self,
-        running: &mut RunningLoop,
-        role: Role,
-        scenario: &Path,
-        generation: u32,
-        joining: Joining,
-    ) -> Result<(i32, bool)> {
-        let own_program = crate::children::own_program(role, scenario)?.is_some();
-        let since = Instant::now();
-        // The first decision on what is known already: an idle spare is
-        // ordered at once (a restart's every look costs held ticks).
-        let mut first = true;
-        loop {
-            if !std::mem::take(&mut first) {
-                self.observe(running);
-            }
-            match self
-                .core
-                .engagement(role, since.elapsed() > SPARE_START_WAIT, own_program)
-            {
-                Engagement::WaitForSpare => std::thread::sleep(Duration::from_millis(1)),
-                Engagement::Order(pid) => {
-                    self.order(pid, generation, joining, scenario)?;
-                    self.core.ordered(pid, generation, joining, scenario);
-                    self.track(running);
-                    return Ok((pid, true));
-                }
-                Engagement::Start => {
-                    self.clean_dead_nodes();
-                    let pid = running.launch(role, scenario, generation, joining)?;
-                    self.track(running);
-                    return Ok((pid, false));
-                }
-            }
-        }
-    }
-
     /// Orders the idle spare `pid` to join as `generation` running `scenario`.
     fn order(&self, pid: i32, generation: u32, joining: Joining, scenario: &Path) -> Result<()> {
         let path = scenario
@@ -633,292 +621,13 @@ impl Conductor {
             .map_err(|e| anyhow!("{}: {e}", scenario.display()))?;
         self.ports.send_order(order)
     }
+}
 
-    /// Waits until the new instance follows the loop in shadow, handing it
-    /// meanwhile its dead predecessor's last state (and, to an observer, the
-    /// measurements since).
-    fn await_shadow(
-        &mut self,
-        running: &mut RunningLoop,
-        role: Role,
-        generation: u32,
-    ) -> Result<()> {
-        let since = Instant::now();
-        loop {
-            self.observe(running);
-            match self
-                .core
-                .shadow_step(role, generation, shutdown::requested())
-            {
-                ShadowStep::Following => return Ok(()),
-                ShadowStep::Failed(failure @ Failure::NewInstanceExited { pid, .. }) => {
-                    self.track(running);
-                    let stderr = running
-                        .children
-                        .iter()
-                        .find(|c| c.pid == pid)
-                        .map(|c| self.files.run_dir().join(&c.stderr_file));
-                    let stderr = stderr.unwrap_or_default();
-                    bail!("{failure}; see {}", stderr.display());
-                }
-                ShadowStep::Failed(failure) => return Err(failure.into()),
-                ShadowStep::Waiting { hand_over } => {
-                    if let Some(last) = hand_over {
-                        self.ports.hand_over(role, &last);
-                        if role == Role::Observer {
-                            self.ports
-                                .feed_replay(&mut self.replay, generation, last.seq);
-                        }
-                    }
-                }
-            }
-            if since.elapsed() > SHADOW_TIMEOUT {
-                bail!(
-                    "the new flexloop-{} did not follow the loop within {SHADOW_TIMEOUT:?}",
-                    role.name()
-                );
-            }
-            // 0.2 ms, not 5: a restarted observer waits for the state and
-            // the replayed measurements handed on here, and a restart's every
-            // millisecond is 10 held ticks (this runs off the loop's CPU,
-            // for the few milliseconds a restart takes).
-            std::thread::sleep(Duration::from_micros(200));
-        }
-    }
-
-    /// Announces the boundary (a swap's, ahead) unless announced already,
-    /// waits until the loop passed it (and the old instance, if any, left),
-    /// and measures the command's step there.
-    fn activate(&mut self, running: &mut RunningLoop, incoming: Incoming) -> Result<Switch> {
-        let Incoming {
-            role,
-            generation,
-            start_seq,
-            warm,
-            old,
-            announced,
-        } = incoming;
-        self.poll();
-        let from_seq = match announced {
-            Some(from_seq) => from_seq,
-            None => {
-                let from_seq = self.core.boundary_ahead();
-                self.announce(role, generation, from_seq)?;
-                from_seq
-            }
-        };
-        if let Some(pid) = old {
-            // Its exit (or, with warm spares, its retirement to a spare)
-            // after the boundary is the plan, not a crash.
-            self.core.settle(pid);
-        }
-        let since = Instant::now();
-        loop {
-            self.observe(running);
-            match self.core.drain_step(from_seq, old, shutdown::requested()) {
-                DrainStep::Passed => break,
-                DrainStep::RunEnded => return Err(Failure::RunEndedBeforeSwitch.into()),
-                DrainStep::Waiting => {}
-            }
-            if since.elapsed() > DRAIN_TIMEOUT {
-                if let Some(pid) = old {
-                    self.stop(running, pid);
-                }
-                bail!(
-                    "the loop did not pass the switch at sample {from_seq} within {DRAIN_TIMEOUT:?}"
-                );
-            }
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        Ok(self
-            .core
-            .switch(role, generation, start_seq, from_seq, warm))
-    }
-
-    /// Publishes that `generation` of `role` owns the samples from `from_seq` on.
-    fn announce(&mut self, role: Role, generation: u32, from_seq: u64) -> Result<()> {
-        let next = self.core.activation_for(role, generation, from_seq);
-        let published = self.ports.publish_activation(next)?;
-        self.core.announced(published);
-        Ok(())
-    }
-
-    /// Brings `role` back after its crash, as the core plans it.
-    fn restart(&mut self, running: &mut RunningLoop, role: Role) -> Result<()> {
-        let start_seq = self.core.last_seq().unwrap_or(0);
-        let is_program = |scenario: &Path| {
-            crate::children::own_program(role, scenario).is_ok_and(|p| p.is_some())
-        };
-        let (scenario, generation, owns_from, rolled_back_from) = match self
-            .core
-            .plan_restart(role, &is_program)?
-        {
-            RestartPlan::Promote { generation } => {
-                let incoming = Incoming {
-                    role: Role::Controller,
-                    generation,
-                    start_seq,
-                    warm: true,
-                    old: None,
-                    announced: None,
-                };
-                let switch = self.activate(running, incoming)?;
-                self.record_action(self.core.note(
-                    Role::Controller,
-                    Some(generation),
-                    EventKind::PromoteStandby(switch.record()),
-                ));
-                self.switches.push(switch);
-                return Ok(());
-            }
-            RestartPlan::Logger {
-                scenario,
-                generation,
-            } => {
-                // It only listens: nothing to hand over, no boundary to announce.
-                self.clean_dead_nodes();
-                running.launch(role, &scenario, generation, Joining::Restart)?;
-                self.track(running);
-                self.record_action(self.core.note(
-                    role,
-                    Some(generation),
-                    EventKind::Restart(Restart {
-                        files: Some(flexloop_runfiles::run_dir::logger_files(generation).into()),
-                        ..Restart::default()
-                    }),
-                ));
-                return Ok(());
-            }
-            RestartPlan::Fresh {
-                scenario,
-                generation,
-                owns_from,
-                rolled_back_from,
-            } => (scenario, generation, owns_from, rolled_back_from),
-        };
-        if let Some(from_seq) = owns_from {
-            self.announce(role, generation, from_seq)?;
-        }
-        let (pid, warm) = self.engage(running, role, &scenario, generation, Joining::Restart)?;
-        if !self.core.ticking() {
-            // Before tick 0 there is nothing to take over: the replacement
-            // owns every sample and starts the loop as the first one would.
-            if let Err(e) = self.announce(role, generation, 0) {
-                self.stop(running, pid);
-                return Err(e);
-            }
-            self.record_action(self.core.note(
-                role,
-                Some(generation),
-                EventKind::Restart(Restart {
-                    before_tick_0: true,
-                    ..Restart::default()
-                }),
-            ));
-            return Ok(());
-        }
-        // A failed attempt leaves nothing behind: the next one starts afresh.
-        let switch = self.await_shadow(running, role, generation).and_then(|_| {
-            let incoming = Incoming {
-                role,
-                generation,
-                start_seq,
-                warm,
-                old: None,
-                announced: owns_from,
-            };
-            self.activate(running, incoming)
-        });
-        let switch = match switch {
-            Ok(switch) => switch,
-            Err(e) => {
-                self.stop(running, pid);
-                return Err(e);
-            }
-        };
-        let restart = Restart {
-            switch: Some(switch.record()),
-            scenario: rolled_back_from
-                .is_some()
-                .then(|| scenario.display().to_string()),
-            rolled_back_from: rolled_back_from.map(|p| p.display().to_string()),
-            ..Restart::default()
-        };
-        self.record_action(
-            self.core
-                .note(role, Some(generation), EventKind::Restart(restart)),
-        );
-        self.switches.push(switch);
-        Ok(())
-    }
-
-    /// After a swap of the controller: a standby of the new design, if the
-    /// core asks for one; once it follows the loop, the old ones retire.
-    fn renew_standby(&mut self, running: &mut RunningLoop) {
-        let Some(renewal) = self.core.standby_renewal() else {
-            return;
-        };
-        let generation = renewal.generation;
-        let started = self
-            .engage(
-                running,
-                Role::Controller,
-                &renewal.scenario,
-                generation,
-                Joining::Standby,
-            )
-            .and_then(
-                |(pid, _)| match self.await_shadow(running, Role::Controller, generation) {
-                    Ok(()) => Ok(pid),
-                    Err(e) => {
-                        self.stop(running, pid);
-                        Err(e)
-                    }
-                },
-            );
-        let record = match started {
-            Ok(pid) => {
-                for &(old, _) in &renewal.old {
-                    self.retire(running, old);
-                }
-                let replaced: Vec<u32> = renewal.old.iter().map(|(_, g)| *g).collect();
-                self.core.note(
-                    Role::Controller,
-                    Some(generation),
-                    EventKind::Standby(Standby {
-                        pid,
-                        scenario: Some(renewal.scenario.display().to_string()),
-                        replaces: Some(replaced),
-                        ..Standby::default()
-                    }),
-                )
-            }
-            // The old standby stays: better one of the old design than none.
-            Err(e) => self.core.note(
-                Role::Controller,
-                Some(generation),
-                EventKind::StandbyFailed(format!("{e:#}")),
-            ),
-        };
-        self.record_action(record);
-    }
-
-    /// Tells a serving standby to become a spare, or stops it (as the core
-    /// says; also if the order cannot go out).
-    fn retire(&mut self, running: &mut RunningLoop, pid: i32) {
-        if self.core.retirement() == Retirement::Order {
-            let order = SpareOrder {
-                pid: pid as u32,
-                // To a serving standby: stop, and idle as a spare.
-                joining: Joining::Spare.wire(),
-                ..SpareOrder::default()
-            };
-            if self.ports.send_order(order).is_ok() {
-                self.core.retiring(pid, Instant::now());
-                return;
-            }
-        }
-        self.stop(running, pid);
+/// What the shell sees of the supervisor itself at a look.
+fn look() -> Look {
+    Look {
+        now: Instant::now(),
+        shutting_down: shutdown::requested(),
     }
 }
 

@@ -5,6 +5,7 @@
 use flexloop_node::Role;
 use flexloop_protocol::Handover;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// How a component is brought into the loop.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -83,10 +84,28 @@ pub struct Renewal {
 /// Why a swap or restart did not happen.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Failure {
+    /// Another swap, restart or standby's start is under way.
+    Busy,
+    /// Advanced with no sequence under way (a shell's mistake).
+    NoSequence,
     NoInstanceToRestart,
     NotRunning(Role),
     RunEndedBeforeFollowing,
     RunEndedBeforeSwitch,
+    /// The loop never ticked: nothing to swap into.
+    LoopNotTicking(Duration),
+    /// The new instance did not follow the loop in time.
+    NotFollowing {
+        role: Role,
+        timeout: Duration,
+    },
+    /// The loop did not pass the boundary in time.
+    NotPassed {
+        from_seq: u64,
+        timeout: Duration,
+    },
+    /// A command could not be carried out, and why.
+    Carrying(String),
     /// The new instance exited before it followed the loop.
     NewInstanceExited {
         role: Role,
@@ -99,12 +118,31 @@ pub enum Failure {
 impl std::fmt::Display for Failure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            Failure::Busy => write!(
+                f,
+                "another swap, restart or standby's start is under way; the order waits for its end"
+            ),
+            Failure::NoSequence => write!(f, "no swap or restart is under way"),
             Failure::NoInstanceToRestart => write!(f, "no instance to restart"),
             Failure::NotRunning(role) => write!(f, "no running flexloop-{}", role.name()),
             Failure::RunEndedBeforeFollowing => {
                 write!(f, "the run ended before the replacement followed it")
             }
             Failure::RunEndedBeforeSwitch => write!(f, "the run ended before the switch"),
+            Failure::LoopNotTicking(timeout) => write!(
+                f,
+                "the loop did not start within {timeout:?}: nothing to swap into"
+            ),
+            Failure::NotFollowing { role, timeout } => write!(
+                f,
+                "the new flexloop-{} did not follow the loop within {timeout:?}",
+                role.name()
+            ),
+            Failure::NotPassed { from_seq, timeout } => write!(
+                f,
+                "the loop did not pass the switch at sample {from_seq} within {timeout:?}"
+            ),
+            Failure::Carrying(why) => write!(f, "{why}"),
             Failure::NewInstanceExited {
                 role,
                 generation,

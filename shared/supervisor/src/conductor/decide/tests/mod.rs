@@ -773,11 +773,8 @@ fn a_standby_is_kept_once_the_loop_ticks() {
             generation: 1
         }]
     );
-    f.launch(23, Role::Controller, 1, Joining::Standby);
-    assert_eq!(
-        kinds(&[f.core.standby_engaged(1, &Ok((23, false)))]),
-        ["standby"]
-    );
+    let standby = f.standby(1);
+    assert_eq!(kinds(&standby.actions), ["standby"]);
     assert!(f.upkeep(0).is_empty(), "one is enough");
     assert_eq!(
         f.core.roster().serving(Role::Controller).unwrap().pid,
@@ -794,8 +791,12 @@ fn a_standby_that_fails_to_start_costs_the_restart_budget() {
     });
     f.sample(0);
     assert_eq!(f.upkeep(0).len(), 1);
-    let failed = f.core.standby_engaged(1, &Err(anyhow::anyhow!("no")));
-    assert_eq!(kinds(&[failed]), ["standby-failed"]);
+    f.begin(sequences::standby_order(1)).unwrap();
+    assert!(matches!(f.advance(0), Step::Carry(Command::Launch { .. })));
+    f.carried(Carried::Failed("no".into()), 0);
+    let failed = f.done(0);
+    assert_eq!(kinds(&failed.actions), ["standby-failed"]);
+    assert_eq!(failed.result, Ok(None), "the loop goes on without");
     assert!(f.upkeep(0).is_empty(), "past the budget");
 }
 
@@ -1375,3 +1376,5 @@ fn a_hung_controller_with_a_standby_hands_the_loop_to_it() {
         Ok(RestartPlan::Promote { generation: 1 })
     );
 }
+
+mod sequences;
