@@ -16,6 +16,10 @@
 //! state space ([`real_modal_form`], from discrete time through
 //! [`zoh_inverse`]); each becomes a [`modal::ModalModel`], errors in
 //! [`plant_model_error`].
+//!
+//! A plant measured on the running loop ([`multisine`], [`frf`]) is fitted
+//! with a modal model by [`modal_fit`], which also gives it as a continuous
+//! state space to write as a plant file.
 
 pub mod lti;
 
@@ -38,6 +42,7 @@ pub mod lqr;
 pub mod lumped_network;
 pub mod matrix_error;
 pub mod modal;
+pub mod modal_fit;
 pub mod models;
 pub mod modified_feedforward;
 pub mod multisine;

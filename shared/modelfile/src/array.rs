@@ -29,6 +29,23 @@ impl Array {
         Self::new(shape, row_major)
     }
 
+    /// A matrix as a 2-D array (`[rows, columns]`, entries row by row), as
+    /// [`ModelArrays::matrix`](crate::ModelArrays::matrix) gives it back.
+    pub fn from_matrix(matrix: &nalgebra::DMatrix<f64>) -> Self {
+        Self {
+            shape: vec![matrix.nrows(), matrix.ncols()],
+            data: matrix.transpose().as_slice().to_vec(),
+        }
+    }
+
+    /// A single number (a 0-D array, as `np.savez` writes a Python float).
+    pub fn scalar(value: f64) -> Self {
+        Self {
+            shape: Vec::new(),
+            data: vec![value],
+        }
+    }
+
     pub fn shape(&self) -> &[usize] {
         &self.shape
     }

@@ -140,6 +140,11 @@ pub enum ModelFileErrorKind {
     InlineMixed,
     /// An inline array nested deeper than rows of numbers.
     InlineTooDeep,
+    /// The file cannot be written (the directory, the disk, the name).
+    Write { reason: String },
+    /// A name the writer does not give an array
+    /// (see [`ModelArrays::write_npz`](crate::ModelArrays::write_npz)).
+    InvalidName,
 }
 
 impl fmt::Display for ModelFileErrorKind {
@@ -266,6 +271,12 @@ impl fmt::Display for ModelFileErrorKind {
             InlineTooDeep => write!(
                 f,
                 "is nested deeper than rows of numbers; a model array is a matrix ([[1.0, 2.0], [3.0, 4.0]]), a vector ([1.0, 2.0]) or a number"
+            ),
+            Write { reason } => write!(f, "cannot write the file: {reason}"),
+            InvalidName => write!(
+                f,
+                "is not a name an array is written under: a letter, then letters, digits or \
+                 underscores, at most 63 in all (what np.load and MATLAB both take)"
             ),
         }
     }

@@ -4,7 +4,9 @@
 //!
 //! - [`ModelArrays`]: read from a NumPy `.npz` (`np.savez`), a MATLAB level-5
 //!   `.mat` (`save`, scipy.io.savemat) or a table of the scenario's TOML, and
-//!   taken by name as a matrix, a vector or a number.
+//!   taken by name as a matrix, a vector or a number; and written as an
+//!   `.npz` ([`ModelArrays::write_npz`]) that it reads back, e.g. a model
+//!   fitted to a measurement.
 //! - [`Array`], [`VectorAs`]: one array as read, and how a 1-D one is taken.
 //! - [`ModelFileError`]: errors naming the file (or scenario table), the array
 //!   and the reason.
@@ -23,6 +25,7 @@ pub mod limits;
 mod mat;
 mod model_arrays;
 mod npz;
+mod npz_write;
 mod read;
 
 pub use array::{Array, VectorAs};

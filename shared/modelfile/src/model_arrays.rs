@@ -49,6 +49,21 @@ impl ModelArrays {
         Self::from_bytes(source, format, &bytes)
     }
 
+    /// Writes `arrays` (name, array) as a NumPy `.npz` archive at `path`, as
+    /// `np.savez` does (float64, C order, stored): what [`ModelArrays::read`]
+    /// and `np.load` read back, e.g. `A`, `B`, `C`, `D` of a `state-space`
+    /// plant (docs/own-plant.md). Refused, naming the array, before anything
+    /// is written: a name other than a letter then letters, digits or
+    /// underscores; a name given twice; more arrays, or an array larger, than
+    /// flexloop reads ([`limits`](crate::limits)); a NaN or infinite entry.
+    /// The archive goes to a temporary file in `path`'s directory, renamed
+    /// over `path` once whole: no half-written file is ever at `path`, and a
+    /// failed write leaves none beside it.
+    pub fn write_npz(path: &Path, arrays: &[(&str, Array)]) -> Result<(), ModelFileError> {
+        let source = ArraySource::File(path.to_path_buf());
+        crate::npz_write::write(path, arrays).map_err(|fault| fault.at(&source))
+    }
+
     /// Reads the bytes of a model file of `format`; `source` names it in errors.
     pub fn from_bytes(
         source: ArraySource,
