@@ -501,8 +501,10 @@ fn a_crashed_controller_with_a_following_standby_promotes_it_at_a_boundary_ahead
 
 // ---- the standby ----
 
-#[test]
-fn a_controller_swap_renews_the_standby_and_retires_the_old_one() {
+/// A loop with a standby (generation 1, pid 23) whose controller is swapped
+/// to `retuned.toml` as generation 2, up to the renewed standby's start
+/// (generation 3, pid NEW + 1).
+fn swapped_with_a_standby() -> Fixture {
     let mut f = Fixture::new(Policy {
         warm_spares: false,
         ..standby()
@@ -515,7 +517,7 @@ fn a_controller_swap_renews_the_standby_and_retires_the_old_one() {
     f.publishes(1, Role::Controller);
     f.exit(CONTROLLER, 0, 2);
     f.runs(101..800);
-    // Passed: a standby of the new design (pid NEW + 1 here).
+    // Passed: a standby of the new design.
     match f.advance(3) {
         Step::Carry(Command::Launch {
             generation,
@@ -530,6 +532,12 @@ fn a_controller_swap_renews_the_standby_and_retires_the_old_one() {
         }
         other => panic!("expected the renewed standby, got {other:?}"),
     }
+    f
+}
+
+#[test]
+fn a_controller_swap_renews_the_standby_and_retires_the_old_one() {
+    let mut f = swapped_with_a_standby();
     f.waits(4);
     f.state(Role::Controller, 3, 800, FOLLOWING);
     // Without warm spares, the old standby is stopped.
@@ -545,25 +553,7 @@ fn a_controller_swap_renews_the_standby_and_retires_the_old_one() {
 
 #[test]
 fn a_renewed_standby_that_never_follows_leaves_the_old_one_and_the_swap_stands() {
-    let mut f = Fixture::new(Policy {
-        warm_spares: false,
-        ..standby()
-    });
-    f.runs(1..101);
-    f.standby(1);
-    f.begin(swap(Role::Controller)).unwrap();
-    f.launches(0, Role::Controller, 2, Joining::Replacement);
-    f.state(Role::Controller, 2, 100, FOLLOWING);
-    f.publishes(1, Role::Controller);
-    f.exit(CONTROLLER, 0, 2);
-    f.runs(101..800);
-    match f.advance(3) {
-        Step::Carry(Command::Launch { scenario, .. }) => {
-            f.launch_with(NEW + 1, Role::Controller, 3, Joining::Standby, scenario);
-            f.carried(Carried::Launched(NEW + 1), 3);
-        }
-        other => panic!("expected the renewed standby, got {other:?}"),
-    }
+    let mut f = swapped_with_a_standby();
     f.stops(30_010, NEW + 1);
     let end = f.done(30_010);
     assert_eq!(kinds(&end.actions), ["swap", "standby-failed"]);
