@@ -66,7 +66,7 @@ class _Message(ctypes.Structure):
 class Measurement(_Message):
     """y(k) from the plant, published at tick k."""
 
-    TYPE_NAME = "flexloop.Measurement.v3"
+    TYPE_NAME = "flexloop.Measurement.v4"
     _fields_ = [
         ("seq", u64),
         ("tick_ns", u64),
@@ -87,6 +87,7 @@ class Measurement(_Message):
         ("y_true", f64 * MAX_OUTPUTS),
         ("u_applied", f64 * MAX_INPUTS),
         ("u_pending", f64 * MAX_INPUTS),
+        ("excitation", f64),
     ]
 
 

@@ -5,7 +5,7 @@
 //! exact ZOH model and the design's loop report.
 
 use flexloop_analysis::loop_report::loop_check;
-use flexloop_components::{InProcessLoop, InjectionPoint};
+use flexloop_components::{InProcessLoop, InjectionPoint, ScheduledExcitation};
 use flexloop_control::freq::freq_response_discrete;
 use flexloop_control::frf::{Frf, LineSpectra};
 use flexloop_control::multisine::{Multisine, MultisineSource, MultisineSpec, Phases};
@@ -74,8 +74,10 @@ fn excite(
 ) -> (LineSpectra, LineSpectra, LineSpectra) {
     let n = signal.period_samples();
     let mut l = InProcessLoop::new(design).unwrap();
-    l.plant
-        .set_excitation(Some((point, MultisineSource::new(signal.clone(), 0))));
+    l.plant.set_excitation(Some(ScheduledExcitation::from_now(
+        point,
+        MultisineSource::new(signal.clone(), 0),
+    )));
     let ticks = n * (TRANSIENT_PERIODS + PERIODS);
     let (mut d, mut u, mut y) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..ticks {

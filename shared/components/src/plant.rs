@@ -21,8 +21,8 @@
 //! the one that fits.
 
 use crate::noise::Gaussian;
+use flexloop_control::excitation::{InjectionPoint, ScheduledExcitation};
 use flexloop_control::lti::LtiRunner;
-use flexloop_control::multisine::MultisineSource;
 use flexloop_design::LoopDesign;
 use flexloop_design::reference::Reference;
 use flexloop_design::sensor_scan::SensorScan;
@@ -75,15 +75,6 @@ struct ScannedSensor {
     row: Vec<f64>,
 }
 
-/// Where a measurement's excitation enters the loop (docs/control.md §14).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum InjectionPoint {
-    /// Added to the first input, as a force beside the applied command.
-    PlantInput,
-    /// Added to the first measured output, as a sensor error would be.
-    Sensor,
-}
-
 pub struct PlantCore {
     model: LtiRunner,
     scanned: Option<ScannedSensor>,
@@ -126,7 +117,7 @@ pub struct PlantCore {
     applied_seq: u64,
     /// An excitation for a frequency-response measurement (docs/control.md
     /// §14), where it is added, and its value this tick.
-    excitation: Option<(InjectionPoint, MultisineSource)>,
+    excitation: Option<ScheduledExcitation>,
     excitation_now: f64,
     pub counters: PlantCounters,
     pub latencies: PlantLatencies,
@@ -170,18 +161,18 @@ impl PlantCore {
             y_true: [0.0; MAX_OUTPUTS],
             previous_tick_stalled: false,
             applied_seq: NO_SEQ,
-            excitation: None,
+            excitation: design.measurement.as_ref().map(ScheduledExcitation::new),
             excitation_now: 0.0,
             counters: PlantCounters::default(),
             latencies: PlantLatencies::default(),
         }
     }
 
-    /// Adds `source` at `point` from the next tick on (None: no
+    /// Replaces the design's measurement, if any, by `excitation` (None: no
     /// excitation). At the plant input the recorded `u_applied` stays the
     /// command and the plant's input is both; at the sensor the recorded `y`
     /// is the measurement with it, `y_true` without.
-    pub fn set_excitation(&mut self, excitation: Option<(InjectionPoint, MultisineSource)>) {
+    pub fn set_excitation(&mut self, excitation: Option<ScheduledExcitation>) {
         self.excitation = excitation;
         self.excitation_now = 0.0;
     }
@@ -193,8 +184,8 @@ impl PlantCore {
 
     /// The excitation at the plant input this tick (0 at the sensor or without).
     fn input_excitation(&self) -> f64 {
-        match self.excitation {
-            Some((InjectionPoint::PlantInput, _)) => self.excitation_now,
+        match &self.excitation {
+            Some(e) if e.point() == InjectionPoint::PlantInput => self.excitation_now,
             _ => 0.0,
         }
     }
@@ -371,7 +362,7 @@ impl PlantCore {
         self.excitation_now = self
             .excitation
             .as_mut()
-            .map_or(0.0, |(_, source)| source.next_value());
+            .map_or(0.0, |excitation| excitation.value_at(k));
 
         match &mut self.scanned {
             // The one output of a scanned sensor: its row at this tick's
@@ -427,9 +418,14 @@ impl PlantCore {
             out.y_true[i] = self.y_true[i];
             out.y[i] = self.y_true[i] - v + d;
         }
-        if let Some((InjectionPoint::Sensor, _)) = self.excitation {
+        if self
+            .excitation
+            .as_ref()
+            .is_some_and(|e| e.point() == InjectionPoint::Sensor)
+        {
             out.y[0] += self.excitation_now;
         }
+        out.excitation = self.excitation_now;
         out.u_applied[..self.n_inputs].copy_from_slice(&self.held[..self.n_inputs]);
         if self.extra_delay {
             out.u_pending[..self.n_inputs].copy_from_slice(&self.pending[..self.n_inputs]);

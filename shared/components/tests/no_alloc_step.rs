@@ -279,34 +279,37 @@ fn an_io_observer_does_not_allocate() {
     assert_eq!(l.plant.counters.misses, 0);
 }
 
-/// The plant with a frequency-response measurement's excitation added to
-/// its input (docs/control.md §14), through the excitation's fade in.
+/// The plant running a scenario's `[measure]` (docs/control.md §14), at
+/// each point: through the excitation's fade in, its periods, its fade out
+/// and after it.
 #[test]
 fn an_excited_plant_does_not_allocate() {
-    use flexloop_control::multisine::{Multisine, MultisineSource, MultisineSpec, Phases};
-    let design = LoopDesign::from_scenario(&default_scenario()).unwrap();
-    let signal = Multisine::design(&MultisineSpec {
-        rate_hz: 1.0 / design.ts,
-        period_samples: 1_000,
-        f_min_hz: 10.0,
-        f_max_hz: 2_000.0,
-        max_lines: 30,
-        amplitude: 0.05 * design.input_limit,
-        phases: Phases::Schroeder,
-    })
-    .unwrap();
-    let mut l = InProcessLoop::new(&design).unwrap();
-    l.plant.set_excitation(Some((
-        flexloop_components::InjectionPoint::PlantInput,
-        MultisineSource::new(signal, 500),
-    )));
-    let mut largest = 0.0_f64;
-    assert_no_alloc(|| {
-        for _ in 0..TICKS {
-            l.tick();
-            largest = largest.max(l.plant.excitation().abs());
+    for point in ["plant-input", "sensor"] {
+        let mut s = default_scenario();
+        let text = format!(
+            "point = \"{point}\"\nf_min_hz = 20.0\nf_max_hz = 2000.0\nlines = 30\n\
+             period_samples = 500\namplitude = 1e-7\ntransient_periods = 1\nperiods = 3\n\
+             start_s = 0.05"
+        );
+        s.measure = Some(toml::from_str(&text).unwrap());
+        if point == "plant-input" {
+            s.measure.as_mut().unwrap().amplitude = 0.05 * s.plant.input_limit;
         }
-    });
-    assert!(largest > 0.0);
-    assert_eq!(l.plant.counters.misses, 0);
+        s.validate().unwrap();
+        let design = LoopDesign::from_scenario(&s).unwrap();
+        let plan = design.measurement.clone().unwrap();
+        // Past the fade out: 0.05 s + 5 periods = 3000 ticks.
+        assert!(plan.end_tick() < TICKS as u64);
+        let mut l = InProcessLoop::new(&design).unwrap();
+        let mut largest = 0.0_f64;
+        assert_no_alloc(|| {
+            for _ in 0..TICKS {
+                l.tick();
+                largest = largest.max(l.plant.excitation().abs());
+            }
+        });
+        assert!(largest > 0.0, "{point}");
+        assert_eq!(l.plant.excitation(), 0.0, "{point}: off after the fade out");
+        assert_eq!(l.plant.counters.misses, 0);
+    }
 }

@@ -30,6 +30,7 @@ pub mod damping;
 pub mod dare;
 pub mod design_error;
 pub mod discretise;
+pub mod excitation;
 pub mod feedforward;
 pub mod freq;
 pub mod frf;

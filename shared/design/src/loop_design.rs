@@ -13,6 +13,7 @@ use crate::pid_bandwidth::{self, PidBandwidthChoice};
 use crate::plants::{model_parts, with_input_disturbance};
 use crate::reference::{Derivatives, Reference};
 use crate::sensor_scan::{SensorScan, design_sensor_scan};
+use flexloop_control::excitation::ExcitationPlan;
 use flexloop_control::lti::DiscreteStateSpace;
 use flexloop_control::observer_block::ObserverBlock;
 use flexloop_scenario::{Scenario, ScenarioError};
@@ -89,6 +90,9 @@ pub struct LoopDesign {
     /// output row and the observer follow the position every tick. The
     /// blocks above are then the design frozen at the scan's start.
     pub sensor_scan: Option<SensorScan>,
+    /// The scenario's `[measure]`: the excitation the plant adds, where and
+    /// when (docs/control.md, "Measuring the loop").
+    pub measurement: Option<ExcitationPlan>,
 }
 
 impl LoopDesign {
@@ -171,6 +175,7 @@ impl LoopDesign {
             flexible_modes: parts.flexible_modes,
             observer_modes: parts.observer_modes,
             sensor_scan,
+            measurement: s.measurement_plan()?,
         })
     }
 }

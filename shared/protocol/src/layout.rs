@@ -165,6 +165,7 @@ pub const MEASUREMENT: MessageLayout = MessageLayout {
         field!(Measurement, y_true: F64[MAX_OUTPUTS]; Outputs, "m", "noise-free outputs"),
         field!(Measurement, u_applied: F64[MAX_INPUTS]; Inputs, "N", "input applied over [t_k, t_k+1)"),
         field!(Measurement, u_pending: F64[MAX_INPUTS]; Inputs, "N", "input accepted for [t_k+1, t_k+2) (extra delay only)"),
+        field!(Measurement, excitation: F64; One, "", "measurement excitation added at tick k: N at the plant input, m at the sensor"),
     ],
 };
 

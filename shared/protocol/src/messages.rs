@@ -64,7 +64,7 @@ pub mod flags {
 /// y(k) from the plant, published at tick k.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.Measurement.v3")]
+#[type_name("flexloop.Measurement.v4")]
 pub struct Measurement {
     pub seq: u64,
     /// Scheduled time of tick k (CLOCK_MONOTONIC ns).
@@ -104,6 +104,10 @@ pub struct Measurement {
     /// of loop delay the observer needs it to predict two samples ahead.
     /// Zero without extra delay.
     pub u_pending: [f64; MAX_INPUTS],
+    /// A measurement's excitation added at tick k (docs/control.md,
+    /// "Measuring the loop"): at the plant input a force beside
+    /// `u_applied`, at the sensor already inside `y`. Zero without one.
+    pub excitation: f64,
 }
 
 /// The observer's contribution for tick `seq`, computed from measurement `seq - 1`.

@@ -165,7 +165,7 @@ mod tests {
         let d = description();
         let messages = d["messages"].as_array().unwrap();
         assert_eq!(messages.len(), 5);
-        assert_eq!(messages[0]["iceoryx2_type_name"], "flexloop.Measurement.v3");
+        assert_eq!(messages[0]["iceoryx2_type_name"], "flexloop.Measurement.v4");
         for m in messages {
             let fields = m["fields"].as_array().unwrap();
             let last = fields.last().unwrap();

@@ -25,6 +25,7 @@ pub mod swap;
 pub mod tick;
 pub mod tune;
 mod validate;
+mod validate_measure;
 mod validate_plant;
 
 pub use error::ScenarioError;

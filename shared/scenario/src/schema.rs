@@ -56,6 +56,10 @@ pub struct Scenario {
     pub logger: LoggerSection,
     #[serde(default)]
     pub supervision: SupervisionSection,
+    /// A frequency-response measurement while the loop runs
+    /// (docs/control.md, "Measuring the loop").
+    #[serde(default)]
+    pub measure: Option<MeasureSection>,
     /// The file it was read from (not part of the format).
     #[serde(skip)]
     pub source: PathBuf,
@@ -693,6 +697,70 @@ pub enum SafeAction {
 pub enum RestartPolicy {
     OnCrash,
     Never,
+}
+
+/// A measurement's excitation: a periodic multisine added at one point of
+/// the running loop (docs/control.md, "Measuring the loop").
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeasureSection {
+    /// Where it enters: `"plant-input"` (a force beside the command, N) or
+    /// `"sensor"` (added to the first measured output, m).
+    pub point: MeasurePoint,
+    pub f_min_hz: f64,
+    pub f_max_hz: f64,
+    /// At most this many log-spaced lines (fewer where DFT bins coincide).
+    #[serde(default = "default_measure_lines")]
+    pub lines: usize,
+    /// Samples in one period; by default the loop's rate over `f_min_hz`,
+    /// so that the lowest line is the period's first bin.
+    pub period_samples: Option<usize>,
+    /// The largest |value| the excitation takes (N or m, as the point).
+    pub amplitude: f64,
+    #[serde(default)]
+    pub phases: MeasurePhases,
+    /// The random phases' seed (with `phases = "random"` only).
+    pub seed: Option<u64>,
+    /// Periods dropped before the measured ones; the first is the fade-in.
+    #[serde(default = "default_transient_periods")]
+    pub transient_periods: usize,
+    /// Periods measured and averaged.
+    #[serde(default = "default_measured_periods")]
+    pub periods: usize,
+    /// Loop time at which the excitation starts (the loop settles first).
+    #[serde(default = "default_measure_start")]
+    pub start_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeasurePoint {
+    PlantInput,
+    Sensor,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeasurePhases {
+    #[default]
+    Schroeder,
+    Random,
+}
+
+fn default_measure_lines() -> usize {
+    60
+}
+
+fn default_transient_periods() -> usize {
+    2
+}
+
+fn default_measured_periods() -> usize {
+    10
+}
+
+fn default_measure_start() -> f64 {
+    0.1
 }
 
 /// Watchdogs and restarts.

@@ -37,6 +37,9 @@ pub fn swap_conflicts(running: &Scenario, new: &Scenario, swapped: Swapped) -> V
         running.timing.command_deadline_us != new.timing.command_deadline_us,
     );
     // (loop.duration_s is the plant's alone: it ends the run.)
+    // The plant runs the measurement the loop started with; a swapped-in
+    // file's would not act.
+    check("measure", running.measure != new.measure);
     plant_conflicts(&running.plant, &new.plant, &mut check);
     // The same file name next to another scenario is another file, and the
     // same file by another path (relative, absolute) the same.

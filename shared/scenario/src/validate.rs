@@ -54,6 +54,7 @@ impl Scenario {
         )?;
         self.validate_command_deadline()?;
         self.validate_program()?;
+        self.validate_measure()?;
         self.within(
             "loop.duration_s",
             self.timing.duration_s,

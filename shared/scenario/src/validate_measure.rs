@@ -1,0 +1,192 @@
+//! `[measure]`: the field checks, and the excitation the loop runs from it
+//! (docs/control.md, "Measuring the loop").
+
+use crate::error::{ScenarioError, number};
+use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, Scenario};
+use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
+use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases};
+
+/// The most lines a measurement excites: more than any response needs, and
+/// the crest-factor design's cost grows with them.
+const MAX_LINES: usize = 1_000;
+/// The longest period: 8 MiB of samples, a 0.01 Hz grid at 10 kHz.
+const MAX_PERIOD_SAMPLES: usize = 1 << 20;
+const MAX_PERIODS: usize = 1_000;
+/// At plant input the excitation takes at most this share of the input
+/// limit: the controller keeps the rest for its own command.
+pub const INPUT_SHARE: f64 = 0.5;
+
+impl Scenario {
+    /// The checks that need no design: ranges, and what applies.
+    pub(crate) fn validate_measure(&self) -> Result<(), ScenarioError> {
+        let Some(m) = &self.measure else {
+            return Ok(());
+        };
+        if !(1..=MAX_LINES).contains(&m.lines) {
+            return Err(self.err(
+                "measure.lines",
+                format!("must lie in 1..={MAX_LINES}, got {}", m.lines),
+            ));
+        }
+        if !(1..=MAX_PERIODS).contains(&m.periods) {
+            return Err(self.err(
+                "measure.periods",
+                format!("must lie in 1..={MAX_PERIODS}, got {}", m.periods),
+            ));
+        }
+        if !(1..=MAX_PERIODS).contains(&m.transient_periods) {
+            return Err(self.err(
+                "measure.transient_periods",
+                format!(
+                    "must lie in 1..={MAX_PERIODS} (the first is the fade-in), got {}",
+                    m.transient_periods
+                ),
+            ));
+        }
+        if m.seed.is_some() && m.phases != MeasurePhases::Random {
+            return Err(self.err(
+                "measure.seed",
+                "applies to `phases = \"random\"` only; Schroeder's phases have no seed",
+            ));
+        }
+        self.within(
+            "measure.start_s",
+            m.start_s,
+            0.0,
+            crate::limits::DURATION_S_MAX,
+            "s",
+        )?;
+        let nyquist = 0.5 * self.timing.rate_hz;
+        if !(m.f_max_hz.is_finite() && m.f_max_hz < nyquist) {
+            return Err(self.err(
+                "measure.f_max_hz",
+                format!(
+                    "{} Hz is not below the loop's Nyquist frequency, {} Hz",
+                    number(m.f_max_hz),
+                    number(nyquist)
+                ),
+            ));
+        }
+        if !(m.f_min_hz.is_finite() && m.f_min_hz > 0.0 && m.f_min_hz < m.f_max_hz) {
+            return Err(self.err(
+                "measure.f_min_hz",
+                format!(
+                    "{} Hz must be positive and below measure.f_max_hz ({} Hz)",
+                    number(m.f_min_hz),
+                    number(m.f_max_hz)
+                ),
+            ));
+        }
+        let samples = self.measure_period_samples(m);
+        if !(4..=MAX_PERIOD_SAMPLES).contains(&samples) {
+            return Err(self.err(
+                "measure.period_samples",
+                format!("must lie in 4..={MAX_PERIOD_SAMPLES}, got {samples}"),
+            ));
+        }
+        // The grid must reach down to the band's lowest frequency.
+        let resolution = self.timing.rate_hz / samples as f64;
+        if resolution > m.f_min_hz * (1.0 + 1e-9) {
+            return Err(self.err(
+                "measure.period_samples",
+                format!(
+                    "a period of {samples} samples has lines every {} Hz, above \
+                     measure.f_min_hz = {} Hz: lengthen it to at least {} samples",
+                    number(resolution),
+                    number(m.f_min_hz),
+                    (self.timing.rate_hz / m.f_min_hz).ceil()
+                ),
+            ));
+        }
+        if !(m.amplitude.is_finite() && m.amplitude > 0.0) {
+            return Err(self.err(
+                "measure.amplitude",
+                format!("must be a positive number, got {}", number(m.amplitude)),
+            ));
+        }
+        let share = INPUT_SHARE * self.plant.input_limit;
+        if m.point == MeasurePoint::PlantInput && m.amplitude > share {
+            return Err(self.err(
+                "measure.amplitude",
+                format!(
+                    "{} N would saturate the actuator: at the plant input the excitation may take \
+                     at most half of plant.input_limit ({} N), the controller keeps the rest",
+                    number(m.amplitude),
+                    number(share)
+                ),
+            ));
+        }
+        // The whole measurement, fade-out included, within the run.
+        if let Some(ticks) = self.ticks() {
+            let needed = self.measure_start_tick(m)
+                + ((m.transient_periods + m.periods + 1) * samples) as u64;
+            if needed > ticks {
+                return Err(self.err(
+                    "measure.periods",
+                    format!(
+                        "the measurement runs until {} s (its start, {} transient and {} \
+                         measured periods of {samples} samples, and the fade-out), past \
+                         loop.duration_s = {} s",
+                        number(needed as f64 / self.timing.rate_hz),
+                        m.transient_periods,
+                        m.periods,
+                        number(self.timing.duration_s)
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn measure_period_samples(&self, m: &MeasureSection) -> usize {
+        m.period_samples
+            .unwrap_or_else(|| (self.timing.rate_hz / m.f_min_hz).round() as usize)
+    }
+
+    fn measure_start_tick(&self, m: &MeasureSection) -> u64 {
+        (m.start_s * self.timing.rate_hz).round() as u64
+    }
+
+    /// The excitation the loop runs, designed (milliseconds: the crest
+    /// factor's iterations), or None without `[measure]`.
+    pub fn measurement_plan(&self) -> Result<Option<ExcitationPlan>, ScenarioError> {
+        let Some(m) = &self.measure else {
+            return Ok(None);
+        };
+        let spec = MultisineSpec {
+            rate_hz: self.timing.rate_hz,
+            period_samples: self.measure_period_samples(m),
+            f_min_hz: m.f_min_hz,
+            f_max_hz: m.f_max_hz,
+            max_lines: m.lines,
+            amplitude: m.amplitude,
+            phases: match m.phases {
+                MeasurePhases::Schroeder => Phases::Schroeder,
+                MeasurePhases::Random => Phases::Random {
+                    seed: m.seed.unwrap_or(0),
+                },
+            },
+        };
+        let signal = Multisine::design(&spec).map_err(|e| {
+            let field = match e {
+                MultisineError::PeriodTooShort { .. } | MultisineError::NoLineInBand { .. } => {
+                    "measure.period_samples"
+                }
+                MultisineError::BadBand { .. } => "measure.f_min_hz",
+                MultisineError::AboveNyquist { .. } => "measure.f_max_hz",
+                MultisineError::BadAmplitude(_) => "measure.amplitude",
+            };
+            self.err(field, e.to_string())
+        })?;
+        Ok(Some(ExcitationPlan {
+            point: match m.point {
+                MeasurePoint::PlantInput => InjectionPoint::PlantInput,
+                MeasurePoint::Sensor => InjectionPoint::Sensor,
+            },
+            signal,
+            start_tick: self.measure_start_tick(m),
+            transient_periods: m.transient_periods,
+            periods: m.periods,
+        }))
+    }
+}
