@@ -9,7 +9,7 @@
 //! - [`tune`]: `get` and `set`, live tuning of a running loop.
 //! - [`run`]: `run` and `fit-ff`; [`bench`], [`sweep`], [`logging_cost`],
 //!   [`live_cost`], [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`],
-//!   [`design`], [`positions`], [`export`].
+//!   [`design`], [`positions`], [`export`]; [`measure`]: `measure`.
 
 mod ab_table;
 mod bench;
@@ -22,6 +22,7 @@ mod live_cost;
 mod live_view;
 mod logging_cost;
 mod loop_command;
+mod measure;
 mod positions;
 mod probes;
 mod report;
@@ -54,6 +55,8 @@ enum Command {
     /// Fit the four feedforward gains from a recorded run and write them into a scenario file.
     #[command(alias = "tune-ff")]
     FitFf(run::FitFfArgs),
+    /// The frequency responses a run's [measure] excited, against the design; --fit: a plant file fitted to them.
+    Measure(measure::MeasureArgs),
     /// Design report of the scenario's loop (and the thesis chain's) before anything runs.
     Design(design::DesignArgs),
     /// Table 4.1: rms e_true over the scan with the sensor along the chain.
@@ -134,6 +137,7 @@ fn dispatch(command: Command) -> anyhow::Result<i32> {
         Command::Report(args) => report::report(args),
         Command::FitFf(args) => run::fit_ff(args),
         Command::Design(args) => design::design(args),
+        Command::Measure(args) => measure::measure(args),
         Command::Positions(args) => positions::positions(args),
         Command::Export(args) => export::export(args),
         Command::Down(args) => running::down(args),

@@ -12,6 +12,7 @@ mod design;
 mod hangs;
 mod live_view;
 mod loop_processes;
+mod measure;
 mod mimo;
 mod observer_restart;
 mod own_components;

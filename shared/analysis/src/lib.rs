@@ -32,6 +32,7 @@ pub mod fault_recovery;
 pub mod feedforward_fit;
 pub mod flexible;
 pub mod latency_log;
+pub mod loop_measurement;
 pub mod loop_report;
 pub mod metrics;
 pub mod modal_damping;

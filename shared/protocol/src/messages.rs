@@ -259,7 +259,7 @@ mod tests {
         // (and bump the type name version).
         assert_eq!(
             core::mem::size_of::<Measurement>(),
-            11 * 8 + 4 * 4 + 4 * 8 * 8
+            11 * 8 + 4 * 4 + 4 * 8 * 8 + 8
         );
         assert_eq!(core::mem::align_of::<Measurement>(), 8);
         assert_eq!(core::mem::size_of::<Command>(), 7 * 8 + 4 * 4 + 6 * 8 * 8);

@@ -69,6 +69,11 @@ impl RunDir {
         self.join(Self::SCENARIO_COPY)
     }
 
+    /// The folder `flexloop measure` writes a measurement's files into.
+    pub fn measurement(&self) -> PathBuf {
+        self.join("measurement")
+    }
+
     pub fn summary(&self) -> PathBuf {
         self.join(Self::SUMMARY)
     }

@@ -6,9 +6,10 @@ use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, Scenario};
 use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
 use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases};
 
-/// The most lines a measurement excites: more than any response needs, and
-/// the crest-factor design's cost grows with them.
-const MAX_LINES: usize = 1_000;
+/// The most lines a measurement excites: more than a response needs over a
+/// few decades, and what an array of the frequency-response file holds
+/// (`flexloop_modelfile::limits`).
+const MAX_LINES: usize = 128;
 /// The longest period: 8 MiB of samples, a 0.01 Hz grid at 10 kHz.
 const MAX_PERIOD_SAMPLES: usize = 1 << 20;
 const MAX_PERIODS: usize = 1_000;

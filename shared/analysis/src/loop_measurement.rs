@@ -1,0 +1,612 @@
+//! A frequency-response measurement of the running loop, from its recorded
+//! signals (docs/control.md, "Measuring the loop").
+//!
+//! The scenario's `[measure]` added a periodic multisine at one point; the
+//! sample file holds it (the measurement's `excitation`), the plant's input
+//! and its outputs. With the excitation as the instrument each response is
+//! a ratio of period-averaged line spectra, closed loop, with no model of
+//! the controller (so a program of one's own is measured as the built-in
+//! law is):
+//!
+//! | at the plant input (d) | at the sensor (n) |
+//! |---|---|
+//! | P = Y / (U + D) | P = Y_true / U |
+//! | S_i = (U + D) / D, the input sensitivity | S_o = Y / N, the output sensitivity |
+//! | T_i = −U / D | T_o = −Y_true / N |
+//! | PS = Y / D, the process sensitivity | CS = −U / N, the control sensitivity |
+//! | L_i = −U / (U + D), the loop gain | L_o = −Y_true / Y |
+//!
+//! (U the command applied, Y the measured output, Y_true without sensor
+//! noise.) Beside each, the design's prediction: the exact discrete
+//! response of the scenario's closed loop (`LoopDesign::closed_loop`, whose
+//! inputs are [r; n; u_ff; w] and outputs [e_meas; y_meas; e_true; u_c]),
+//! and of its plant. The command the plant applies at tick k is the one
+//! computed `loop_delay_samples` ticks before, so u_c's responses are
+//! delayed by as much to predict U's. A period in which the actuator reached its limit is no
+//! longer the linear loop: it is left out of the averages, and said.
+
+use crate::loop_report::PEAK_LIMIT_DB;
+use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
+use flexloop_control::freq::freq_response_discrete;
+use flexloop_control::frf::{Frf, FrfError, LineSpectra};
+use flexloop_design::LoopDesign;
+use flexloop_modelfile::{Array, ModelArrays, ModelFileError};
+use flexloop_protocol::Measurement;
+use nalgebra::Complex;
+use std::f64::consts::PI;
+use std::path::Path;
+
+type C64 = Complex<f64>;
+
+/// The coherence below which a line is not trusted in the verdicts.
+pub const MIN_COHERENCE: f64 = 0.9;
+
+/// Why a run's measurement cannot be computed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MeasurementError {
+    /// The scenario has no `[measure]`.
+    NotMeasured,
+    /// The recording lacks samples of the measurement's ticks.
+    Missing {
+        first: u64,
+        count: u64,
+    },
+    /// The run ended before the measured periods did.
+    Unfinished {
+        last_tick: u64,
+        needed: u64,
+    },
+    /// Every measured period touched the actuator's limit.
+    AllSaturated {
+        periods: usize,
+    },
+    Estimate(FrfError),
+}
+
+impl std::fmt::Display for MeasurementError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::NotMeasured => write!(f, "the run's scenario has no [measure]"),
+            Self::Missing { first, count } => write!(
+                f,
+                "the recording misses {count} samples of the measurement's ticks, the first at \
+                 tick {first}: the periods cannot be read whole"
+            ),
+            Self::Unfinished { last_tick, needed } => write!(
+                f,
+                "the run ended at tick {last_tick}, before the measured periods did (tick {needed})"
+            ),
+            Self::AllSaturated { periods } => write!(
+                f,
+                "the actuator reached its limit in all {periods} measured periods: lower \
+                 measure.amplitude"
+            ),
+            Self::Estimate(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for MeasurementError {}
+
+/// The recorded signals over the measurement's ticks, from its start tick.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LoopSignals {
+    pub excitation: Vec<f64>,
+    /// The command the plant applied (first input).
+    pub u: Vec<f64>,
+    /// The measured output (first output), sensor excitation included.
+    pub y: Vec<f64>,
+    /// The output without sensor noise or excitation.
+    pub y_true: Vec<f64>,
+}
+
+impl LoopSignals {
+    /// The plan's ticks, start to stop, out of the recorded measurements.
+    pub fn from_measurements<'a>(
+        plan: &ExcitationPlan,
+        measurements: impl Iterator<Item = &'a Measurement>,
+    ) -> Result<Self, MeasurementError> {
+        let (start, stop) = (plan.start_tick, plan.stop_tick());
+        let len = (stop - start) as usize;
+        let mut signals = LoopSignals {
+            excitation: vec![f64::NAN; len],
+            u: vec![f64::NAN; len],
+            y: vec![f64::NAN; len],
+            y_true: vec![f64::NAN; len],
+        };
+        let mut last_tick = None;
+        for m in measurements {
+            last_tick = Some(last_tick.map_or(m.seq, |t: u64| t.max(m.seq)));
+            if !(start..stop).contains(&m.seq) {
+                continue;
+            }
+            let i = (m.seq - start) as usize;
+            signals.excitation[i] = m.excitation;
+            signals.u[i] = m.u_applied[0];
+            signals.y[i] = m.y[0];
+            signals.y_true[i] = m.y_true[0];
+        }
+        let last_tick = last_tick.unwrap_or(0);
+        if last_tick + 1 < stop {
+            return Err(MeasurementError::Unfinished {
+                last_tick,
+                needed: stop - 1,
+            });
+        }
+        let missing: Vec<usize> = (0..len).filter(|&i| signals.y[i].is_nan()).collect();
+        if let Some(&first) = missing.first() {
+            return Err(MeasurementError::Missing {
+                first: start + first as u64,
+                count: missing.len() as u64,
+            });
+        }
+        Ok(signals)
+    }
+}
+
+/// One measured response and the design's prediction of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredResponse {
+    /// `P`, `S_i`, `T_i`, `PS`, `L_i`, `S_o`, `T_o`, `CS`, `L_o`.
+    pub name: &'static str,
+    pub meaning: &'static str,
+    pub measured: Frf,
+    /// At the same lines; None when the loop is not analysed (a program of
+    /// one's own serves a role) or, for P, without a plant model.
+    pub predicted: Option<Vec<C64>>,
+}
+
+impl MeasuredResponse {
+    /// Measured against predicted over the lines of coherence at least
+    /// `min_coherence` in `band` (Hz): the largest |difference| in dB and
+    /// in degrees, and the lines compared.
+    pub fn deviation(&self, band: (f64, f64), min_coherence: f64) -> Option<Deviation> {
+        let predicted = self.predicted.as_ref()?;
+        let mut d = Deviation::default();
+        for (i, f) in self.measured.frequencies_hz.iter().enumerate() {
+            if !(band.0..band.1).contains(f) || self.measured.coherence[i] < min_coherence {
+                continue;
+            }
+            let ratio = self.measured.response[i] / predicted[i];
+            d.lines += 1;
+            d.max_db = d.max_db.max((20.0 * ratio.norm().log10()).abs());
+            d.max_degrees = d.max_degrees.max(ratio.arg().to_degrees().abs());
+        }
+        (d.lines > 0).then_some(d)
+    }
+
+    /// The largest predicted |H| in dB over the lines, and where.
+    pub fn predicted_peak_db(&self) -> Option<(f64, f64)> {
+        let predicted = self.predicted.as_ref()?;
+        predicted
+            .iter()
+            .zip(&self.measured.frequencies_hz)
+            .map(|(h, f)| (20.0 * h.norm().log10(), *f))
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+    }
+}
+
+/// How far a measured response is from its prediction in a band.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Deviation {
+    pub lines: usize,
+    pub max_db: f64,
+    pub max_degrees: f64,
+}
+
+/// The measurement of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopMeasurement {
+    pub point: InjectionPoint,
+    pub plan: ExcitationPlan,
+    pub responses: Vec<MeasuredResponse>,
+    /// Measured periods averaged, and those left out (0-based among the
+    /// measured ones) because the actuator reached its limit in them.
+    pub periods_used: usize,
+    pub periods_saturated: Vec<usize>,
+}
+
+impl LoopMeasurement {
+    /// The responses of the loop `design` from its recorded `signals`.
+    pub fn compute(
+        design: &LoopDesign,
+        plan: &ExcitationPlan,
+        signals: &LoopSignals,
+    ) -> Result<Self, MeasurementError> {
+        let n = plan.period_samples();
+        let transient = plan.transient_periods;
+        // The plant's whole input: at the plant input, the command and the force.
+        let input_force = plan.point == InjectionPoint::PlantInput;
+        let u_total: Vec<f64> = signals
+            .u
+            .iter()
+            .zip(&signals.excitation)
+            .map(|(u, d)| if input_force { u + d } else { *u })
+            .collect();
+        // A period whose input reached the actuator's limit.
+        let limit = design.input_limit * (1.0 - 1e-12);
+        let saturated: Vec<usize> = (0..plan.periods)
+            .filter(|p| {
+                let at = (transient + p) * n;
+                signals.u[at..at + n]
+                    .iter()
+                    .zip(&u_total[at..at + n])
+                    .any(|(u, total)| u.abs() >= limit || total.abs() >= limit)
+            })
+            .collect();
+        if saturated.len() == plan.periods {
+            return Err(MeasurementError::AllSaturated {
+                periods: plan.periods,
+            });
+        }
+        let spectra = |record: &[f64]| -> Result<LineSpectra, MeasurementError> {
+            let record = without_drift(record, n, transient, plan.periods);
+            let mut lines = LineSpectra::of(&record, &plan.signal, transient, plan.periods)
+                .map_err(MeasurementError::Estimate)?;
+            let mut index = 0;
+            lines.periods.retain(|_| {
+                let keep = !saturated.contains(&index);
+                index += 1;
+                keep
+            });
+            Ok(lines)
+        };
+        let negated = |x: &[f64]| x.iter().map(|v| -v).collect::<Vec<_>>();
+        let d = spectra(&signals.excitation)?;
+        let u = spectra(&signals.u)?;
+        let minus_u = spectra(&negated(&signals.u))?;
+        let total = spectra(&u_total)?;
+        let y = spectra(&signals.y)?;
+        let y_true = spectra(&signals.y_true)?;
+        let minus_y_true = spectra(&negated(&signals.y_true))?;
+        let between = |out: &LineSpectra, input: &LineSpectra| {
+            Frf::between(&plan.signal, out, input).map_err(MeasurementError::Estimate)
+        };
+        let predict = Prediction::new(design, &plan.signal.frequencies_hz());
+        let responses = match plan.point {
+            InjectionPoint::PlantInput => vec![
+                response(
+                    "P",
+                    "the plant, y / u",
+                    between(&y, &total)?,
+                    predict.plant(),
+                ),
+                response(
+                    "S_i",
+                    "the input sensitivity 1/(1 + CP)",
+                    between(&total, &d)?,
+                    predict.map(|g| C64::new(1.0, 0.0) + g.u_c_from_w),
+                ),
+                response(
+                    "T_i",
+                    "the input complementary sensitivity CP/(1 + CP)",
+                    between(&minus_u, &d)?,
+                    predict.map(|g| -g.u_c_from_w),
+                ),
+                response(
+                    "PS",
+                    "the process sensitivity P/(1 + CP)",
+                    between(&y, &d)?,
+                    predict.map(|g| g.y_from_w),
+                ),
+                response(
+                    "L_i",
+                    "the loop gain CP at the plant input",
+                    between(&minus_u, &total)?,
+                    predict.map(|g| -g.u_c_from_w / (C64::new(1.0, 0.0) + g.u_c_from_w)),
+                ),
+            ],
+            InjectionPoint::Sensor => vec![
+                response(
+                    "P",
+                    "the plant, y / u",
+                    between(&y_true, &u)?,
+                    predict.plant(),
+                ),
+                response(
+                    "S_o",
+                    "the output sensitivity 1/(1 + PC)",
+                    between(&y, &d)?,
+                    predict.map(|g| g.y_from_n),
+                ),
+                response(
+                    "T_o",
+                    "the output complementary sensitivity PC/(1 + PC)",
+                    between(&minus_y_true, &d)?,
+                    predict.map(|g| g.e_true_from_n),
+                ),
+                response(
+                    "CS",
+                    "the control sensitivity C/(1 + PC)",
+                    between(&minus_u, &d)?,
+                    predict.map(|g| -g.u_c_from_n),
+                ),
+                response(
+                    "L_o",
+                    "the loop gain PC at the sensor",
+                    between(&minus_y_true, &y)?,
+                    predict.map(|g| g.e_true_from_n / g.y_from_n),
+                ),
+            ],
+        };
+        Ok(Self {
+            point: plan.point,
+            plan: plan.clone(),
+            responses,
+            periods_used: plan.periods - saturated.len(),
+            periods_saturated: saturated,
+        })
+    }
+
+    pub fn response(&self, name: &str) -> Option<&MeasuredResponse> {
+        self.responses.iter().find(|r| r.name == name)
+    }
+
+    /// The sensitivity the 6 dB rule bounds at the measured point.
+    pub fn sensitivity(&self) -> &MeasuredResponse {
+        let name = match self.point {
+            InjectionPoint::PlantInput => "S_i",
+            InjectionPoint::Sensor => "S_o",
+        };
+        self.response(name)
+            .expect("every measurement has its sensitivity")
+    }
+
+    /// The measured sensitivity's peak (dB, Hz) over the trusted lines, and
+    /// whether it keeps the 6 dB rule.
+    pub fn rule(&self) -> Option<(f64, f64, bool)> {
+        let (db, hz) = self.sensitivity().measured.peak_db(MIN_COHERENCE)?;
+        Some((db, hz, db <= PEAK_LIMIT_DB))
+    }
+
+    /// Decade bands over the measured lines, for the per-band comparison.
+    pub fn bands(&self) -> Vec<(f64, f64)> {
+        let lines = self.plan.signal.frequencies_hz();
+        let (Some(&lo), Some(&hi)) = (lines.first(), lines.last()) else {
+            return Vec::new();
+        };
+        let mut edge = 10f64.powf(lo.log10().floor());
+        let mut bands = Vec::new();
+        // Bounded: 128 lines span at most a few dozen decades.
+        while edge <= hi && bands.len() < 64 {
+            bands.push((edge, edge * 10.0));
+            edge *= 10.0;
+        }
+        bands
+    }
+
+    /// The file's columns: `frequency_hz`, then per response its measured
+    /// real and imaginary parts and coherence, and the design's (`_model_`)
+    /// parts where it predicts one.
+    fn columns(&self) -> Vec<(String, Vec<f64>)> {
+        let mut columns = vec![(
+            "frequency_hz".to_string(),
+            self.plan.signal.frequencies_hz(),
+        )];
+        for r in &self.responses {
+            let part = |f: fn(&C64) -> f64, values: &[C64]| values.iter().map(f).collect();
+            columns.push((
+                format!("{}_re", r.name),
+                part(|c| c.re, &r.measured.response),
+            ));
+            columns.push((
+                format!("{}_im", r.name),
+                part(|c| c.im, &r.measured.response),
+            ));
+            columns.push((
+                format!("{}_coherence", r.name),
+                r.measured.coherence.clone(),
+            ));
+            if let Some(predicted) = &r.predicted {
+                columns.push((format!("{}_model_re", r.name), part(|c| c.re, predicted)));
+                columns.push((format!("{}_model_im", r.name), part(|c| c.im, predicted)));
+            }
+        }
+        columns
+    }
+
+    /// The responses as a CSV file, one line per excited line (written
+    /// whole or not at all: a temporary file renamed).
+    pub fn write_csv(&self, path: &Path) -> std::io::Result<()> {
+        let columns = self.columns();
+        let mut text = columns
+            .iter()
+            .map(|(name, _)| name.as_str())
+            .collect::<Vec<_>>()
+            .join(",");
+        text.push('\n');
+        for i in 0..columns[0].1.len() {
+            let row: Vec<String> = columns.iter().map(|(_, v)| format!("{:e}", v[i])).collect();
+            text += &row.join(",");
+            text.push('\n');
+        }
+        let tmp = path.with_extension("csv.tmp");
+        let written = std::fs::write(&tmp, text).and_then(|()| std::fs::rename(&tmp, path));
+        if written.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        written
+    }
+
+    /// The same columns as a NumPy `.npz` (`np.load` reads it).
+    pub fn write_npz(&self, path: &Path) -> Result<(), ModelFileError> {
+        let columns: Vec<(String, Array)> = self
+            .columns()
+            .into_iter()
+            .map(|(name, values)| {
+                let n = values.len();
+                let array = Array::new(vec![n], values).expect("a column's shape is its length");
+                (name, array)
+            })
+            .collect();
+        let named: Vec<(&str, Array)> = columns
+            .iter()
+            .map(|(name, array)| (name.as_str(), array.clone()))
+            .collect();
+        ModelArrays::write_npz(path, &named)
+    }
+
+    /// What `flexloop measure` prints.
+    pub fn render_text(&self) -> String {
+        let lines = self.plan.signal.frequencies_hz();
+        let mut out = format!(
+            "excitation: {} lines from {:.3} to {:.1} Hz at the {}, {} periods of {} samples \
+             averaged after {} transient\n",
+            lines.len(),
+            lines.first().copied().unwrap_or_default(),
+            lines.last().copied().unwrap_or_default(),
+            self.point.name(),
+            self.periods_used,
+            self.plan.period_samples(),
+            self.plan.transient_periods,
+        );
+        if !self.periods_saturated.is_empty() {
+            out += &format!(
+                "  left out: measured periods {:?} (the actuator reached its limit in them)\n",
+                self.periods_saturated
+            );
+        }
+        if let Some((db, hz, keeps)) = self.rule() {
+            let name = self.sensitivity().name;
+            let predicted = self
+                .sensitivity()
+                .predicted_peak_db()
+                .map(|(p, f)| format!(" (the design: {p:.2} dB at {f:.1} Hz)"))
+                .unwrap_or_default();
+            out += &format!(
+                "peak of |{name}|: {db:.2} dB at {hz:.1} Hz{predicted}: {}\n",
+                if keeps {
+                    "keeps the 6 dB rule"
+                } else {
+                    "breaks the 6 dB rule"
+                }
+            );
+        }
+        out += &format!("measured against the design (lines of coherence >= {MIN_COHERENCE}):\n");
+        for r in &self.responses {
+            let trusted = r
+                .measured
+                .coherence
+                .iter()
+                .filter(|c| **c >= MIN_COHERENCE)
+                .count();
+            out += &format!(
+                "  {:<4} {} ({trusted} of {} lines trusted)",
+                r.name,
+                r.meaning,
+                r.measured.response.len()
+            );
+            if r.predicted.is_none() {
+                out += ": no prediction (the loop is not analysed)\n";
+                continue;
+            }
+            out += "\n";
+            for band in self.bands() {
+                if let Some(d) = r.deviation(band, MIN_COHERENCE) {
+                    out += &format!(
+                        "       {:>7.1}-{:<7.1} Hz: within {:.2} dB and {:.1} deg on {} lines\n",
+                        band.0, band.1, d.max_db, d.max_degrees, d.lines
+                    );
+                }
+            }
+        }
+        out
+    }
+}
+
+/// `record` less its drift over the measured periods: a slope that is the
+/// same in every period (a rigid body moving, an integrator still
+/// settling) is not periodic, and its DFT would leak into every line,
+/// period after period alike (coherence cannot show it). The slope is read
+/// from the differences one period apart, in which the periodic response
+/// cancels, so the periodic part is left exactly as it was.
+fn without_drift(record: &[f64], n: usize, transient: usize, periods: usize) -> Vec<f64> {
+    let measured = transient * n..(transient + periods) * n;
+    let pairs = (periods - 1) * n;
+    let mut out = record.to_vec();
+    if pairs == 0 || record.len() < measured.end {
+        return out;
+    }
+    let slope = (measured.start..measured.end - n)
+        .map(|k| record[k + n] - record[k])
+        .sum::<f64>()
+        / (pairs * n) as f64;
+    for (k, v) in out.iter_mut().enumerate() {
+        *v -= slope * k as f64;
+    }
+    out
+}
+
+fn response(
+    name: &'static str,
+    meaning: &'static str,
+    measured: Frf,
+    predicted: Option<Vec<C64>>,
+) -> MeasuredResponse {
+    MeasuredResponse {
+        name,
+        meaning,
+        measured,
+        predicted,
+    }
+}
+
+/// The design's closed loop at one line, the entries a measurement needs
+/// (`u_c` delayed to the tick it is applied at).
+#[derive(Debug, Clone, Copy)]
+struct LoopAt {
+    u_c_from_w: C64,
+    y_from_w: C64,
+    y_from_n: C64,
+    u_c_from_n: C64,
+    e_true_from_n: C64,
+}
+
+/// The design's responses at the lines.
+struct Prediction {
+    plant: Option<Vec<C64>>,
+    closed_loop: Option<Vec<LoopAt>>,
+}
+
+impl Prediction {
+    fn new(design: &LoopDesign, lines_hz: &[f64]) -> Self {
+        let at = |sys: &flexloop_control::lti::DiscreteStateSpace| {
+            lines_hz
+                .iter()
+                .map(|f| freq_response_discrete(sys, 2.0 * PI * f).ok())
+                .collect::<Option<Vec<_>>>()
+        };
+        let plant = at(&design.plant).map(|g| g.iter().map(|m| m[(0, 0)]).collect());
+        let (ny, nu) = (design.n_outputs, design.n_inputs);
+        // Inputs [r; n; u_ff; w], outputs [e_meas; y_meas; e_true; u_c].
+        let (n, w) = (ny, 2 * ny + nu);
+        let (y_meas, e_true, u_c) = (ny, 2 * ny, 3 * ny);
+        let delay = f64::from(design.loop_delay_samples) * design.ts;
+        let closed_loop = design.closed_loop.as_ref().and_then(at).map(|g| {
+            g.iter()
+                .zip(lines_hz)
+                .map(|(m, f)| {
+                    let applied = C64::from_polar(1.0, -2.0 * PI * f * delay);
+                    LoopAt {
+                        u_c_from_w: applied * m[(u_c, w)],
+                        y_from_w: m[(y_meas, w)],
+                        y_from_n: m[(y_meas, n)],
+                        u_c_from_n: applied * m[(u_c, n)],
+                        e_true_from_n: m[(e_true, n)],
+                    }
+                })
+                .collect()
+        });
+        Self { plant, closed_loop }
+    }
+
+    fn plant(&self) -> Option<Vec<C64>> {
+        self.plant.clone()
+    }
+
+    fn map(&self, f: impl Fn(&LoopAt) -> C64) -> Option<Vec<C64>> {
+        self.closed_loop
+            .as_ref()
+            .map(|lines| lines.iter().map(f).collect())
+    }
+}

@@ -1,0 +1,159 @@
+//! A scenario's `[measure]` run in one process as lockstep runs it, across
+//! the shipped plants, observers and controllers, at both points: without
+//! noise every measured response is the design's prediction (so the
+//! closed loop's inputs and outputs are read as the analysis says), and an
+//! excitation that drives the actuator to its limit leaves its periods out.
+
+use flexloop_analysis::loop_measurement::{LoopMeasurement, LoopSignals};
+use flexloop_components::InProcessLoop;
+use flexloop_control::excitation::InjectionPoint;
+use flexloop_design::LoopDesign;
+use flexloop_scenario::schema::{MeasurePhases, MeasurePoint, MeasureSection, ReferenceSection};
+use flexloop_scenario::{Overrides, Scenario};
+use std::path::Path;
+
+/// A shipped scenario with its reference held and no noise (the
+/// excitation the loop's only input), measuring at `point`.
+fn measured(name: &str, point: MeasurePoint, amplitude_share: f64) -> (Scenario, LoopDesign) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenarios")
+        .join(format!("{name}.toml"));
+    let mut s = Scenario::load(&path, &Overrides::default()).unwrap();
+    s.reference = ReferenceSection::default();
+    s.controller.feedforward = None;
+    s.controller.feedforward_form = "plain".into();
+    s.plant.force_noise = 0.0;
+    s.plant.sensor_noise = 0.0;
+    s.plant.reference_noise = 0.0;
+    s.given.retain(|f| {
+        !(f.starts_with("reference.")
+            || f.starts_with("controller.feedforward")
+            || f.ends_with("_noise")
+            || f == "plant.seed")
+    });
+    let rate = s.timing.rate_hz;
+    s.timing.duration_s = 0.0;
+    s.measure = Some(MeasureSection {
+        point,
+        f_min_hz: rate / 1000.0,
+        f_max_hz: 0.2 * rate,
+        lines: 40,
+        period_samples: None,
+        amplitude: match point {
+            MeasurePoint::PlantInput => amplitude_share * s.plant.input_limit,
+            MeasurePoint::Sensor => 1e-6,
+        },
+        phases: MeasurePhases::Schroeder,
+        seed: None,
+        // The loops' slowest modes (the integrators') settle within these.
+        transient_periods: 8,
+        periods: 4,
+        start_s: 0.02,
+    });
+    s.validate().unwrap();
+    let design = LoopDesign::from_scenario(&s).unwrap();
+    (s, design)
+}
+
+fn run(design: &LoopDesign) -> LoopMeasurement {
+    let plan = design.measurement.clone().unwrap();
+    let mut l = InProcessLoop::new(design).unwrap();
+    let mut measurements = Vec::new();
+    for _ in 0..plan.end_tick() {
+        l.tick();
+        measurements.push(l.measurement);
+    }
+    let signals = LoopSignals::from_measurements(&plan, measurements.iter()).unwrap();
+    LoopMeasurement::compute(design, &plan, &signals).unwrap()
+}
+
+const MATRIX: [&str; 6] = [
+    "default",
+    "thesis-mc-ad",
+    "lecture-double-integrator",
+    "drive-train",
+    "two-inertia",
+    "uniform-chain",
+];
+
+#[test]
+fn without_noise_every_response_is_the_designs_at_both_points() {
+    for name in MATRIX {
+        for point in [MeasurePoint::PlantInput, MeasurePoint::Sensor] {
+            let (_, design) = measured(name, point, 0.05);
+            let m = run(&design);
+            assert_eq!(m.periods_used, 4, "{name} {point:?}");
+            assert_eq!(m.responses.len(), 5);
+            for r in &m.responses {
+                let predicted = r.predicted.as_ref().unwrap();
+                let largest = predicted.iter().map(|h| h.norm()).fold(0.0, f64::max);
+                for (i, f) in r.measured.frequencies_hz.iter().enumerate() {
+                    // Noise-free, a line is uncertain only where the loop's
+                    // own slow settling (not periodic) leaks into a response
+                    // 40 dB below its largest.
+                    if predicted[i].norm() < 0.01 * largest || r.measured.coherence[i] < 0.999 {
+                        continue;
+                    }
+                    let ratio = r.measured.response[i] / predicted[i];
+                    let (db, degrees) = (20.0 * ratio.norm().log10(), ratio.arg().to_degrees());
+                    assert!(
+                        db.abs() < 0.05 && degrees.abs() < 0.5,
+                        "{name} {point:?} {} at {f} Hz: {db} dB, {degrees} deg\n{}",
+                        r.name,
+                        m.render_text()
+                    );
+                }
+            }
+            let (_, _, keeps) = m.rule().unwrap();
+            let designed = m.sensitivity().predicted_peak_db().unwrap().0;
+            assert_eq!(keeps, designed <= 6.0, "{name} {point:?}");
+        }
+    }
+}
+
+#[test]
+fn periods_where_the_actuator_reached_its_limit_are_left_out() {
+    // Half the input limit from the excitation, and the controller's own
+    // answer to it on top: the limit is reached.
+    let (_, design) = measured("lecture-double-integrator", MeasurePoint::PlantInput, 0.5);
+    let plan = design.measurement.clone().unwrap();
+    let mut l = InProcessLoop::new(&design).unwrap();
+    let mut measurements = Vec::new();
+    for _ in 0..plan.end_tick() {
+        l.tick();
+        measurements.push(l.measurement);
+    }
+    // One measured period with a command at the limit.
+    let at = plan.measured_ticks().start as usize + plan.period_samples() + 7;
+    measurements[at].u_applied[0] = design.input_limit;
+    let signals = LoopSignals::from_measurements(&plan, measurements.iter()).unwrap();
+    let m = LoopMeasurement::compute(&design, &plan, &signals).unwrap();
+    assert_eq!(m.periods_saturated, [1]);
+    assert_eq!(m.periods_used, 3);
+    assert!(m.render_text().contains("left out"), "{}", m.render_text());
+    assert_eq!(m.point, InjectionPoint::PlantInput);
+}
+
+#[test]
+fn a_recording_with_a_hole_or_cut_short_is_refused() {
+    let (_, design) = measured("default", MeasurePoint::Sensor, 0.05);
+    let plan = design.measurement.clone().unwrap();
+    let mut l = InProcessLoop::new(&design).unwrap();
+    let mut measurements = Vec::new();
+    for _ in 0..plan.end_tick() {
+        l.tick();
+        measurements.push(l.measurement);
+    }
+    let hole = plan.start_tick as usize + 100;
+    let holed: Vec<_> = measurements
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != hole)
+        .map(|(_, m)| *m)
+        .collect();
+    let e = LoopSignals::from_measurements(&plan, holed.iter()).unwrap_err();
+    assert!(e.to_string().contains("misses 1 samples"), "{e}");
+    let short = &measurements[..plan.stop_tick() as usize - 10];
+    let e = LoopSignals::from_measurements(&plan, short.iter()).unwrap_err();
+    assert!(e.to_string().contains("before the measured periods"), "{e}");
+}
