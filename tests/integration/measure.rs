@@ -6,6 +6,7 @@
 use crate::util::*;
 use flexloop_modelfile::ModelArrays;
 use flexloop_modelfile::VectorAs;
+use flexloop_runfiles::events::EventKind;
 use nalgebra::{Complex, DVector};
 use std::path::Path;
 use std::time::Duration;
@@ -208,4 +209,144 @@ fn a_program_of_ones_own_is_measured_at_the_sensor_without_a_model_of_its_law() 
         let from_parts = t[i] / s[i];
         assert!((from_parts - l[i]).norm() <= 1e-6 * l[i].norm(), "line {i}");
     }
+}
+
+/// `flexloop measure --running --prefix P fields…`, started.
+fn order(prefix: &str, fields: &[&str]) -> std::process::Child {
+    let mut cmd = flexloop();
+    cmd.args(["measure", "--running", "--prefix", prefix])
+        .args(fields)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    cmd.spawn().unwrap()
+}
+
+/// An order that must be refused for `words`, before anything runs.
+fn refused(prefix: &str, fields: &[&str], words: &str) {
+    let out = wait_bounded(order(prefix, fields), Duration::from_secs(60));
+    let said = describe(&out);
+    assert!(!out.status.success(), "{said}");
+    assert!(
+        said.contains("measurement refused") && said.contains(words),
+        "{said}"
+    );
+}
+
+const AT_PLANT_INPUT: [&str; 4] = [
+    "point=\"plant-input\"",
+    "f_min_hz=5",
+    "f_max_hz=2000",
+    "amplitude=200",
+];
+
+#[test]
+fn a_measurement_ordered_on_a_running_loop_is_checked_run_and_computed() {
+    let dir = temp_dir("measure-running");
+    // The measured loop without a [measure] of its own (its reference held).
+    let held = dir.join("held.toml");
+    let text = std::fs::read_to_string(scenario("measure-default")).unwrap();
+    let (loop_only, _) = text.split_once("[measure]").unwrap();
+    std::fs::write(&held, loop_only).unwrap();
+    let (up, prefix) = start_file_and_await(&dir, &held, &["--mode", "lockstep"], 2_000);
+
+    // Refused as a scenario's [measure] would be, naming the field.
+    let mut above = AT_PLANT_INPUT;
+    above[2] = "f_max_hz=6000";
+    refused(&prefix, &above, "measure.f_max_hz");
+    let mut saturating = AT_PLANT_INPUT;
+    saturating[3] = "amplitude=1500";
+    refused(&prefix, &saturating, "saturate");
+    let mut nowhere = AT_PLANT_INPUT;
+    nowhere[0] = "point=\"reference\"";
+    refused(&prefix, &nowhere, "unknown variant `reference`");
+
+    // Twenty periods of 0.2 s: seconds of a lockstep loop, during which a
+    // second order and a swap are refused.
+    let mut fields = AT_PLANT_INPUT.to_vec();
+    fields.push("periods=20");
+    let measuring = order(&prefix, &fields);
+    let ordered = wait_for_event(&dir, Duration::from_secs(60), "no measure event", |e| {
+        matches!(e.kind, EventKind::Measure(_))
+    });
+    let EventKind::Measure(ordered) = ordered.kind else {
+        unreachable!()
+    };
+    refused(
+        &prefix,
+        &AT_PLANT_INPUT,
+        "a measurement of the loop runs until sample",
+    );
+    let mut swap = flexloop();
+    swap.args(["swap", "--prefix", &prefix, "controller"])
+        .arg(&held);
+    let swapped = run_bounded(swap, Duration::from_secs(60));
+    let said = describe(&swapped);
+    assert!(
+        !swapped.status.success() && said.contains("a measurement of the loop runs"),
+        "{said}"
+    );
+
+    let out = wait_bounded(measuring, Duration::from_secs(300));
+    let printed = describe(&out);
+    assert!(out.status.success(), "{printed}");
+    let label = format!("at-{}", ordered.outcome.start_seq);
+    assert!(
+        printed.contains(&format!("measurement {label}:")),
+        "{printed}"
+    );
+    assert!(printed.contains("keeps the 6 dB rule"), "{printed}");
+    let frf = ModelArrays::read(&dir.join("measurement").join(&label).join("frf.npz")).unwrap();
+    let s = response(&frf, "S_i");
+    let model = s.model.unwrap();
+    let trusted: Vec<usize> = (0..s.measured.len())
+        .filter(|&i| s.coherence[i] >= 0.99)
+        .collect();
+    assert!(trusted.len() >= 40, "{printed}");
+    for i in trusted {
+        let db = 20.0 * (s.measured[i] / model[i]).norm().log10();
+        assert!(db.abs() < 0.5, "S_i line {i}: {db} dB\n{printed}");
+    }
+    stop(&prefix, up);
+
+    // From the run directory alone, afterwards: the same measurement.
+    let again = measure(&dir, &[]);
+    assert!(again.contains(&format!("measurement {label}:")), "{again}");
+    assert!(again.contains("keeps the 6 dB rule"), "{again}");
+}
+
+#[test]
+fn a_measurement_needs_a_running_loop_and_a_run_that_measured() {
+    let dir = temp_dir("measure-none");
+    let mut cmd = flexloop();
+    cmd.args(["measure", "--running", "--prefix", "flx0_nothing_"])
+        .args(AT_PLANT_INPUT);
+    let out = run_bounded(cmd, Duration::from_secs(60));
+    let said = describe(&out);
+    assert!(
+        !out.status.success() && said.contains("measurement refused"),
+        "{said}"
+    );
+    // A run without [measure] and without an order measured nothing.
+    let run_dir = dir.join("run");
+    let mut cmd = flexloop();
+    cmd.arg("run")
+        .arg(scenario("lecture-double-integrator"))
+        .args([
+            "--mode",
+            "lockstep",
+            "--no-realtime",
+            "--duration",
+            "0.2",
+            "--run-dir",
+        ])
+        .arg(&run_dir);
+    assert!(run_bounded(cmd, Duration::from_secs(120)).status.success());
+    let mut cmd = flexloop();
+    cmd.arg("measure").arg(&run_dir);
+    let out = run_bounded(cmd, Duration::from_secs(60));
+    let said = describe(&out);
+    assert!(
+        !out.status.success() && said.contains("measured nothing"),
+        "{said}"
+    );
 }

@@ -33,7 +33,7 @@ pub mod plant;
 pub use control_law::{ControlLaw, ControllerSetup};
 pub use controller::ControllerCore;
 pub use estimation_law::{EstimationLaw, ObserverSetup};
-pub use flexloop_control::excitation::{InjectionPoint, ScheduledExcitation};
+pub use flexloop_control::excitation::{ExcitationPlan, InjectionPoint, ScheduledExcitation};
 pub use in_process::InProcessLoop;
 pub use law_setup::{LawSetup, SetupError};
 pub use observer::ObserverCore;

@@ -359,10 +359,12 @@ impl PlantCore {
         }
         self.previous_tick_stalled = stalled;
         self.counters.ticks += 1;
-        self.excitation_now = self
-            .excitation
-            .as_mut()
-            .map_or(0.0, |excitation| excitation.value_at(k));
+        if let Some(excitation) = self.excitation.as_mut() {
+            if excitation.runs_at(k) {
+                tick_flags |= flags::EXCITING;
+            }
+            self.excitation_now = excitation.value_at(k);
+        }
 
         match &mut self.scanned {
             // The one output of a scanned sensor: its row at this tick's

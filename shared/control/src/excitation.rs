@@ -98,6 +98,12 @@ impl ScheduledExcitation {
         self.point
     }
 
+    /// Whether it runs at tick `k`: from its start to the end of its
+    /// fade-out (asked before [`Self::value_at`] for the same tick).
+    pub fn runs_at(&self, k: u64) -> bool {
+        k >= self.start_tick && self.source.state() != SourceState::Off
+    }
+
     /// What is added at tick `k` (ticks come in order, each once).
     pub fn value_at(&mut self, k: u64) -> f64 {
         if k < self.start_tick || self.source.state() == SourceState::Off {

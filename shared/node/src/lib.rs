@@ -10,6 +10,7 @@ pub mod handover;
 pub mod in_order;
 pub mod instance;
 pub mod logger;
+pub mod measure_orders;
 pub mod observer;
 pub mod overrides;
 pub mod plant;

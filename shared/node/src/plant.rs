@@ -50,6 +50,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
         PLANT_SETTINGS.qos.loop_buffer_size,
     )?;
 
+    // Measurements ordered on the running loop (`flexloop measure --running`).
+    let mut measure_orders = crate::measure_orders::MeasureOrders::open(&node, &scenario)?;
+
     // Start-up handshake: the observer and the logger subscribe once they are
     // connected and locked; the controller opens its command port last, once
     // it holds the observer's first estimate. So when all are there (and the
@@ -142,6 +145,9 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
             }
             (tick_ns, woke_ns)
         };
+        if let Some(excitation) = measure_orders.poll(k)? {
+            core.set_excitation(Some(excitation));
+        }
         let stalled = woke_ns.saturating_sub(tick_ns) > stall_threshold_ns;
         let last = stopping || Some(k) == last_tick;
         measurements.publish(|m| {

@@ -160,6 +160,22 @@ pub const SPARE_STATUS: Channel = Channel {
     qos: SPARE_QOS,
 };
 
+/// Supervisor → plant: a measurement ordered on the running loop (see
+/// [`crate::measure_order`]), polled by the plant at every tick as its
+/// settings are; no history (an order is for the plant running now).
+pub const MEASURE_ORDER: Channel = Channel {
+    name: "flexloop/measure-order",
+    qos: ChannelQos {
+        max_publishers: 2,
+        max_subscribers: 4,
+        max_nodes: 8,
+        history_size: 0,
+        subscriber_max_buffer_size: 4,
+        loop_buffer_size: 4,
+        logger_buffer_size: 4,
+    },
+};
+
 /// The plant's safety settings as the supervisor changes them (see
 /// [`crate::plant_settings`]); the newest kept for a plant that opens late.
 pub const PLANT_SETTINGS: Channel = Channel {
@@ -206,7 +222,7 @@ const SPARE_QOS: ChannelQos = ChannelQos {
 };
 
 /// Every channel, for tools that list or clean them.
-pub const ALL: [Channel; 14] = [
+pub const ALL: [Channel; 15] = [
     MEASUREMENT,
     MEASUREMENT_REPLAY,
     OBSERVER_WAKEUP,
@@ -220,6 +236,7 @@ pub const ALL: [Channel; 14] = [
     SPARE_ORDER,
     SPARE_STATUS,
     PLANT_SETTINGS,
+    MEASURE_ORDER,
     SILENCE_ALARM,
 ];
 

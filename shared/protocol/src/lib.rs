@@ -21,6 +21,7 @@ pub mod channels;
 pub mod handover;
 pub mod joining;
 pub mod layout;
+pub mod measure_order;
 pub mod messages;
 pub mod plant_settings;
 pub mod spare;
@@ -30,6 +31,7 @@ pub mod wire;
 pub use channels::{Channel, ChannelQos};
 pub use handover::{Activation, Handover, MAX_HANDOVER_STATES};
 pub use joining::{Joining, UnknownJoining};
+pub use measure_order::MeasureOrder;
 pub use messages::{
     Command, Estimate, MAX_INPUTS, MAX_OBSERVER_INPUTS, MAX_OBSERVER_OUTPUTS, MAX_OUTPUTS,
     MAX_STATES, Measurement, NO_SEQ, Telemetry, WireBytes, flags,

@@ -59,6 +59,9 @@ pub mod flags {
     /// measurements), still converging: its corrections (ŷ_flex, u_d) are
     /// not to act yet. Its law says for how many samples.
     pub const CONVERGING: u32 = 1 << 9;
+    /// Measurement: a measurement's excitation runs at this tick (from its
+    /// fade-in's first sample to its fade-out's last; docs/control.md §14).
+    pub const EXCITING: u32 = 1 << 10;
 }
 
 /// y(k) from the plant, published at tick k.

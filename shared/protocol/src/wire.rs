@@ -114,6 +114,7 @@ pub fn description() -> Value {
             "FALLBACK": flags::FALLBACK,
             "OBSERVER_FALLBACK": flags::OBSERVER_FALLBACK,
             "STANDBY": flags::STANDBY,
+            "EXCITING": flags::EXCITING,
         },
         "handover_marks": {
             "ACTIVE": handover::ACTIVE,

@@ -8,7 +8,7 @@
 //! ([`EventKind`]), so that a reader matches on what happened instead of
 //! looking keys up in free-form JSON.
 
-use crate::supervision::{SetOutcome, SwitchRecord};
+use crate::supervision::{MeasureOutcome, SetOutcome, SwitchRecord};
 use serde::{Deserialize, Serialize};
 
 /// One line of `events.jsonl`.
@@ -57,6 +57,8 @@ pub enum EventKind {
     SpareFailed(String),
     /// The loop was asked to stop.
     Stop(Stop),
+    /// `flexloop measure --running`: a measurement ordered on the loop.
+    Measure(Measure),
 }
 
 impl EventKind {
@@ -75,6 +77,7 @@ impl EventKind {
             Self::Spare(_) => "spare",
             Self::SpareFailed(_) => "spare-failed",
             Self::Stop(_) => "stop",
+            Self::Measure(_) => "measure",
         }
     }
 
@@ -184,6 +187,16 @@ pub struct Swap {
 pub struct Set {
     #[serde(flatten)]
     pub outcome: SetOutcome,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sender: Option<Sender>,
+}
+
+/// A `measure`: the measurement ordered, where it starts and ends, and who
+/// asked.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Measure {
+    #[serde(flatten)]
+    pub outcome: MeasureOutcome,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sender: Option<Sender>,
 }

@@ -90,6 +90,33 @@ pub struct SetRequest {
     pub changes: Vec<FieldValue>,
 }
 
+/// `flexloop measure --running` (`requests/*.measure`): the `[measure]`
+/// fields (scenarios/README.md) but its start, which the supervisor sets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeasureRequest {
+    pub fields: Vec<FieldValue>,
+}
+
+/// A measurement ordered on a running loop: its `[measure]` table as the
+/// supervisor checked it (its `start_s` the sample `start_seq`'s time), and
+/// the samples it spans, fade-out included.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeasureOutcome {
+    /// The `[measure]` table, TOML.
+    pub table: String,
+    pub start_seq: u64,
+    pub end_seq: u64,
+}
+
+/// The supervisor's answer to a [`MeasureRequest`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeasureAnswer {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outcome: Option<MeasureOutcome>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
 /// A dotted field and a value in TOML.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FieldValue {

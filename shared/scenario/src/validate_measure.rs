@@ -5,6 +5,8 @@ use crate::error::{ScenarioError, number};
 use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, Scenario};
 use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
 use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases};
+use flexloop_protocol::MeasureOrder;
+use flexloop_protocol::measure_order::{AT_PLANT_INPUT, AT_SENSOR, RANDOM, SCHROEDER};
 
 /// The most lines a measurement excites: more than a response needs over a
 /// few decades, and what an array of the frequency-response file holds
@@ -189,5 +191,62 @@ impl Scenario {
             transient_periods: m.transient_periods,
             periods: m.periods,
         }))
+    }
+}
+
+impl MeasureSection {
+    /// The order that starts this measurement on a running loop at
+    /// `start_seq` (its `start_s` is then that sample's time).
+    pub fn order(&self, rate_hz: f64, start_seq: u64) -> MeasureOrder {
+        MeasureOrder {
+            published_ns: 0,
+            start_seq,
+            seed: self.seed.unwrap_or(0),
+            f_min_hz: self.f_min_hz,
+            f_max_hz: self.f_max_hz,
+            amplitude: self.amplitude,
+            lines: self.lines as u32,
+            period_samples: self
+                .period_samples
+                .unwrap_or_else(|| (rate_hz / self.f_min_hz).round() as usize)
+                as u32,
+            transient_periods: self.transient_periods as u32,
+            periods: self.periods as u32,
+            point: match self.point {
+                MeasurePoint::PlantInput => AT_PLANT_INPUT,
+                MeasurePoint::Sensor => AT_SENSOR,
+            },
+            phases: match self.phases {
+                MeasurePhases::Schroeder => SCHROEDER,
+                MeasurePhases::Random => RANDOM,
+            },
+        }
+    }
+
+    /// The measurement an order names (the supervisor checked its fields
+    /// against the scenario before it sent it).
+    pub fn from_order(order: &MeasureOrder, rate_hz: f64) -> Self {
+        let random = order.phases == RANDOM;
+        Self {
+            point: if order.point == AT_SENSOR {
+                MeasurePoint::Sensor
+            } else {
+                MeasurePoint::PlantInput
+            },
+            f_min_hz: order.f_min_hz,
+            f_max_hz: order.f_max_hz,
+            lines: order.lines as usize,
+            period_samples: Some(order.period_samples as usize),
+            amplitude: order.amplitude,
+            phases: if random {
+                MeasurePhases::Random
+            } else {
+                MeasurePhases::Schroeder
+            },
+            seed: random.then_some(order.seed),
+            transient_periods: order.transient_periods as usize,
+            periods: order.periods as usize,
+            start_s: order.start_seq as f64 / rate_hz,
+        }
     }
 }

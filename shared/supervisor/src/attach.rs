@@ -6,7 +6,9 @@ use crate::registry;
 use anyhow::Context;
 use flexloop_runfiles::json::read_json;
 use flexloop_runfiles::supervision::Processes;
-use flexloop_runfiles::supervision::{FieldValue, SetOutcome, SetRequest};
+use flexloop_runfiles::supervision::{
+    FieldValue, MeasureOutcome, MeasureRequest, SetOutcome, SetRequest,
+};
 use flexloop_runfiles::{ProgramParams, RunDir};
 use flexloop_scenario::tune::{self, TUNABLES};
 use flexloop_scenario::{ProgramRole, Scenario};
@@ -69,6 +71,32 @@ pub fn set(prefix: Option<&str>, changes: &[(String, String)]) -> Result<SetOutc
     let answer = crate::conductor::request_set(&entry.run_dir, &request).map_err(refused)?;
     match (answer.outcome, answer.error) {
         (Some(outcome), _) => Ok(outcome),
+        (None, error) => Err(refused(error.as_deref().unwrap_or("no reason given"))),
+    }
+}
+
+/// Orders a measurement (`[measure]` fields, value as TOML text) on the
+/// loop `prefix` names, as `flexloop measure --running` does: the
+/// supervisor checks it against the loop's scenario and starts it a sample
+/// ahead, or refuses it. Returns the loop's run directory and what it
+/// ordered; the measurement runs on after this returns.
+pub fn measure(
+    prefix: Option<&str>,
+    fields: &[(String, String)],
+) -> Result<(PathBuf, MeasureOutcome), Refused> {
+    let entry = loop_to_change(prefix)?;
+    let request = MeasureRequest {
+        fields: fields
+            .iter()
+            .map(|(field, value)| FieldValue {
+                field: field.clone(),
+                value: value.clone(),
+            })
+            .collect(),
+    };
+    let answer = crate::conductor::request_measure(&entry.run_dir, &request).map_err(refused)?;
+    match (answer.outcome, answer.error) {
+        (Some(outcome), _) => Ok((entry.run_dir, outcome)),
         (None, error) => Err(refused(error.as_deref().unwrap_or("no reason given"))),
     }
 }

@@ -96,6 +96,9 @@ pub struct Core {
     busy: bool,
     /// That swap, restart or standby's start, where it stands.
     sequence: Option<sequence::Sequence>,
+    /// A measurement ordered on the running loop: its first and its end
+    /// sample (docs/control.md, "Measuring the loop").
+    measuring: Option<(u64, u64)>,
     /// What the loop shows of the controller's and observer's output.
     silence: SilenceWatch,
     /// The generation whose last commands were not finite (the plant
@@ -124,6 +127,7 @@ impl Core {
             applied,
             busy: false,
             sequence: None,
+            measuring: None,
             silence: SilenceWatch::default(),
             non_finite: None,
         }
@@ -747,6 +751,39 @@ impl Core {
 
     pub fn announced(&mut self, activation: Activation) {
         self.activation = activation;
+    }
+
+    // ---- measurements ordered on the running loop ----
+
+    /// The end sample of the measurement that runs now, if one does.
+    pub fn measurement_under_way(&self) -> Option<u64> {
+        let (_, end) = self.measuring?;
+        self.last_seq.is_none_or(|s| s < end).then_some(end)
+    }
+
+    /// Where a measurement ordered now starts (a boundary ahead, as a
+    /// swap's: the plant designs it meanwhile), or why none can: the loop
+    /// does not tick yet, or one runs.
+    pub fn plan_measurement(&self) -> Result<u64, Failure> {
+        if !self.ticking() {
+            return Err(Failure::NotTickingYet);
+        }
+        if let Some(until) = self.measurement_under_way() {
+            return Err(Failure::Measuring { until });
+        }
+        Ok(self.boundary_ahead())
+    }
+
+    pub fn measurement_ordered(&mut self, start_seq: u64, end_seq: u64) {
+        self.measuring = Some((start_seq, end_seq));
+    }
+
+    /// A swap or a set changes the loop: not while a measurement of it runs.
+    pub fn may_change_the_loop(&self) -> Result<(), Failure> {
+        match self.measurement_under_way() {
+            Some(until) => Err(Failure::Measuring { until }),
+            None => Ok(()),
+        }
     }
 
     // ---- bringing an instance in ----

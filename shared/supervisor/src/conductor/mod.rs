@@ -16,6 +16,7 @@
 
 mod decide;
 mod measure;
+mod measuring;
 mod per_role;
 mod ports;
 mod record;
@@ -26,6 +27,6 @@ mod shell;
 mod switch;
 mod tuning;
 
-pub use requests::{note_stop_request, request_set, request_swap};
+pub use requests::{note_stop_request, request_measure, request_set, request_swap};
 pub use shell::Conductor;
 pub use switch::Switch;

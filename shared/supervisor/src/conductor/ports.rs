@@ -8,14 +8,14 @@ use super::replay::Replay;
 use anyhow::Result;
 use flexloop_node::Role;
 use flexloop_protocol::channels::{
-    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, LOGGER_PROGRESS, MEASUREMENT,
+    ACTIVATION, COMMAND, CONTROLLER_STATE, ESTIMATE, LOGGER_PROGRESS, MEASURE_ORDER, MEASUREMENT,
     MEASUREMENT_REPLAY, OBSERVER_STATE, OBSERVER_WAKEUP, PLANT_SETTINGS, SILENCE_ALARM,
     SPARE_ORDER, SPARE_STATUS, TELEMETRY,
 };
 use flexloop_protocol::handover::CATCHING_UP;
 use flexloop_protocol::{
-    Activation, Command, Estimate, Handover, Measurement, PlantSettings, SpareOrder, SpareStatus,
-    Telemetry, flags,
+    Activation, Command, Estimate, Handover, MeasureOrder, Measurement, PlantSettings, SpareOrder,
+    SpareStatus, Telemetry, flags,
 };
 use flexloop_transport::{
     ChannelHold, Domain, Inlet, LoopNode, Outlet, WakeupListener, cleanup_dead_nodes,
@@ -27,6 +27,7 @@ pub struct Ports {
     // Ports before the node: they must drop first.
     activation_out: Outlet<Activation>,
     plant_settings_out: Outlet<PlantSettings>,
+    measure_order_out: Outlet<MeasureOrder>,
     controller_states: Inlet<Handover>,
     observer_states: Inlet<Handover>,
     controller_state_out: Outlet<Handover>,
@@ -72,6 +73,7 @@ impl Ports {
         Ok(Self {
             activation_out: Outlet::open(&node, &ACTIVATION)?,
             plant_settings_out: Outlet::open(&node, &PLANT_SETTINGS)?,
+            measure_order_out: Outlet::open(&node, &MEASURE_ORDER)?,
             controller_states: Inlet::open_polling(&node, &CONTROLLER_STATE, 8)?,
             observer_states: Inlet::open_polling(&node, &OBSERVER_STATE, 8)?,
             controller_state_out: Outlet::open(&node, &CONTROLLER_STATE)?,
@@ -181,6 +183,14 @@ impl Ports {
         settings.published_ns = flexloop_runtime::monotonic_ns();
         self.plant_settings_out.connect()?;
         self.plant_settings_out.publish(|s| *s = settings)?;
+        Ok(())
+    }
+
+    /// Sends the plant a measurement to run, stamped now.
+    pub fn send_measure_order(&self, mut order: MeasureOrder) -> Result<()> {
+        order.published_ns = flexloop_runtime::monotonic_ns();
+        self.measure_order_out.connect()?;
+        self.measure_order_out.publish(|o| *o = order)?;
         Ok(())
     }
 

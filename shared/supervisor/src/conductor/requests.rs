@@ -9,7 +9,9 @@ use flexloop_node::Role;
 use flexloop_runfiles::FileError;
 pub use flexloop_runfiles::events::Sender;
 use flexloop_runfiles::json::{read_json, write_json_atomically};
-use flexloop_runfiles::supervision::{self, SetAnswer, SetRequest, SwapAnswer};
+use flexloop_runfiles::supervision::{
+    self, MeasureAnswer, MeasureRequest, SetAnswer, SetRequest, SwapAnswer,
+};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use std::path::{Path, PathBuf};
@@ -27,6 +29,9 @@ pub struct SwapRequest {
 
 /// The extension of a `flexloop set` request.
 const SET_EXTENSION: &str = "set";
+
+/// The extension of a `flexloop measure --running` request.
+const MEASURE_EXTENSION: &str = "measure";
 
 /// The extension of `flexloop down`'s note that it asked the loop to stop.
 const STOP_EXTENSION: &str = "stop";
@@ -80,7 +85,25 @@ pub fn is_set(path: &Path) -> bool {
     path.extension().is_some_and(|x| x == SET_EXTENSION)
 }
 
-/// Request files waiting for the supervisor (swaps and sets), oldest first.
+/// Whether a pending request file is a measurement's.
+pub fn is_measure(path: &Path) -> bool {
+    path.extension().is_some_and(|x| x == MEASURE_EXTENSION)
+}
+
+/// Reads one measurement request file.
+pub fn read_measure(path: &Path) -> Result<MeasureRequest> {
+    Ok(read_json(path)?)
+}
+
+/// `flexloop measure --running`: as [`request_set`], for a measurement
+/// (answered once it is checked and ordered, not when it ends).
+pub fn request_measure(run_dir: &Path, request: &MeasureRequest) -> Result<MeasureAnswer> {
+    ask(run_dir, MEASURE_EXTENSION, request, SHADOW_TIMEOUT)
+        .context("the supervisor did not answer the measurement request")
+}
+
+/// Request files waiting for the supervisor (swaps, sets, measurements),
+/// oldest first.
 pub fn pending(run_dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(run_dir.join(REQUESTS_DIR)) else {
         return Vec::new();
@@ -89,7 +112,7 @@ pub fn pending(run_dir: &Path) -> Vec<PathBuf> {
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
             p.extension()
-                .is_some_and(|x| x == "request" || x == SET_EXTENSION)
+                .is_some_and(|x| x == "request" || x == SET_EXTENSION || x == MEASURE_EXTENSION)
         })
         .collect();
     found.sort();

@@ -22,8 +22,10 @@ use flexloop_protocol::Joining;
 use flexloop_protocol::channels::MEASUREMENT_REPLAY;
 use flexloop_protocol::{Activation, SpareOrder};
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::events::{EventKind, Set, Stop, Swap};
-use flexloop_runfiles::supervision::{SetAnswer, SetOutcome, SwapAnswer};
+use flexloop_runfiles::events::{EventKind, Measure, Set, Stop, Swap};
+use flexloop_runfiles::supervision::{
+    MeasureAnswer, MeasureOutcome, SetAnswer, SetOutcome, SwapAnswer,
+};
 use flexloop_runtime::shutdown;
 use flexloop_scenario::swap::{Swapped, swap_conflicts};
 use flexloop_scenario::{Overrides, Scenario};
@@ -154,7 +156,9 @@ impl Conductor {
     fn record(&mut self, mut record: Record) {
         self.dead_nodes |= record.clean_dead_nodes;
         match &mut record.kind {
-            EventKind::Swap(Swap { sender, .. }) | EventKind::Set(Set { sender, .. }) => {
+            EventKind::Swap(Swap { sender, .. })
+            | EventKind::Set(Set { sender, .. })
+            | EventKind::Measure(Measure { sender, .. }) => {
                 *sender = self.sender;
             }
             _ => {}
@@ -426,17 +430,27 @@ impl Conductor {
                     crate::registry::caller(),
                     self.sender.map_or(u32::MAX, |s| s.uid)
                 );
-                if requests::is_set(&request) {
-                    requests::answer(
-                        &request,
-                        &SetAnswer {
-                            outcome: None,
-                            error: Some(refusal),
-                        },
-                    );
-                } else {
-                    requests::answer(&request, &SwapAnswer::refused(refusal));
-                }
+                self.refuse(&request, refusal);
+                continue;
+            }
+            if requests::is_measure(&request) {
+                let answer = match requests::read_measure(&request).and_then(|r| self.measure(&r)) {
+                    Ok(outcome) => MeasureAnswer {
+                        outcome: Some(outcome),
+                        error: None,
+                    },
+                    Err(e) => MeasureAnswer {
+                        outcome: None,
+                        error: Some(format!("{e:#}")),
+                    },
+                };
+                self.publish_files();
+                requests::answer(&request, &answer);
+                continue;
+            }
+            // A swap or a set changes the loop a measurement measures.
+            if let Err(refusal) = self.core.may_change_the_loop() {
+                self.refuse(&request, refusal.to_string());
                 continue;
             }
             if requests::is_set(&request) {
@@ -468,6 +482,48 @@ impl Conductor {
             requests::answer(&request, &answer);
         }
         None
+    }
+
+    /// Answers a request with a refusal, in the answer type of its kind.
+    fn refuse(&self, request: &Path, refusal: String) {
+        if requests::is_set(request) {
+            let answer = SetAnswer {
+                outcome: None,
+                error: Some(refusal),
+            };
+            requests::answer(request, &answer);
+        } else if requests::is_measure(request) {
+            let answer = MeasureAnswer {
+                outcome: None,
+                error: Some(refusal),
+            };
+            requests::answer(request, &answer);
+        } else {
+            requests::answer(request, &SwapAnswer::refused(refusal));
+        }
+    }
+
+    /// `flexloop measure --running`: the measurement checked against the
+    /// loop's scenario, ordered from a sample ahead, and recorded.
+    fn measure(
+        &mut self,
+        request: &flexloop_runfiles::supervision::MeasureRequest,
+    ) -> Result<MeasureOutcome> {
+        let start_seq = self.core.plan_measurement()?;
+        let planned = super::measuring::plan(&self.scenario, request, start_seq)?;
+        self.ports.send_measure_order(planned.order)?;
+        let outcome = planned.outcome;
+        self.core
+            .measurement_ordered(outcome.start_seq, outcome.end_seq);
+        self.record_action(self.core.note(
+            Role::Plant,
+            None,
+            EventKind::Measure(Measure {
+                outcome: outcome.clone(),
+                sender: None,
+            }),
+        ));
+        Ok(outcome)
     }
 
     /// `role` runs `scenario` now: the scenario as it stands follows (a

@@ -106,6 +106,12 @@ pub enum Failure {
     },
     /// A command could not be carried out, and why.
     Carrying(String),
+    /// The loop has not ticked yet: nothing to measure.
+    NotTickingYet,
+    /// A measurement of the loop runs until this sample.
+    Measuring {
+        until: u64,
+    },
     /// The new instance exited before it followed the loop.
     NewInstanceExited {
         role: Role,
@@ -143,6 +149,12 @@ impl std::fmt::Display for Failure {
                 "the loop did not pass the switch at sample {from_seq} within {timeout:?}"
             ),
             Failure::Carrying(why) => write!(f, "{why}"),
+            Failure::NotTickingYet => write!(f, "the loop has not ticked yet: nothing to measure"),
+            Failure::Measuring { until } => write!(
+                f,
+                "a measurement of the loop runs until sample {until}: it would measure another \
+                 loop; ask again once it ended"
+            ),
             Failure::NewInstanceExited {
                 role,
                 generation,

@@ -1,0 +1,38 @@
+//! A measurement ordered on a running loop (`flexloop measure --running`):
+//! the supervisor checks the `[measure]` fields against the loop's scenario
+//! and sends them with the sample to start at; the plant designs the
+//! excitation off its loop thread and adds it from that sample
+//! (docs/control.md, "Measuring the loop").
+
+use iceoryx2::prelude::*;
+
+/// `point`: a force beside the first input's command.
+pub const AT_PLANT_INPUT: u32 = 0;
+/// `point`: added to the first measured output.
+pub const AT_SENSOR: u32 = 1;
+/// `phases`: Schroeder's.
+pub const SCHROEDER: u32 = 0;
+/// `phases`: random, from `seed`.
+pub const RANDOM: u32 = 1;
+
+/// The `[measure]` fields (scenarios/README.md) and where it starts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("flexloop.MeasureOrder.v1")]
+pub struct MeasureOrder {
+    pub published_ns: u64,
+    /// The sample the excitation starts at (its fade-in's first).
+    pub start_seq: u64,
+    pub seed: u64,
+    pub f_min_hz: f64,
+    pub f_max_hz: f64,
+    pub amplitude: f64,
+    pub lines: u32,
+    pub period_samples: u32,
+    pub transient_periods: u32,
+    pub periods: u32,
+    /// [`AT_PLANT_INPUT`] or [`AT_SENSOR`].
+    pub point: u32,
+    /// [`SCHROEDER`] or [`RANDOM`].
+    pub phases: u32,
+}
