@@ -560,3 +560,29 @@ fn a_renewed_standby_that_never_follows_leaves_the_old_one_and_the_swap_stands()
     assert_eq!(switch_of(&end).generation, 2, "the swap stands");
     assert!(f.member(23).alive(), "the old standby covers");
 }
+
+// ---- a measurement ordered on the running loop ----
+
+#[test]
+fn a_measurement_starts_ahead_once_the_loop_ticks_and_holds_off_changes_until_its_end() {
+    let mut f = Fixture::new(policy());
+    assert_eq!(f.core.plan_measurement(), Err(Failure::NotTickingYet));
+    assert_eq!(f.core.may_change_the_loop(), Ok(()));
+    f.runs(1..101);
+    // 50 ms ahead at 10 kHz, as a swap's boundary.
+    assert_eq!(f.core.plan_measurement(), Ok(600));
+    f.core.measurement_ordered(600, 5_000);
+    assert_eq!(
+        f.core.plan_measurement(),
+        Err(Failure::Measuring { until: 5_000 })
+    );
+    assert_eq!(
+        f.core.may_change_the_loop(),
+        Err(Failure::Measuring { until: 5_000 })
+    );
+    f.runs(101..5_000);
+    assert!(f.core.may_change_the_loop().is_err(), "its last sample is yet to come");
+    f.runs(5_000..5_002);
+    assert_eq!(f.core.may_change_the_loop(), Ok(()));
+    assert_eq!(f.core.plan_measurement(), Ok(5_001 + 500));
+}
