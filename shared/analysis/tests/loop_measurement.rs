@@ -14,11 +14,19 @@ use std::path::Path;
 
 /// A shipped scenario with its reference held and no noise (the
 /// excitation the loop's only input), measuring at `point`.
+/// `NAME+delay`: with one more sample of loop delay.
 fn measured(name: &str, point: MeasurePoint, amplitude_share: f64) -> (Scenario, LoopDesign) {
+    let (file, delayed) = match name.strip_suffix("+delay") {
+        Some(base) => (base, true),
+        None => (name, false),
+    };
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../scenarios")
-        .join(format!("{name}.toml"));
+        .join(format!("{file}.toml"));
     let mut s = Scenario::load(&path, &Overrides::default()).unwrap();
+    if delayed {
+        s.controller.extra_delay_samples = 1;
+    }
     s.reference = ReferenceSection::default();
     s.controller.feedforward = None;
     s.controller.feedforward_form = "plain".into();
@@ -67,7 +75,9 @@ fn run(design: &LoopDesign) -> LoopMeasurement {
     LoopMeasurement::compute(design, &plan, &signals).unwrap()
 }
 
-const MATRIX: [&str; 6] = [
+const MATRIX: [&str; 8] = [
+    "thesis-mc-ad-deadline-30us",
+    "lecture-double-integrator+delay",
     "default",
     "thesis-mc-ad",
     "lecture-double-integrator",
