@@ -23,6 +23,7 @@ mod python_component;
 mod python_sdk;
 mod recording;
 mod report;
+mod report_measurement;
 mod sensor_scan;
 mod swap;
 mod thesis;

@@ -94,6 +94,9 @@ pub fn document(data: &RunData) -> Document {
     }
     doc.push(figure(figures::flexible(data)));
     doc.push(figure(figures::flexible_error(data)));
+    for block in super::measured::section(data) {
+        doc.push(block);
+    }
 
     doc.push(Block::Heading("Events".into()));
     if data.events.is_empty() {

@@ -5,15 +5,19 @@
 //! - [`document`]: the report as blocks, rendered to Markdown and HTML.
 //! - [`content`]: its text and tables.
 //! - [`figures`]: its plots.
+//! - [`measured`]: the measured frequency responses, for a run whose
+//!   scenario had a `[measure]`.
 
 mod content;
 mod document;
 mod figures;
+mod measured;
 
 use crate::run::RunReport;
 use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::flexible::{FlexibleComparison, NoComparison};
 use flexloop_analysis::latency_log::LatencyLog;
+use flexloop_analysis::loop_measurement::LoopMeasurement;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::events::parse_events;
 use std::path::{Path, PathBuf};
@@ -83,6 +87,9 @@ pub struct RunData {
     /// The sample files read (every logger generation's, in order), when
     /// there is more than one.
     pub joined_files: Vec<String>,
+    /// With a `[measure]` in the scenario: the responses `flexloop measure`
+    /// computes, or why they cannot be computed. None without one.
+    pub measurement: Option<Result<LoopMeasurement, String>>,
 }
 
 impl RunData {
@@ -101,6 +108,11 @@ impl RunData {
         } else {
             Vec::new()
         };
+        let measurement = run
+            .design
+            .measurement
+            .as_ref()
+            .map(|plan| measured::measure(dir, &run.design, plan));
         Ok(Self {
             length: Length::for_unit(run.design.output_unit),
             dir: dir.to_path_buf(),
@@ -111,6 +123,7 @@ impl RunData {
             period_ns,
             lockstep,
             joined_files,
+            measurement,
         })
     }
 }
@@ -144,6 +157,12 @@ pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
         eprintln!(
             "flexloop: the recording stopped at t = {until_s:.3} s ({}): the report covers the run up to then",
             recording.error.as_deref().unwrap_or("a write failed")
+        );
+    }
+    if let Some(Err(reason)) = &data.measurement {
+        eprintln!(
+            "flexloop: the measured frequency responses cannot be computed: {reason}; the report \
+             says so in their section"
         );
     }
     let doc = content::document(&data);

@@ -262,71 +262,22 @@ impl LoopMeasurement {
         let between = |out: &LineSpectra, input: &LineSpectra| {
             Frf::between(&plan.signal, out, input).map_err(MeasurementError::Estimate)
         };
-        let predict = Prediction::new(design, &plan.signal.frequencies_hz());
+        let lines = plan.signal.frequencies_hz();
+        let model = |name| predicted(design, plan.point, name, &lines);
         let responses = match plan.point {
             InjectionPoint::PlantInput => vec![
-                response(
-                    "P",
-                    "the plant, y / u",
-                    between(&y, &total)?,
-                    predict.plant(),
-                ),
-                response(
-                    "S_i",
-                    "the input sensitivity 1/(1 + CP)",
-                    between(&total, &d)?,
-                    predict.map(|g| C64::new(1.0, 0.0) + g.u_c_from_w),
-                ),
-                response(
-                    "T_i",
-                    "the input complementary sensitivity CP/(1 + CP)",
-                    between(&minus_u, &d)?,
-                    predict.map(|g| -g.u_c_from_w),
-                ),
-                response(
-                    "PS",
-                    "the process sensitivity P/(1 + CP)",
-                    between(&y, &d)?,
-                    predict.map(|g| g.y_from_w),
-                ),
-                response(
-                    "L_i",
-                    "the loop gain CP at the plant input",
-                    between(&minus_u, &total)?,
-                    predict.map(|g| -g.u_c_from_w / (C64::new(1.0, 0.0) + g.u_c_from_w)),
-                ),
+                response("P", between(&y, &total)?, model("P")),
+                response("S_i", between(&total, &d)?, model("S_i")),
+                response("T_i", between(&minus_u, &d)?, model("T_i")),
+                response("PS", between(&y, &d)?, model("PS")),
+                response("L_i", between(&minus_u, &total)?, model("L_i")),
             ],
             InjectionPoint::Sensor => vec![
-                response(
-                    "P",
-                    "the plant, y / u",
-                    between(&y_true, &u)?,
-                    predict.plant(),
-                ),
-                response(
-                    "S_o",
-                    "the output sensitivity 1/(1 + PC)",
-                    between(&y, &d)?,
-                    predict.map(|g| g.y_from_n),
-                ),
-                response(
-                    "T_o",
-                    "the output complementary sensitivity PC/(1 + PC)",
-                    between(&minus_y_true, &d)?,
-                    predict.map(|g| g.e_true_from_n),
-                ),
-                response(
-                    "CS",
-                    "the control sensitivity C/(1 + PC)",
-                    between(&minus_u, &d)?,
-                    predict.map(|g| -g.u_c_from_n),
-                ),
-                response(
-                    "L_o",
-                    "the loop gain PC at the sensor",
-                    between(&minus_y_true, &y)?,
-                    predict.map(|g| g.e_true_from_n / g.y_from_n),
-                ),
+                response("P", between(&y_true, &u)?, model("P")),
+                response("S_o", between(&y, &d)?, model("S_o")),
+                response("T_o", between(&minus_y_true, &d)?, model("T_o")),
+                response("CS", between(&minus_u, &d)?, model("CS")),
+                response("L_o", between(&minus_y_true, &y)?, model("L_o")),
             ],
         };
         Ok(Self {
@@ -340,6 +291,16 @@ impl LoopMeasurement {
 
     pub fn response(&self, name: &str) -> Option<&MeasuredResponse> {
         self.responses.iter().find(|r| r.name == name)
+    }
+
+    /// The loop gain at the measured point (`L_i` or `L_o`).
+    pub fn loop_gain(&self) -> &MeasuredResponse {
+        let name = match self.point {
+            InjectionPoint::PlantInput => "L_i",
+            InjectionPoint::Sensor => "L_o",
+        };
+        self.response(name)
+            .expect("every measurement has its loop gain")
     }
 
     /// The sensitivity the 6 dB rule bounds at the measured point.
@@ -537,17 +498,55 @@ fn without_drift(record: &[f64], n: usize, transient: usize, periods: usize) -> 
     out
 }
 
-fn response(
-    name: &'static str,
-    meaning: &'static str,
-    measured: Frf,
-    predicted: Option<Vec<C64>>,
-) -> MeasuredResponse {
+fn response(name: &'static str, measured: Frf, predicted: Option<Vec<C64>>) -> MeasuredResponse {
     MeasuredResponse {
         name,
-        meaning,
+        meaning: meaning(name),
         measured,
         predicted,
+    }
+}
+
+/// What a response of a measurement is.
+fn meaning(name: &str) -> &'static str {
+    match name {
+        "P" => "the plant, y / u",
+        "S_i" => "the input sensitivity 1/(1 + CP)",
+        "T_i" => "the input complementary sensitivity CP/(1 + CP)",
+        "PS" => "the process sensitivity P/(1 + CP)",
+        "L_i" => "the loop gain CP at the plant input",
+        "S_o" => "the output sensitivity 1/(1 + PC)",
+        "T_o" => "the output complementary sensitivity PC/(1 + PC)",
+        "CS" => "the control sensitivity C/(1 + PC)",
+        "L_o" => "the loop gain PC at the sensor",
+        _ => "",
+    }
+}
+
+/// The design's response `name` (one a measurement at `point` gives:
+/// `P`, `S_i`, ... as [`LoopMeasurement::responses`] names them) at
+/// `frequencies_hz`: what the measurement is compared with, and what a
+/// report draws between the lines. None where the design predicts none (a
+/// program of one's own serves a role: only P).
+pub fn predicted(
+    design: &LoopDesign,
+    point: InjectionPoint,
+    name: &str,
+    frequencies_hz: &[f64],
+) -> Option<Vec<C64>> {
+    let at = Prediction::new(design, frequencies_hz);
+    let one = C64::new(1.0, 0.0);
+    match (point, name) {
+        (_, "P") => at.plant(),
+        (InjectionPoint::PlantInput, "S_i") => at.map(|g| one + g.u_c_from_w),
+        (InjectionPoint::PlantInput, "T_i") => at.map(|g| -g.u_c_from_w),
+        (InjectionPoint::PlantInput, "PS") => at.map(|g| g.y_from_w),
+        (InjectionPoint::PlantInput, "L_i") => at.map(|g| -g.u_c_from_w / (one + g.u_c_from_w)),
+        (InjectionPoint::Sensor, "S_o") => at.map(|g| g.y_from_n),
+        (InjectionPoint::Sensor, "T_o") => at.map(|g| g.e_true_from_n),
+        (InjectionPoint::Sensor, "CS") => at.map(|g| -g.u_c_from_n),
+        (InjectionPoint::Sensor, "L_o") => at.map(|g| g.e_true_from_n / g.y_from_n),
+        _ => None,
     }
 }
 

@@ -1,9 +1,12 @@
-//! A figure: lines over two axes, with horizontal and vertical reference
-//! lines, shaded x spans, rows of event marks above the frame, and a legend
-//! to the right, rendered as one self-contained `<svg>` element.
+//! A figure: lines or markers over two axes, with horizontal and vertical
+//! reference lines, shaded x spans, rows of event marks above the frame, and
+//! a legend to the right, rendered as one self-contained `<svg>` element;
+//! and a [`Stack`] of figures sharing one element (a Bode plot's magnitude
+//! over its phase).
 //!
 //! Sizes are fixed (the report's pages show figures one under the other at
-//! one width), so that text never scales with the data.
+//! one width), so that text never scales with the data; a figure may ask for
+//! a taller frame, and for equal units on both axes (a Nyquist plot).
 
 use crate::axis::{Axis, Tick, auto_range, ticks};
 use crate::decimate::{finite_runs, min_max_per_column};
@@ -28,13 +31,28 @@ const FONT: f64 = 11.0;
 /// keep tick labels from running into each other.
 const CHAR_WIDTH: f64 = 6.3;
 
-/// A line through data points (x ascending for time series).
+/// A line through data points (x ascending for time series), or with a
+/// marker a point drawn at each of them and no line.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series {
     pub name: String,
     pub points: Vec<(f64, f64)>,
     pub color: Option<String>,
     pub dashed: bool,
+    /// Some: a marker at each point, no line between them.
+    pub marker: Option<Marker>,
+}
+
+/// How a point of a [`Series`] of markers is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Marker {
+    /// A filled circle.
+    Dot,
+    /// A hollow circle: a point of less weight (a measured line of low
+    /// coherence beside the trusted ones).
+    Ring,
+    /// A cross (×): a point of reference, such as −1 on a Nyquist plot.
+    Cross,
 }
 
 /// A horizontal (on y) or vertical (on x) line at a data value.
@@ -78,15 +96,18 @@ pub struct Figure {
     pub marks: Vec<Marks>,
     /// Shown in the frame when there is nothing to draw.
     pub empty_note: String,
+    /// Height of the frame in pixels.
+    pub plot_height: f64,
+    /// One data unit as long on x as on y (both axes linear): the range
+    /// that is the shorter for its side is widened about its middle, so
+    /// that a circle is drawn round (a Nyquist plot).
+    pub equal_aspect: bool,
 }
 
 impl Figure {
     pub fn new(id: &str, title: &str, x: Axis, y: Axis) -> Self {
         Self {
-            id: id
-                .chars()
-                .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
-                .collect(),
+            id: sanitise_id(id),
             title: title.to_string(),
             x,
             y,
@@ -96,7 +117,17 @@ impl Figure {
             spans: Vec::new(),
             marks: Vec::new(),
             empty_note: "no data".into(),
+            plot_height: PLOT_HEIGHT,
+            equal_aspect: false,
         }
+    }
+
+    /// A frame `plot_height` pixels high with one data unit as long on x as
+    /// on y (see [`equal_aspect`](Self::equal_aspect)).
+    pub fn with_equal_aspect(mut self, plot_height: f64) -> Self {
+        self.plot_height = plot_height;
+        self.equal_aspect = true;
+        self
     }
 
     /// Adds a line in the next palette colour.
@@ -106,6 +137,7 @@ impl Figure {
             points,
             color: None,
             dashed: false,
+            marker: None,
         });
         self
     }
@@ -116,6 +148,25 @@ impl Figure {
             points,
             color: Some(color.to_string()),
             dashed: false,
+            marker: None,
+        });
+        self
+    }
+
+    /// Adds points drawn as markers, with no line between them.
+    pub fn scatter(
+        &mut self,
+        name: &str,
+        points: Vec<(f64, f64)>,
+        color: &str,
+        marker: Marker,
+    ) -> &mut Self {
+        self.series.push(Series {
+            name: name.to_string(),
+            points,
+            color: Some(color.to_string()),
+            dashed: false,
+            marker: Some(marker),
         });
         self
     }
@@ -182,15 +233,8 @@ impl Figure {
         auto_range(axis.scale, lo, hi, target)
     }
 
-    /// The figure as one `<svg>` element.
-    pub fn to_svg(&self) -> String {
-        let rows: Vec<&Marks> = self.marks.iter().filter(|m| !m.xs.is_empty()).collect();
-        let top =
-            TITLE_HEIGHT + MARK_ROW * rows.len() as f64 + if rows.is_empty() { 0.0 } else { 4.0 };
-        let right = WIDTH - LEGEND_WIDTH;
-        let bottom = top + PLOT_HEIGHT;
-        let plot_width = right - LEFT;
-
+    /// The axes' ranges in positions, for a frame of this many pixels.
+    fn ranges(&self, plot_width: f64, plot_height: f64) -> ((f64, f64), (f64, f64)) {
         let xs = self
             .series
             .iter()
@@ -202,6 +246,47 @@ impl Figure {
             .flat_map(|s| s.points.iter().map(|p| p.1))
             .chain(self.hlines.iter().map(|h| h.at));
         let y_range = Self::range(&self.y, ys, 6);
+        if self.equal_aspect {
+            equal_units(x_range, y_range, plot_width, plot_height)
+        } else {
+            (x_range, y_range)
+        }
+    }
+
+    /// The data ranges (x, y) the frame shows as the figure stands: what
+    /// falls outside them is clipped.
+    pub fn shown_ranges(&self) -> ((f64, f64), (f64, f64)) {
+        let (x, y) = self.ranges(WIDTH - LEGEND_WIDTH - LEFT, self.frame_height());
+        let value = |axis: &Axis, r: (f64, f64)| (axis.scale.value(r.0), axis.scale.value(r.1));
+        (value(&self.x, x), value(&self.y, y))
+    }
+
+    fn frame_height(&self) -> f64 {
+        if self.plot_height.is_finite() && self.plot_height > 0.0 {
+            self.plot_height
+        } else {
+            PLOT_HEIGHT
+        }
+    }
+
+    /// The figure as one `<svg>` element.
+    pub fn to_svg(&self) -> String {
+        let (body, height) = self.body();
+        root_svg(&self.id, height, &body)
+    }
+
+    /// The figure's elements (its `<title>` first) and its height in pixels,
+    /// to go inside an `<svg>` element of [`WIDTH`].
+    fn body(&self) -> (String, f64) {
+        let rows: Vec<&Marks> = self.marks.iter().filter(|m| !m.xs.is_empty()).collect();
+        let top =
+            TITLE_HEIGHT + MARK_ROW * rows.len() as f64 + if rows.is_empty() { 0.0 } else { 4.0 };
+        let right = WIDTH - LEGEND_WIDTH;
+        let plot_height = self.frame_height();
+        let bottom = top + plot_height;
+        let plot_width = right - LEFT;
+
+        let (x_range, y_range) = self.ranges(plot_width, plot_height);
         let map = Mapping {
             x: x_range,
             y: y_range,
@@ -219,11 +304,7 @@ impl Figure {
         let id = &self.id;
         let _ = write!(
             svg,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {WIDTH} {height}" width="{WIDTH}" height="{height}" font-family="sans-serif" font-size="{FONT}" role="img" aria-labelledby="{id}-title">"#
-        );
-        let _ = write!(
-            svg,
-            r#"<title id="{id}-title">{}</title><defs><clipPath id="{id}-clip"><rect x="{LEFT}" y="{top}" width="{plot_width}" height="{PLOT_HEIGHT}"/></clipPath></defs>"#,
+            r#"<title id="{id}-title">{}</title><defs><clipPath id="{id}-clip"><rect x="{LEFT}" y="{top}" width="{plot_width}" height="{plot_height}"/></clipPath></defs>"#,
             escape(&self.title)
         );
         let _ = write!(
@@ -261,7 +342,7 @@ impl Figure {
                 let (a, b) = (map.px(a), map.px(b));
                 let _ = write!(
                     svg,
-                    r#"<rect x="{:.1}" y="{top}" width="{:.1}" height="{PLOT_HEIGHT}" fill="{}" fill-opacity="0.13"/>"#,
+                    r#"<rect x="{:.1}" y="{top}" width="{:.1}" height="{plot_height}" fill="{}" fill-opacity="0.13"/>"#,
                     a.min(b),
                     (b - a).abs().max(1.0),
                     escape(&s.color)
@@ -289,7 +370,10 @@ impl Figure {
             }
         }
         for (i, s) in self.series.iter().enumerate() {
-            self.polylines(&mut svg, &map, s, &series_color(s, i));
+            match s.marker {
+                None => self.polylines(&mut svg, &map, s, &series_color(s, i)),
+                Some(marker) => self.markers(&mut svg, &map, s, marker, &series_color(s, i)),
+            }
         }
         svg.push_str("</g>");
         self.vline_labels(&mut svg, &map);
@@ -330,7 +414,7 @@ impl Figure {
         // Frame, axis labels, note.
         let _ = write!(
             svg,
-            r##"<rect x="{LEFT}" y="{top}" width="{plot_width}" height="{PLOT_HEIGHT}" fill="none" stroke="#444444"/>"##
+            r##"<rect x="{LEFT}" y="{top}" width="{plot_width}" height="{plot_height}" fill="none" stroke="#444444"/>"##
         );
         let _ = write!(
             svg,
@@ -339,7 +423,7 @@ impl Figure {
             bottom + 36.0,
             escape(&self.x.label)
         );
-        let (lx, ly) = (14.0, top + PLOT_HEIGHT / 2.0);
+        let (lx, ly) = (14.0, top + plot_height / 2.0);
         let _ = write!(
             svg,
             r#"<text x="{lx}" y="{ly:.1}" text-anchor="middle" transform="rotate(-90 {lx} {ly:.1})">{}</text>"#,
@@ -350,7 +434,7 @@ impl Figure {
                 svg,
                 r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="13" fill="#666666">{}</text>"##,
                 LEFT + plot_width / 2.0,
-                top + PLOT_HEIGHT / 2.0,
+                top + plot_height / 2.0,
                 escape(&self.empty_note)
             );
         }
@@ -377,6 +461,10 @@ impl Figure {
                     lx + 11.0,
                     y - 5.0
                 ),
+                Glyph::Marker(marker) => {
+                    write_marker(&mut svg, marker, lx + 11.0, y, &color);
+                    Ok(())
+                }
                 Glyph::Area => write!(
                     svg,
                     r#"<rect x="{lx}" y="{}" width="22" height="10" fill="{color}" fill-opacity="0.25"/>"#,
@@ -391,8 +479,7 @@ impl Figure {
                 escape(&fit_text(&entry.label, (LEGEND_WIDTH - 44.0) / CHAR_WIDTH))
             );
         }
-        svg.push_str("</svg>");
-        svg
+        (svg, height)
     }
 
     fn tick_labels(&self, svg: &mut String, map: &Mapping, x_ticks: &[Tick], y_ticks: &[Tick]) {
@@ -498,6 +585,19 @@ impl Figure {
         );
     }
 
+    fn markers(&self, svg: &mut String, map: &Mapping, s: &Series, marker: Marker, color: &str) {
+        let color = escape(color);
+        let mut drawn = String::new();
+        for (x, y) in &s.points {
+            if let (Some(px), Some(py)) = (self.x.scale.position(*x), self.y.scale.position(*y)) {
+                write_marker(&mut drawn, marker, map.px(px), map.py(py), &color);
+            }
+        }
+        if !drawn.is_empty() {
+            let _ = write!(svg, "<g>{drawn}</g>");
+        }
+    }
+
     fn legend_entries(&self) -> Vec<LegendEntry> {
         let mut out: Vec<LegendEntry> = self
             .series
@@ -506,7 +606,10 @@ impl Figure {
             .map(|(i, s)| LegendEntry {
                 label: s.name.clone(),
                 color: series_color(s, i),
-                glyph: Glyph::Line { dashed: s.dashed },
+                glyph: match s.marker {
+                    Some(marker) => Glyph::Marker(marker),
+                    None => Glyph::Line { dashed: s.dashed },
+                },
             })
             .collect();
         // Reference lines and spans without a label share the entry of an
@@ -558,6 +661,98 @@ impl Figure {
     }
 }
 
+/// Figures one under the other in one `<svg>` element, under one title:
+/// a Bode plot's magnitude over its phase. Each keeps its own axes and
+/// legend; their ids must differ (each names its clip path).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stack {
+    /// Unique within a page, and unlike its panels' ids.
+    pub id: String,
+    pub title: String,
+    pub panels: Vec<Figure>,
+}
+
+impl Stack {
+    pub fn new(id: &str, title: &str, panels: Vec<Figure>) -> Self {
+        Self {
+            id: sanitise_id(id),
+            title: title.to_string(),
+            panels,
+        }
+    }
+
+    /// The stack as one `<svg>` element.
+    pub fn to_svg(&self) -> String {
+        let id = &self.id;
+        let mut body = String::with_capacity(32_768);
+        let mut y = TITLE_HEIGHT;
+        for panel in &self.panels {
+            let (panel_body, height) = panel.body();
+            let _ = write!(body, r#"<g transform="translate(0 {y})">{panel_body}</g>"#);
+            y += height;
+        }
+        let head = format!(
+            r##"<title id="{id}-title">{}</title><rect width="{WIDTH}" height="{y}" fill="#ffffff"/><text x="{LEFT}" y="20" font-size="15" font-weight="bold">{}</text>"##,
+            escape(&self.title),
+            escape(&self.title)
+        );
+        root_svg(id, y, &(head + &body))
+    }
+}
+
+/// An `<svg>` element of [`WIDTH`] and `height` holding `body`, labelled by
+/// the `<title>` of id `{id}-title` it holds.
+fn root_svg(id: &str, height: f64, body: &str) -> String {
+    format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {WIDTH} {height}" width="{WIDTH}" height="{height}" font-family="sans-serif" font-size="{FONT}" role="img" aria-labelledby="{id}-title">{body}</svg>"#
+    )
+}
+
+fn sanitise_id(id: &str) -> String {
+    id.chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
+        .collect()
+}
+
+/// The ranges (positions) widened so that one unit takes as many pixels
+/// on x (`width` pixels) as on y (`height`): the one whose side holds more
+/// units per pixel is kept, the other widened about its middle.
+fn equal_units(x: (f64, f64), y: (f64, f64), width: f64, height: f64) -> ((f64, f64), (f64, f64)) {
+    let (per_x, per_y) = ((x.1 - x.0) / width, (y.1 - y.0) / height);
+    if !(per_x.is_finite() && per_y.is_finite() && per_x > 0.0 && per_y > 0.0) {
+        return (x, y);
+    }
+    let widen = |r: (f64, f64), span: f64| {
+        let middle = (r.0 + r.1) / 2.0;
+        (middle - span / 2.0, middle + span / 2.0)
+    };
+    if per_x > per_y {
+        (x, widen(y, per_x * height))
+    } else {
+        (widen(x, per_y * width), y)
+    }
+}
+
+/// One marker centred at pixel (x, y).
+fn write_marker(svg: &mut String, marker: Marker, x: f64, y: f64, color: &str) {
+    let _ = match marker {
+        Marker::Dot => write!(
+            svg,
+            r#"<circle cx="{x:.1}" cy="{y:.1}" r="3.2" fill="{color}"/>"#
+        ),
+        Marker::Ring => write!(
+            svg,
+            r#"<circle cx="{x:.1}" cy="{y:.1}" r="3.2" fill="none" stroke="{color}" stroke-width="1.2"/>"#
+        ),
+        Marker::Cross => write!(
+            svg,
+            r#"<path d="M{:.1} {:.1}l10 10m0 -10l-10 10" stroke="{color}" stroke-width="2"/>"#,
+            x - 5.0,
+            y - 5.0
+        ),
+    };
+}
+
 fn series_color(s: &Series, index: usize) -> String {
     s.color
         .clone()
@@ -577,6 +772,7 @@ fn fit_text(text: &str, max_chars: f64) -> String {
 
 enum Glyph {
     Line { dashed: bool },
+    Marker(Marker),
     Tick,
     Area,
 }
@@ -673,6 +869,106 @@ mod tests {
         let svg = f.to_svg();
         check_well_formed(&svg).unwrap();
         assert!(svg.contains("no flexible modes in this plant"));
+    }
+
+    #[test]
+    fn markers_are_drawn_without_a_line_and_shown_in_the_legend() {
+        let mut f = Figure::new("m", "Markers", Axis::log10("f [Hz]"), Axis::linear("dB"));
+        f.colored_line(
+            "model",
+            vec![(1.0, 0.0), (10.0, 1.0), (100.0, 2.0)],
+            "#1f77b4",
+        )
+        .scatter(
+            "trusted",
+            vec![(2.0, 0.5), (20.0, 1.5)],
+            "#222222",
+            Marker::Dot,
+        )
+        .scatter("doubtful", vec![(50.0, 1.8)], "#999999", Marker::Ring)
+        .scatter("reference", vec![(5.0, f64::NAN)], "#d62728", Marker::Cross);
+        let svg = f.to_svg();
+        check_well_formed(&svg).unwrap();
+        // Two dots and a ring in the frame, one of each in the legend; the
+        // NaN point is left out, the cross only in the legend.
+        assert_eq!(svg.matches(r##"fill="#222222""##).count(), 3, "{svg}");
+        assert_eq!(svg.matches(r##"fill="none" stroke="#999999""##).count(), 2);
+        assert_eq!(svg.matches("l10 10m0 -10l-10 10").count(), 1);
+        // One data line only: the model's.
+        assert_eq!(svg.matches(r#"stroke-linejoin="round""#).count(), 1);
+        for name in ["trusted", "doubtful", "reference"] {
+            assert!(svg.contains(&format!(">{name}<")), "{name}");
+        }
+    }
+
+    #[test]
+    fn equal_aspect_draws_a_circle_round() {
+        let mut f = Figure::new("n", "Nyquist", Axis::linear("Re"), Axis::linear("Im"))
+            .with_equal_aspect(400.0);
+        let circle: Vec<(f64, f64)> = (0..=64)
+            .map(|i| {
+                let a = i as f64 / 64.0 * std::f64::consts::TAU;
+                (-1.0 + 0.5 * a.cos(), 0.5 * a.sin())
+            })
+            .collect();
+        f.colored_line("circle", circle, "#d62728");
+        let svg = f.to_svg();
+        check_well_formed(&svg).unwrap();
+        let path = svg.split("<path d=\"").nth(1).unwrap();
+        let path = path.split('"').next().unwrap();
+        let points: Vec<(f64, f64)> = path
+            .split(['M', 'L'])
+            .filter(|p| !p.is_empty())
+            .map(|p| {
+                let (x, y) = p.split_once(' ').unwrap();
+                (x.parse().unwrap(), y.parse().unwrap())
+            })
+            .collect();
+        let extent = |f: fn(&(f64, f64)) -> f64| {
+            let v: Vec<f64> = points.iter().map(f).collect();
+            v.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                - v.iter().cloned().fold(f64::INFINITY, f64::min)
+        };
+        let (w, h) = (extent(|p| p.0), extent(|p| p.1));
+        assert!(w > 50.0 && (w - h).abs() < 0.02 * w, "{w} x {h}");
+        assert!(svg.contains(r#"height="400""#), "the taller frame");
+        let ((x0, x1), (y0, y1)) = f.shown_ranges();
+        let per_pixel = ((x1 - x0) / (WIDTH - LEGEND_WIDTH - LEFT), (y1 - y0) / 400.0);
+        assert!((per_pixel.0 - per_pixel.1).abs() < 1e-9, "{per_pixel:?}");
+        assert!(x0 <= -1.5 && x1 >= -0.5 && y0 <= -0.5 && y1 >= 0.5);
+    }
+
+    #[test]
+    fn a_stack_is_one_svg_with_each_panel_clipped_on_its_own() {
+        let panel = |id: &str, title: &str| {
+            let mut f = Figure::new(id, title, Axis::log10("f [Hz]"), Axis::linear("v"));
+            f.line("model", vec![(1.0, 0.0), (100.0, 1.0)]);
+            f
+        };
+        let stack = Stack::new(
+            "bode plot",
+            "Bode <P>",
+            vec![panel("bode-mag", "magnitude"), panel("bode-phase", "phase")],
+        );
+        let svg = stack.to_svg();
+        check_well_formed(&svg).unwrap();
+        assert_eq!(svg.matches("<svg").count(), 1);
+        assert!(svg.contains(r#"aria-labelledby="bode-plot-title""#));
+        assert!(svg.contains(r#"<title id="bode-plot-title">Bode &lt;P&gt;</title>"#));
+        for id in ["bode-mag", "bode-phase"] {
+            assert!(
+                svg.contains(&format!(r#"clip-path="url(#{id}-clip)""#)),
+                "{id}"
+            );
+        }
+        // The second panel sits under the first.
+        let offsets: Vec<&str> = svg
+            .match_indices("translate(0 ")
+            .map(|(at, _)| svg[at + 12..].split(')').next().unwrap())
+            .collect();
+        assert_eq!(offsets.len(), 2);
+        let (a, b): (f64, f64) = (offsets[0].parse().unwrap(), offsets[1].parse().unwrap());
+        assert!(b > a + PLOT_HEIGHT, "{offsets:?}");
     }
 
     #[test]

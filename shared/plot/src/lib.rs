@@ -5,8 +5,9 @@
 //! - [`decimate`] keeps the first, lowest, highest and last point per pixel
 //!   column, so that a 100 000-sample trace draws as a few thousand points
 //!   and keeps every spike.
-//! - [`figure`] renders a figure (lines, reference lines, shaded spans, event
-//!   marks, legend) as one `<svg>` element with no external references.
+//! - [`figure`] renders a figure (lines, markers, reference lines, shaded
+//!   spans, event marks, legend) as one `<svg>` element with no external
+//!   references, and a stack of figures (a Bode plot) as one as well.
 //! - [`xml`] checks that markup is well-formed (for the tests).
 //!
 //! Offline code: it allocates freely and never runs inside the loop.
@@ -17,4 +18,4 @@ pub mod figure;
 pub mod xml;
 
 pub use axis::{Axis, Scale, Tick};
-pub use figure::{Figure, Marks, RefLine, Series, Span};
+pub use figure::{Figure, Marker, Marks, RefLine, Series, Span, Stack};
