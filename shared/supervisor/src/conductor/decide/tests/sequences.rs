@@ -581,7 +581,10 @@ fn a_measurement_starts_ahead_once_the_loop_ticks_and_holds_off_changes_until_it
         Err(Failure::Measuring { until: 5_000 })
     );
     f.runs(101..5_000);
-    assert!(f.core.may_change_the_loop().is_err(), "its last sample is yet to come");
+    assert!(
+        f.core.may_change_the_loop().is_err(),
+        "its last sample is yet to come"
+    );
     f.runs(5_000..5_002);
     assert_eq!(f.core.may_change_the_loop(), Ok(()));
     assert_eq!(f.core.plan_measurement(), Ok(5_001 + 500));
