@@ -14,15 +14,12 @@
 //! file (`plant-fit.npz`).
 
 use anyhow::{Context, bail};
-use flexloop_analysis::loop_measurement::{
-    LoopMeasurement, LoopSignals, MIN_COHERENCE, MeasurementError,
-};
+use flexloop_analysis::loop_measurement::{LoopMeasurement, MIN_COHERENCE, MeasurementError};
 use flexloop_analysis::run_log::JoinedLog;
 use flexloop_components::ExcitationPlan;
 use flexloop_control::modal_fit::{ModalFit, ModalFitSpec};
 use flexloop_design::LoopDesign;
 use flexloop_modelfile::{Array, ModelArrays};
-use flexloop_protocol::flags;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::events::{EventKind, parse_events};
 use flexloop_scenario::schema::MeasureSection;
@@ -192,24 +189,12 @@ impl Run {
     fn compute(
         &self,
         label: &str,
-        mut plan: ExcitationPlan,
+        plan: ExcitationPlan,
         joined: &JoinedLog,
         args: &MeasureArgs,
     ) -> anyhow::Result<()> {
-        // The plant starts it once designed, no earlier than ordered: the
-        // flag says where it did.
-        if let Some(first) = joined
-            .log
-            .measurements()
-            .filter(|m| m.seq >= plan.start_tick && m.flags & flags::EXCITING != 0)
-            .map(|m| m.seq)
-            .min()
-        {
-            plan.start_tick = first;
-        }
         let design = LoopDesign::from_scenario(&self.scenario)?;
-        let signals = LoopSignals::from_measurements(&plan, joined.log.measurements())?;
-        let measurement = LoopMeasurement::compute(&design, &plan, &signals)?;
+        let measurement = LoopMeasurement::of_log(&design, &plan, &joined.log)?;
         println!("measurement {label}:");
         print!("{}", measurement.render_text());
         let out = if label == "scenario" {

@@ -7,14 +7,13 @@
 use super::RunData;
 use super::document::{Block, FigureBlock, Table};
 use flexloop_analysis::loop_measurement::{
-    LoopMeasurement, LoopSignals, MIN_COHERENCE, MeasuredResponse, predicted,
+    LoopMeasurement, MIN_COHERENCE, MeasuredResponse, predicted,
 };
 use flexloop_analysis::loop_report::PEAK_LIMIT_DB;
 use flexloop_analysis::run_log::JoinedLog;
 use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
 use flexloop_design::LoopDesign;
 use flexloop_plot::{Axis, Figure, Marker, Stack};
-use flexloop_protocol::flags;
 use nalgebra::Complex;
 use std::f64::consts::PI;
 
@@ -41,21 +40,7 @@ pub fn measure(
     // `RunReport::load` keeps what it derives from the sample files, not the
     // messages: the joined log is opened once more for the excitation's ticks.
     let joined = JoinedLog::open(dir).map_err(|e| e.to_string())?;
-    // As `flexloop measure`: the excitation starts where the plant's flag
-    // says it did, no earlier than planned.
-    let mut plan = plan.clone();
-    if let Some(first) = joined
-        .log
-        .measurements()
-        .filter(|m| m.seq >= plan.start_tick && m.flags & flags::EXCITING != 0)
-        .map(|m| m.seq)
-        .min()
-    {
-        plan.start_tick = first;
-    }
-    let signals = LoopSignals::from_measurements(&plan, joined.log.measurements())
-        .map_err(|e| e.to_string())?;
-    LoopMeasurement::compute(design, &plan, &signals).map_err(|e| e.to_string())
+    LoopMeasurement::of_log(design, plan, &joined.log).map_err(|e| e.to_string())
 }
 
 /// The section's blocks; none when the run's scenario has no `[measure]`.
@@ -213,12 +198,7 @@ fn deviation_table(m: &LoopMeasurement) -> Table {
         .responses
         .iter()
         .map(|r| {
-            let trusted = r
-                .measured
-                .coherence
-                .iter()
-                .filter(|c| **c >= MIN_COHERENCE)
-                .count();
+            let trusted = r.trusted_lines();
             let mut row = vec![
                 format!("{}: {}", r.name, r.meaning),
                 format!("{trusted} of {}", r.measured.response.len()),

@@ -31,7 +31,8 @@ use flexloop_control::freq::freq_response_discrete;
 use flexloop_control::frf::{Frf, FrfError, LineSpectra};
 use flexloop_design::LoopDesign;
 use flexloop_modelfile::{Array, ModelArrays, ModelFileError};
-use flexloop_protocol::Measurement;
+use flexloop_protocol::{Measurement, flags};
+use flexloop_recording::LogReader;
 use nalgebra::Complex;
 use std::f64::consts::PI;
 use std::path::Path;
@@ -175,6 +176,15 @@ impl MeasuredResponse {
         (d.lines > 0).then_some(d)
     }
 
+    /// The lines of coherence at least [`MIN_COHERENCE`].
+    pub fn trusted_lines(&self) -> usize {
+        self.measured
+            .coherence
+            .iter()
+            .filter(|c| **c >= MIN_COHERENCE)
+            .count()
+    }
+
     /// The largest predicted |H| in dB over the lines, and where.
     pub fn predicted_peak_db(&self) -> Option<(f64, f64)> {
         let predicted = self.predicted.as_ref()?;
@@ -287,6 +297,28 @@ impl LoopMeasurement {
             periods_used: plan.periods - saturated.len(),
             periods_saturated: saturated,
         })
+    }
+
+    /// The measurement `plan` of the loop `design` from its recorded
+    /// samples. The plant starts a measurement ordered on a running loop
+    /// once it is designed, no earlier than planned: its `EXCITING` flag
+    /// says where it did, and the periods are read from there.
+    pub fn of_log(
+        design: &LoopDesign,
+        plan: &ExcitationPlan,
+        log: &LogReader,
+    ) -> Result<Self, MeasurementError> {
+        let mut plan = plan.clone();
+        if let Some(first) = log
+            .measurements()
+            .filter(|m| m.seq >= plan.start_tick && m.flags & flags::EXCITING != 0)
+            .map(|m| m.seq)
+            .min()
+        {
+            plan.start_tick = first;
+        }
+        let signals = LoopSignals::from_measurements(&plan, log.measurements())?;
+        Self::compute(design, &plan, &signals)
     }
 
     pub fn response(&self, name: &str) -> Option<&MeasuredResponse> {
@@ -445,12 +477,7 @@ impl LoopMeasurement {
         }
         out += &format!("measured against the design (lines of coherence >= {MIN_COHERENCE}):\n");
         for r in &self.responses {
-            let trusted = r
-                .measured
-                .coherence
-                .iter()
-                .filter(|c| **c >= MIN_COHERENCE)
-                .count();
+            let trusted = r.trusted_lines();
             out += &format!(
                 "  {:<4} {} ({trusted} of {} lines trusted)",
                 r.name,

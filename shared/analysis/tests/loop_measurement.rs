@@ -8,6 +8,7 @@ use flexloop_analysis::loop_measurement::{LoopMeasurement, LoopSignals};
 use flexloop_components::InProcessLoop;
 use flexloop_control::excitation::InjectionPoint;
 use flexloop_design::LoopDesign;
+use flexloop_protocol::Measurement;
 use flexloop_scenario::schema::{MeasurePhases, MeasurePoint, MeasureSection, ReferenceSection};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::Path;
@@ -63,14 +64,21 @@ fn measured(name: &str, point: MeasurePoint, amplitude_share: f64) -> (Scenario,
     (s, design)
 }
 
+/// The loop run through its measurement's end: every measurement message.
+fn recorded(design: &LoopDesign) -> Vec<Measurement> {
+    let plan = design.measurement.as_ref().unwrap();
+    let mut l = InProcessLoop::new(design).unwrap();
+    (0..plan.end_tick())
+        .map(|_| {
+            l.tick();
+            l.measurement
+        })
+        .collect()
+}
+
 fn run(design: &LoopDesign) -> LoopMeasurement {
     let plan = design.measurement.clone().unwrap();
-    let mut l = InProcessLoop::new(design).unwrap();
-    let mut measurements = Vec::new();
-    for _ in 0..plan.end_tick() {
-        l.tick();
-        measurements.push(l.measurement);
-    }
+    let measurements = recorded(design);
     let signals = LoopSignals::from_measurements(&plan, measurements.iter()).unwrap();
     LoopMeasurement::compute(design, &plan, &signals).unwrap()
 }
@@ -127,12 +135,7 @@ fn periods_where_the_actuator_reached_its_limit_are_left_out() {
     // answer to it on top: the limit is reached.
     let (_, design) = measured("lecture-double-integrator", MeasurePoint::PlantInput, 0.5);
     let plan = design.measurement.clone().unwrap();
-    let mut l = InProcessLoop::new(&design).unwrap();
-    let mut measurements = Vec::new();
-    for _ in 0..plan.end_tick() {
-        l.tick();
-        measurements.push(l.measurement);
-    }
+    let mut measurements = recorded(&design);
     // One measured period with a command at the limit.
     let at = plan.measured_ticks().start as usize + plan.period_samples() + 7;
     measurements[at].u_applied[0] = design.input_limit;
@@ -148,12 +151,7 @@ fn periods_where_the_actuator_reached_its_limit_are_left_out() {
 fn a_recording_with_a_hole_or_cut_short_is_refused() {
     let (_, design) = measured("default", MeasurePoint::Sensor, 0.05);
     let plan = design.measurement.clone().unwrap();
-    let mut l = InProcessLoop::new(&design).unwrap();
-    let mut measurements = Vec::new();
-    for _ in 0..plan.end_tick() {
-        l.tick();
-        measurements.push(l.measurement);
-    }
+    let measurements = recorded(&design);
     let hole = plan.start_tick as usize + 100;
     let holed: Vec<_> = measurements
         .iter()
