@@ -42,6 +42,7 @@ class Flags:
     OBSERVER_FALLBACK = 1 << 7
     STANDBY = 1 << 8
     CONVERGING = 1 << 9
+    EXCITING = 1 << 10
 
 
 class HandoverMark:

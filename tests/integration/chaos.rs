@@ -6,27 +6,30 @@
 use crate::util::*;
 use flexloop_runfiles::chaos::ChaosFile;
 use flexloop_runfiles::events::{EventKind, SupervisorEvent};
+use std::path::Path;
+use std::process::Output;
 use std::time::Duration;
+
+/// `flexloop chaos` on the lecture loop at 1 kHz with every role in play
+/// and `args`, into `dir`: its output, and chaos.json as written and read.
+fn run_chaos(dir: &Path, args: &[&str]) -> (Output, String, ChaosFile) {
+    let mut cmd = flexloop();
+    cmd.args(["chaos", "lecture-double-integrator"])
+        .args(args)
+        .args(["--roles", "controller,observer,logger,spare"])
+        .args(["--rate", "1000", "--no-realtime", "--run-dir"])
+        .arg(dir);
+    let out = run_bounded(cmd, Duration::from_secs(240));
+    let text = std::fs::read_to_string(dir.join("chaos.json"))
+        .unwrap_or_else(|e| panic!("no chaos.json ({e}): {}", describe(&out)));
+    let chaos = serde_json::from_str(&text).unwrap();
+    (out, text, chaos)
+}
 
 #[test]
 fn chaos_kills_every_role_asked_for_and_accounts_for_each_kill() {
     let dir = temp_dir("chaos");
-    let mut cmd = flexloop();
-    cmd.args([
-        "chaos",
-        "lecture-double-integrator",
-        "--kills",
-        "4",
-        "--seed",
-        "3",
-    ])
-    .args(["--roles", "controller,observer,logger,spare"])
-    .args(["--rate", "1000", "--no-realtime", "--run-dir"])
-    .arg(&*dir);
-    let out = run_bounded(cmd, Duration::from_secs(240));
-    let text = std::fs::read_to_string(dir.join("chaos.json"))
-        .unwrap_or_else(|e| panic!("no chaos.json ({e}): {}", describe(&out)));
-    let chaos: ChaosFile = serde_json::from_str(&text).unwrap();
+    let (out, text, chaos) = run_chaos(&dir, &["--kills", "4", "--seed", "3"]);
     assert_eq!(chaos.kills.len(), 4, "{}", describe(&out));
     assert!(chaos.kills.iter().all(|k| k.replaced), "{text}");
     let killed: Vec<&str> = chaos.kills.iter().map(|k| k.role.as_str()).collect();
@@ -58,24 +61,7 @@ fn chaos_kills_every_role_asked_for_and_accounts_for_each_kill() {
 #[test]
 fn chaos_hangs_every_role_and_each_is_replaced() {
     let dir = temp_dir("chaos-hang");
-    let mut cmd = flexloop();
-    cmd.args([
-        "chaos",
-        "lecture-double-integrator",
-        "--fault",
-        "hang",
-        "--kills",
-        "4",
-        "--seed",
-        "5",
-    ])
-    .args(["--roles", "controller,observer,logger,spare"])
-    .args(["--rate", "1000", "--no-realtime", "--run-dir"])
-    .arg(&*dir);
-    let out = run_bounded(cmd, Duration::from_secs(240));
-    let text = std::fs::read_to_string(dir.join("chaos.json"))
-        .unwrap_or_else(|e| panic!("no chaos.json ({e}): {}", describe(&out)));
-    let chaos: ChaosFile = serde_json::from_str(&text).unwrap();
+    let (out, text, chaos) = run_chaos(&dir, &["--fault", "hang", "--kills", "4", "--seed", "5"]);
     assert_eq!(chaos.kills.len(), 4, "{}", describe(&out));
     assert!(chaos.kills.iter().all(|k| k.fault == "hang"), "{text}");
     assert!(chaos.kills.iter().all(|k| k.replaced), "{text}");

@@ -124,8 +124,7 @@ fn auto_bandwidth_is_resolved_once_and_shown() {
     assert_eq!(l["largest_bandwidth_hz"], chosen);
     // `up` says it, `status` shows it, no warning: the choice meets the rule.
     let run = dir.join("run");
-    let (up, prefix) = start_file(&run, &auto, &["--mode", "lockstep"]);
-    wait_for_ticks(&run, 100);
+    let (up, prefix) = start_file_and_await(&run, &auto, &["--mode", "lockstep"], 100);
     let mut cmd = flexloop();
     cmd.args(["status", "--prefix", &prefix]);
     let status = run_bounded(cmd, Duration::from_secs(60));

@@ -15,21 +15,12 @@ use std::time::{Duration, Instant};
 
 /// Waits (bounded) for the first event of `kind` for `role`.
 fn await_event(dir: &Path, kind: &str, role: &str) -> SupervisorEvent {
-    let since = Instant::now();
-    loop {
-        if let Some(e) = events(dir)
-            .into_iter()
-            .find(|e| e.kind.name() == kind && e.role == role)
-        {
-            return e;
-        }
-        assert!(
-            since.elapsed() < Duration::from_secs(60),
-            "no {kind} event for the {role}: {:?}",
-            events(dir)
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_event(
+        dir,
+        Duration::from_secs(60),
+        &format!("no {kind} event for the {role}"),
+        |e| e.kind.name() == kind && e.role == role,
+    )
 }
 
 fn signal(pid: i32, signal: i32) {
@@ -61,9 +52,7 @@ fn hang_is_handled(dir: &Path, prefix: &str, up: Up, role: &str) -> SupervisorEv
     // The loop runs on, served by the replacement.
     let replacement = pid_on_duty(dir, role, "active");
     assert_ne!(replacement, hung);
-    let after = recorded_ticks_in(dir, "samples.mcap");
-    wait_for_ticks(dir, after + 500);
-    let out = stop(prefix, up);
+    let out = stop_after_more_ticks(dir, prefix, up, 500);
     // Recovered: `up` ends as a run whose faults were all dealt with.
     assert_ran(&out);
     assert_clean(dir);
@@ -91,19 +80,12 @@ fn a_stopped_observer_is_found_silent_killed_and_restarted() {
 #[test]
 fn in_lockstep_a_stopped_controller_is_found_silent_and_restarted() {
     let dir = temp_dir("hang-lockstep");
-    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 2_000);
+    let (up, prefix) = start_lecture_lockstep(&dir, 2_000);
     hang_is_handled(&dir, &prefix, up, "controller");
     // The plant held its input while it waited: the run's own counters
     // say so, nothing was lost from the record.
-    let summary = summary(&dir);
-    for channel in ["measurement", "estimate"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{channel}: {summary:?}"
-        );
-    }
+    let channels = ["measurement", "estimate"];
+    assert_no_gaps_on(&summary(&dir), &channels, "a hung controller in lockstep");
 }
 
 /// A Python controller `law` swapped into a running loop (the built-in
@@ -135,9 +117,7 @@ fn program_is_silenced_and_rolled_back(
         restart_of(&restart).rolled_back_from.is_some(),
         "a program is rolled back: {restart:?}"
     );
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 500);
-    let out = stop(&prefix, up);
+    let out = stop_after_more_ticks(&dir, &prefix, up, 500);
     assert_ran(&out);
     assert_clean(&dir);
     (silent, crash)
@@ -227,8 +207,7 @@ fn a_hung_program_does_not_outlive_its_killed_supervisor() {
     )
     .unwrap();
     let file = python_controller_scenario(&dir, "sleepy.toml", &law);
-    let (up, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 500);
+    let (up, prefix) = start_file_and_await(&dir, &file, &["--mode", "lockstep"], 500);
     let program = pid_on_duty(&dir, "controller", "active");
     std::fs::write(&marker, "").unwrap();
     // The law is asleep once the loop stops moving (lockstep).

@@ -16,7 +16,7 @@ use flexloop_protocol::layout;
 use flexloop_recording::LogReader;
 use flexloop_recording::sample_file::EVENT_SCHEMA;
 use flexloop_runfiles::RunDir;
-use flexloop_runfiles::events::{EventKind, SupervisorEvent};
+use flexloop_runfiles::events::SupervisorEvent;
 use flexloop_runfiles::json::read_json;
 use flexloop_runfiles::live::{LiveEndpoint, LiveSummary};
 use serde_json::Value;
@@ -31,6 +31,15 @@ const TOKEN: &str = "s3cret-0123456789abcdef";
 /// Where the loop's live server listens, once it does (`live.json`).
 fn live_url(dir: &Path, up: &mut Up) -> String {
     format!("ws://{}", live_endpoint(dir, up).address)
+}
+
+/// [`start`] with a live view on loopback (`--live 127.0.0.1:0`) and
+/// `args`, once the view listens: the loop, its prefix, the view's URL.
+fn start_live(dir: &Path, scenario_name: &str, args: &[&str]) -> (Up, String, String) {
+    let args = [&["--live", "127.0.0.1:0"], args].concat();
+    let (mut up, prefix) = start(dir, scenario_name, &args);
+    let url = live_url(dir, &mut up);
+    (up, prefix, url)
 }
 
 /// The live server's pid (`live.json`), once it listens.
@@ -109,19 +118,11 @@ fn live_clients_get_the_recorded_messages_at_their_rate_and_bad_clients_disturb_
     let dir = temp_dir("live-observe");
     // Lockstep, so that any gap would be the live server's doing: the loop
     // misses nothing of its own however loaded the machine is.
-    let (mut up, prefix) = start(
+    let (up, prefix, url) = start_live(
         &dir,
         "lecture-double-integrator",
-        &[
-            "--mode",
-            "lockstep",
-            "--rate",
-            "1000",
-            "--live",
-            "127.0.0.1:0",
-        ],
+        &["--mode", "lockstep", "--rate", "1000"],
     );
-    let url = live_url(&dir, &mut up);
     let seen = client("observe", &url, "4", None);
     let status = run_bounded(
         {
@@ -292,19 +293,16 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
     let dir = temp_dir("live-tune");
     let tokens = temp_dir("live-tune-token");
     let file = token_file(&tokens, "token", TOKEN);
-    let (mut up, prefix) = start(
+    let (up, prefix, url) = start_live(
         &dir,
         "default",
         &[
             "--mode",
             "lockstep",
-            "--live",
-            "127.0.0.1:0",
             "--live-token-file",
             file.to_str().unwrap(),
         ],
     );
-    let url = live_url(&dir, &mut up);
     wait_for_ticks(&dir, 2_000);
     let seen = client("tune", &url, "60", Some(TOKEN));
     let out = stop(&prefix, up);
@@ -365,10 +363,7 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
         .filter(|e| e["kind"] == "set")
         .collect();
     assert_eq!(live_sets.len(), 1, "{}", seen["events"]);
-    let sets: Vec<SupervisorEvent> = events(&dir)
-        .into_iter()
-        .filter(|e| matches!(e.kind, EventKind::Set(_)))
-        .collect();
+    let sets = sets(&dir);
     assert_eq!(sets.len(), 1);
     // The same event: the live one read as the file's is (compared as
     // written again, since a NaN |Δu| is not equal to itself).
@@ -386,18 +381,8 @@ fn live_parameters_show_the_tunables_and_change_the_loop_with_the_token() {
 #[test]
 fn a_read_only_live_server_refuses_every_change_of_the_loop() {
     let dir = temp_dir("live-read-only");
-    let (mut up, prefix) = start(
-        &dir,
-        "default",
-        &[
-            "--mode",
-            "lockstep",
-            "--live",
-            "127.0.0.1:0",
-            "--live-read-only",
-        ],
-    );
-    let url = live_url(&dir, &mut up);
+    let (up, prefix, url) =
+        start_live(&dir, "default", &["--mode", "lockstep", "--live-read-only"]);
     let seen = client("readonly", &url, "10", None);
     stop(&prefix, up);
     let set = &seen["set"];
@@ -405,11 +390,7 @@ fn a_read_only_live_server_refuses_every_change_of_the_loop() {
     assert_eq!(parameter(&set["values"], "controller.bandwidth_hz"), 43.5);
     // A client's own rate is not a change of the loop.
     assert_eq!(parameter(&seen["rate"]["values"], "live.rate_hz"), 100.0);
-    assert!(
-        events(&dir)
-            .iter()
-            .all(|e| !matches!(e.kind, EventKind::Set(_)))
-    );
+    assert!(sets(&dir).is_empty());
     assert_clean(&dir);
 }
 
@@ -542,12 +523,7 @@ fn a_live_token_comes_from_the_environment_or_a_file_never_the_command_line() {
 #[test]
 fn live_connections_beyond_the_cap_are_refused_and_slow_clients_hold_bounded_memory() {
     let dir = temp_dir("live-flood");
-    let (mut up, prefix) = start(
-        &dir,
-        "lecture-double-integrator",
-        &["--rate", "1000", "--live", "127.0.0.1:0"],
-    );
-    let url = live_url(&dir, &mut up);
+    let (mut up, prefix, url) = start_live(&dir, "lecture-double-integrator", &["--rate", "1000"]);
     let pid = live_pid(&dir, &mut up);
     // Straight to the crate's own port (loopback), not through the
     // server's address: advertisements, and nothing else.
@@ -617,19 +593,16 @@ fn live_token_guesses_are_throttled_and_a_large_set_is_refused_before_it_costs_m
     let dir = temp_dir("live-guard");
     let tokens = temp_dir("live-guard-token");
     let file = token_file(&tokens, "token", TOKEN);
-    let (mut up, prefix) = start(
+    let (mut up, prefix, url) = start_live(
         &dir,
         "lecture-double-integrator",
         &[
             "--rate",
             "1000",
-            "--live",
-            "127.0.0.1:0",
             "--live-token-file",
             file.to_str().unwrap(),
         ],
     );
-    let url = live_url(&dir, &mut up);
     let pid = live_pid(&dir, &mut up);
     let big = client("bigset", &url, "20", Some(&pid));
     let brute = client("brute", &url, "3", Some(TOKEN));
@@ -701,10 +674,6 @@ fn live_token_guesses_are_throttled_and_a_large_set_is_refused_before_it_costs_m
     assert!(log.contains("refused unexamined"), "{log}");
     assert!(log.contains("at most 65536 bytes"), "{log}");
     assert!(summary.oversized_messages >= 1, "{summary:?}");
-    assert!(
-        events(&dir)
-            .iter()
-            .all(|e| !matches!(e.kind, EventKind::Set(_)))
-    );
+    assert!(sets(&dir).is_empty());
     assert_clean(&dir);
 }

@@ -158,8 +158,7 @@ fn down_stops_a_running_loop_cleanly_and_status_sees_it() {
 #[test]
 fn swaps_and_stops_name_their_sender_and_another_users_are_refused() {
     let dir = temp_dir("loop-owner");
-    let (up, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 500);
+    let (up, prefix) = start_lecture_lockstep(&dir, 500);
     let on_loop = |args: &[&str]| {
         let mut c = flexloop();
         c.args(args).args(["--prefix", &prefix]);

@@ -7,7 +7,7 @@
 //! stops. The Rust example (examples/luenberger-observer) and its Python
 //! twin (python/examples/luenberger.py).
 
-use crate::own_components::{assert_gone, built, observer_scenario};
+use crate::own_components::{built, observer_scenario};
 use crate::util::*;
 use flexloop_protocol::Measurement;
 use flexloop_recording::LogReader;
@@ -92,11 +92,7 @@ fn stderr_files(dir: &Path) -> String {
 /// x̂ = 0 at tick 0 through the recorded measurements: x̂ by tick. Asserts
 /// that the measurements are contiguous from 0.
 fn predictor(log: &LogReader) -> Vec<[f64; 2]> {
-    let (ts, mass, w, zeta) = (1e-4, 1.0, 2.0 * std::f64::consts::PI * 200.0, 0.7_f64);
-    let decay = (-zeta * w * ts).exp();
-    let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
-    let l1 = a1 + 2.0;
-    let l2 = (decay * decay - 1.0 + l1) / ts;
+    let law = Predictor::example();
     let measurements: BTreeMap<u64, &Measurement> =
         log.measurements().map(|m| (m.seq, m)).collect();
     let seqs: Vec<u64> = measurements.keys().copied().collect();
@@ -108,13 +104,7 @@ fn predictor(log: &LogReader) -> Vec<[f64; 2]> {
     );
     let mut x = vec![[0.0, 0.0]];
     for m in measurements.values() {
-        let [p, v] = *x.last().unwrap();
-        let innovation = m.y[0] - p;
-        let u = m.u_applied[0];
-        x.push([
-            p + ts * v + ts * ts / (2.0 * mass) * u + l1 * innovation,
-            v + ts / mass * u + l2 * innovation,
-        ]);
+        x.push(law.step(*x.last().unwrap(), m.y[0], m.u_applied[0]));
     }
     x
 }
@@ -195,20 +185,14 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
     let summary = summary(&dir);
     let counters = summary.counters;
     for (counter, count) in [
-        ("misses", counters.misses),
         ("stale_estimates", counters.stale_estimates),
         ("rejected_commands", counters.rejected_commands),
     ] {
         assert_eq!(count, 0, "{counter}: {summary:?}");
     }
-    // Lockstep waits for the restart: it accounts for no lost sample.
-    for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{channel} gaps: {summary:?}"
-        );
-    }
+    // Lockstep waits for the restart: it misses no tick and accounts for
+    // no lost sample.
+    assert_lost_nothing(&summary, test);
 
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let x = predictor(&log);
@@ -218,16 +202,7 @@ fn a_killed_observer_program_catches_up_with_warm_spares(
         // Every estimate, before the crash and after the restart, is the
         // predictor's on the recorded measurements from tick 0: the restart
         // loaded its predecessor's x̂ and stepped every measurement since.
-        let want = x[e.seq as usize];
-        for (i, (got, want)) in e.x_hat.iter().zip(want).enumerate() {
-            assert!(
-                (got - want).abs() <= 1e-12 * want.abs().max(1e-3),
-                "estimate for {} (generation {}): x̂[{i}] {got} against {want}",
-                e.seq,
-                e.generation,
-            );
-        }
-        assert_eq!(e.n_states, 2);
+        assert_estimate_is(e, x[e.seq as usize]);
     }
     assert_eq!(
         by_generation.keys().copied().collect::<Vec<_>>(),

@@ -97,15 +97,7 @@ fn the_chain_as_a_lumped_network_runs_table_3_7_as_the_built_in_chain() {
 #[test]
 fn the_chain_from_numpy_and_matlab_files_runs_table_3_7_as_the_built_in_chain() {
     let dir = temp_dir("own-plant-files");
-    let python = python_with(&["numpy", "scipy"]);
-    let mut cmd = std::process::Command::new(&python);
-    cmd.arg(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("tests/integration/python/write_chain_models.py"),
-    )
-    .arg(&*dir);
-    let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
+    write_chain_models(&dir);
     let built_in_bandwidth = largest_bandwidth_hz(&scenario("thesis-mc-ad"));
     for case in ["thesis-original", "thesis-mc-ad"] {
         let built_in = scan_rms_nm(&scenario(case), &dir.join(format!("{case}-built-in")));
@@ -162,14 +154,7 @@ fn a_drive_train_of_its_own_runs_and_tracks_with_the_bandwidth_it_chose() {
 #[test]
 fn a_model_file_outside_the_scenarios_directory_is_found_again_by_report() {
     let dir = temp_dir("own-plant-outside");
-    let mut cmd = std::process::Command::new(python_with(&["numpy", "scipy"]));
-    cmd.arg(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("tests/integration/python/write_chain_models.py"),
-    )
-    .arg(&*dir);
-    let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
+    write_chain_models(&dir);
     let sub = dir.join("scenarios");
     std::fs::create_dir_all(&sub).unwrap();
     let own = with_plant(

@@ -19,7 +19,6 @@ use crate::util::*;
 use flexloop_components::ControllerCore;
 use flexloop_protocol::{Command, Estimate, MAX_INPUTS, Measurement};
 use flexloop_recording::LogReader;
-use flexloop_runfiles::events::EventKind;
 use flexloop_scenario::ProgramRole;
 use flexloop_scenario::program::served_by_program;
 use std::collections::HashMap;
@@ -73,14 +72,7 @@ fn chain_model_files() -> &'static Path {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
             .join(format!("program-matrix-models-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let mut cmd = std::process::Command::new(python_with(&["numpy", "scipy"]));
-        cmd.arg(
-            Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("tests/integration/python/write_chain_models.py"),
-        )
-        .arg(&dir);
-        let out = run_bounded(cmd, Duration::from_secs(120));
-        assert!(out.status.success(), "{}", describe(&out));
+        write_chain_models(&dir);
         dir
     })
 }
@@ -235,8 +227,8 @@ fn run_cell(plant: &Plant, observer_program: bool, first: Controller) {
     );
     // Built-in first: to the Rust program and back; a program first: to
     // the built-in controller and back to the program.
-    let (child, prefix) = crate::util::start_file(&dir, &start_file, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, TICKS_BEFORE);
+    let (child, prefix) =
+        start_file_and_await(&dir, &start_file, &["--mode", "lockstep"], TICKS_BEFORE);
     let swap_to_built_in = |prefix: &str| {
         swap(
             prefix,
@@ -250,49 +242,23 @@ fn run_cell(plant: &Plant, observer_program: bool, first: Controller) {
         Controller::BuiltIn => swap_to_program(&prefix, Controller::Rust, plant.mass),
         _ => swap_to_built_in(&prefix),
     }
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + TICKS_BETWEEN);
+    wait_for_more_ticks(&dir, TICKS_BETWEEN);
     match first {
         Controller::BuiltIn => swap_to_built_in(&prefix),
         program => swap_to_program(&prefix, program, plant.mass),
     }
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + TICKS_BETWEEN);
-    stop(&prefix, child);
+    stop_after_more_ticks(&dir, &prefix, child, TICKS_BETWEEN);
 
-    let summary = summary(&dir);
-    assert_eq!(summary.counters.misses, 0, "{tag}: {summary:?}");
-    for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{tag}: {channel} gaps"
-        );
-    }
-    let swaps: Vec<_> = events(&dir)
-        .into_iter()
-        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
-        .collect();
+    assert_lost_nothing(&summary(&dir), &tag);
+    let swaps = swaps(&dir);
     assert_eq!(swaps.len(), 2, "{tag}: {swaps:?}");
     for swap in &swaps {
-        let switch = &swap_of(swap).switch;
-        assert!(
-            switch.du_switch <= 2.0 * switch.du_before.max(switch.du_after) + 1e-6,
-            "{tag}: a switch larger than ordinary steps: {switch:?}"
-        );
+        assert_bumpless(&swap_of(swap).switch, &tag);
     }
-    assert!(
-        !events(&dir)
-            .iter()
-            .any(|e| matches!(e.kind, EventKind::Crash(_))),
-        "{tag}: {:?}",
-        events(&dir)
-    );
+    assert_no_crash(&dir, &tag);
 
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
-    let generations: std::collections::BTreeSet<u32> =
-        log.commands().map(|c| c.generation).collect();
-    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1, 2]);
+    assert_eq!(command_generations(&log), [0, 1, 2]);
     let served = match first {
         Controller::BuiltIn => assert_built_in_law_from_tick_0(&start_file, &log),
         _ => assert_pid_law_from_tick_0(&start_file, plant.mass, &log),
@@ -312,6 +278,19 @@ fn design(file: &Path) -> flexloop_design::LoopDesign {
         .design
 }
 
+/// The recorded measurements from tick 0, each with the command generation
+/// 0 sent for it, up to the first it sent none for.
+fn served_by_generation_0(log: &LogReader) -> Vec<(&Measurement, &Command)> {
+    let commands: HashMap<u64, &Command> = log
+        .commands()
+        .filter(|c| c.generation == 0)
+        .map(|c| (c.seq, c))
+        .collect();
+    log.measurements()
+        .map_while(|m| Some((m, *commands.get(&m.seq)?)))
+        .collect()
+}
+
 /// Every command generation 0 sent equals the built-in controller's law
 /// (`ControllerCore`, as the process runs it) stepped here from tick 0 on
 /// the recorded measurements and estimates; returns how many.
@@ -319,16 +298,8 @@ fn assert_built_in_law_from_tick_0(file: &Path, log: &LogReader) -> usize {
     let design = design(file);
     let mut law = ControllerCore::new(&design, 0);
     let estimates: HashMap<u64, &Estimate> = log.estimates().map(|e| (e.seq, e)).collect();
-    let commands: HashMap<u64, &Command> = log
-        .commands()
-        .filter(|c| c.generation == 0)
-        .map(|c| (c.seq, c))
-        .collect();
     let mut checked = 0;
-    for m in log.measurements() {
-        let Some(sent) = commands.get(&m.seq) else {
-            break;
-        };
+    for (m, sent) in served_by_generation_0(log) {
         let mut out = Command::default();
         law.step(m, estimates[&m.seq], &mut out);
         for i in 0..design.n_inputs {
@@ -345,40 +316,25 @@ fn assert_built_in_law_from_tick_0(file: &Path, log: &LogReader) -> usize {
     checked
 }
 
-/// The example PID per axis, written again here from its documentation.
+/// The example PID per axis (its gains for `mass`), clamped to `limit`.
 struct ReferencePid {
-    kp: f64,
-    ki_ts: f64,
-    a: f64,
-    b: f64,
+    axes: [ExamplePid; MAX_INPUTS],
     limit: f64,
-    integral: [f64; MAX_INPUTS],
-    derivative: [f64; MAX_INPUTS],
-    last_error: [f64; MAX_INPUTS],
 }
 
 impl ReferencePid {
     fn new(mass: f64, ts: f64, limit: f64) -> Self {
         let p: HashMap<&str, f64> = pid_params(mass).into_iter().collect();
-        let n = p["derivative_filter_rad_s"];
+        let (kp, ki, kd, n) = (p["kp"], p["ki"], p["kd"], p["derivative_filter_rad_s"]);
         Self {
-            kp: p["kp"],
-            ki_ts: p["ki"] * ts,
-            a: 1.0 / (1.0 + n * ts),
-            b: p["kd"] * n / (1.0 + n * ts),
+            axes: std::array::from_fn(|_| ExamplePid::new(kp, ki, kd, n, ts)),
             limit,
-            integral: [0.0; MAX_INPUTS],
-            derivative: [0.0; MAX_INPUTS],
-            last_error: [0.0; MAX_INPUTS],
         }
     }
 
+    /// Axis `i`'s step: its command and that before the limit (`u_fb`).
     fn step(&mut self, i: usize, r: f64, y: f64) -> (f64, f64) {
-        let error = r - y;
-        self.integral[i] += self.ki_ts * error;
-        self.derivative[i] = self.a * self.derivative[i] + self.b * (error - self.last_error[i]);
-        self.last_error[i] = error;
-        let u = self.kp * error + self.integral[i] + self.derivative[i];
+        let u = self.axes[i].step(r - y);
         (u.clamp(-self.limit, self.limit), u)
     }
 }
@@ -389,16 +345,8 @@ impl ReferencePid {
 fn assert_pid_law_from_tick_0(file: &Path, mass: f64, log: &LogReader) -> usize {
     let design = design(file);
     let mut law = ReferencePid::new(mass, design.ts, design.input_limit);
-    let commands: HashMap<u64, &Command> = log
-        .commands()
-        .filter(|c| c.generation == 0)
-        .map(|c| (c.seq, c))
-        .collect();
     let mut checked = 0;
-    for m in log.measurements() {
-        let Some(sent) = commands.get(&m.seq) else {
-            break;
-        };
+    for (m, sent) in served_by_generation_0(log) {
         let r = design.reference.sample(m.seq as f64 * design.ts)[0];
         for i in 0..design.n_inputs {
             let (u, u_fb) = law.step(i, design.reference_direction[i] * r, m.y[i]);
@@ -424,13 +372,7 @@ fn assert_predictor_law(file: &Path, mass: f64, log: &LogReader) -> usize {
     let design = design(file);
     let ts = design.ts;
     let p: HashMap<&str, f64> = observer_params(mass).into_iter().collect();
-    let (bw, zeta) = (p["bandwidth_hz"], p["damping"]);
-    let w = 2.0 * std::f64::consts::PI * bw;
-    let decay = (-zeta * w * ts).exp();
-    let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
-    let l1 = a1 + 2.0;
-    let l2 = (decay * decay - 1.0 + l1) / ts;
-    let gamma = [ts * ts / (2.0 * mass), ts / mass];
+    let predictor = Predictor::new(ts, mass, p["bandwidth_hz"], p["damping"]);
     let n = design.n_inputs;
     let mut x = vec![0.0; 2 * n];
     let estimates: HashMap<u64, &Estimate> = log.estimates().map(|e| (e.seq, e)).collect();
@@ -439,10 +381,8 @@ fn assert_predictor_law(file: &Path, mass: f64, log: &LogReader) -> usize {
     assert_eq!(estimates[&0].x_hat[..2 * n], x[..], "the initial estimate");
     for m in measurements {
         for i in 0..n {
-            let innovation = m.y[i] - x[2 * i];
-            let (pos, vel) = (x[2 * i], x[2 * i + 1]);
-            x[2 * i] = pos + ts * vel + gamma[0] * m.u_applied[i] + l1 * innovation;
-            x[2 * i + 1] = vel + gamma[1] * m.u_applied[i] + l2 * innovation;
+            let axis = [x[2 * i], x[2 * i + 1]];
+            [x[2 * i], x[2 * i + 1]] = predictor.step(axis, m.y[i], m.u_applied[i]);
         }
         let Some(e) = estimates.get(&(m.seq + 1)) else {
             break;

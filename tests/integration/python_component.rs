@@ -39,8 +39,7 @@ fn python_messages_match_the_protocol_tables() {
 #[test]
 fn a_python_subscriber_receives_contiguous_measurements_from_a_running_loop() {
     let dir = temp_dir("python-subscriber");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &[]);
-    wait_for_ticks(&dir, 100);
+    let (child, prefix) = start_and_await(&dir, "lecture-double-integrator", &[], 100);
     let mut cmd = Command::new(python());
     cmd.arg(repo().join("python/tests/receive_measurements.py"))
         .args([prefix.as_str(), "20000", "60"]);
@@ -55,7 +54,7 @@ fn a_python_subscriber_receives_contiguous_measurements_from_a_running_loop() {
         19_999,
         "{report}"
     );
-    assert_eq!(report["type_name"], "flexloop.Measurement.v3");
+    assert_eq!(report["type_name"], "flexloop.Measurement.v4");
     assert_clean(&dir);
 }
 
@@ -87,47 +86,30 @@ fn python_pid_scenario(dir: &Path) -> PathBuf {
     )
 }
 
-/// python/examples/pid.py's law, operation for operation, from sample
-/// `from` on over the measured y: the lecture's 1 mm 2 Hz sine set-point,
-/// a filtered derivative, the plant's 100 N limit. `shift` adds the old
-/// command's difference to the integrator after sample `at` (the bumpless
-/// hand-over), returning each u.
+/// python/examples/pid.py's law, operation for operation, over the
+/// measured y: the lecture's 1 mm 2 Hz sine set-point, a filtered
+/// derivative, the plant's 100 N limit.
 struct Pid {
-    kp: f64,
-    ki_ts: f64,
-    a: f64,
-    b: f64,
+    pid: ExamplePid,
     ts: f64,
-    integral: f64,
-    derivative: f64,
-    last_error: f64,
 }
 
 impl Pid {
     fn new(rate_hz: f64) -> Self {
         let p: HashMap<&str, f64> = PID_PARAMS.into_iter().collect();
         let ts = 1.0 / rate_hz;
-        let n = p["derivative_filter_rad_s"];
+        let (kp, ki, kd, n) = (p["kp"], p["ki"], p["kd"], p["derivative_filter_rad_s"]);
         Self {
-            kp: p["kp"],
-            ki_ts: p["ki"] * ts,
-            a: 1.0 / (1.0 + n * ts),
-            b: p["kd"] * n / (1.0 + n * ts),
+            pid: ExamplePid::new(kp, ki, kd, n, ts),
             ts,
-            integral: 0.0,
-            derivative: 0.0,
-            last_error: 0.0,
         }
     }
 
+    /// Its command for sample `seq`, measured `y`.
     fn step(&mut self, seq: u64, y: f64) -> f64 {
         let t = seq as f64 * self.ts;
         let r = 0.001 * (2.0 * std::f64::consts::PI * 2.0 * t).sin();
-        let error = r - y;
-        self.integral += self.ki_ts * error;
-        self.derivative = self.a * self.derivative + self.b * (error - self.last_error);
-        self.last_error = error;
-        (self.kp * error + self.integral + self.derivative).clamp(-100.0, 100.0)
+        self.pid.step(r - y).clamp(-100.0, 100.0)
     }
 }
 
@@ -165,12 +147,10 @@ fn stderr_saying(dir: &Path, needle: &str) -> Option<(String, usize)> {
 fn the_python_pid_swapped_into_a_lockstep_loop_commands_its_law_and_hands_back() {
     let dir = temp_dir("python-pid-swap");
     let pid_scenario = python_pid_scenario(&dir);
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 430);
+    let (child, prefix) = start_lecture_lockstep(&dir, 430);
     let answer = swap_to(&prefix, &pid_scenario);
     assert!(answer.contains("generation 1"), "{answer}");
-    let swapped_at = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, swapped_at + 3000);
+    wait_for_more_ticks(&dir, 3000);
     let back = swap_to(&prefix, &scenario("lecture-double-integrator"));
     assert!(back.contains("generation 2"), "{back}");
     stop(&prefix, child);
@@ -182,13 +162,11 @@ fn the_python_pid_swapped_into_a_lockstep_loop_commands_its_law_and_hands_back()
     ] {
         assert_eq!(count, 0, "{counter}: {summary:?}");
     }
-    for channel in ["measurement", "command"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{channel} gaps: {summary:?}"
-        );
-    }
+    assert_no_gaps_on(
+        &summary,
+        &["measurement", "command"],
+        "into Python and back",
+    );
     let log = LogReader::open(&dir.join("samples.mcap")).unwrap();
     let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
     let u: HashMap<(u64, u32), f64> = log
@@ -216,7 +194,7 @@ fn the_python_pid_swapped_into_a_lockstep_loop_commands_its_law_and_hands_back()
     for seq in law_start(&dir, 1)..=last {
         let own = law.step(seq, y[&seq]);
         if seq + 1 == from {
-            law.integral += u[&(seq, 0)] - own;
+            law.pid.integral += u[&(seq, 0)] - own;
         }
         if seq >= from {
             let sent = u[&(seq, 1)];
@@ -280,13 +258,10 @@ fn the_python_pid_runs_a_lockstep_loop_from_its_start() {
 fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
     let dir = temp_dir("python-pid-self");
     let pid_scenario = python_pid_scenario(&dir);
-    let (child, prefix) = start_file(&dir, &pid_scenario, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 430);
+    let (child, prefix) = start_file_and_await(&dir, &pid_scenario, &["--mode", "lockstep"], 430);
     let answer = swap_to(&prefix, &pid_scenario);
     assert!(answer.contains("generation 1"), "{answer}");
-    let swapped_at = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, swapped_at + 1000);
-    stop(&prefix, child);
+    stop_after_more_ticks(&dir, &prefix, child, 1000);
 
     let summary = summary(&dir);
     assert_eq!(summary.counters.misses, 0, "{summary:?}");
@@ -294,9 +269,7 @@ fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
     let y: HashMap<u64, f64> = log.measurements().map(|m| (m.seq, m.y[0])).collect();
     let mut commands: Vec<_> = log.commands().collect();
     commands.sort_by_key(|c| c.seq);
-    let generations: std::collections::BTreeSet<u32> =
-        commands.iter().map(|c| c.generation).collect();
-    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert_eq!(command_generations(&log), [0, 1]);
     // The successor copied the state (same class, parameters and rate)
     // before every sample it followed: the run is one law from tick 0,
     // to the last bit, across the hand-over.
@@ -319,11 +292,8 @@ fn the_python_pid_swapped_for_itself_continues_from_its_state_to_the_bit() {
 fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
     let dir = temp_dir("python-pid-standby");
     let pid_scenario = python_pid_scenario(&dir);
-    let mut text = std::fs::read_to_string(&pid_scenario).unwrap();
-    text.push_str("\n[supervision]\nsafe_action = \"standby\"\n");
-    std::fs::write(&pid_scenario, text).unwrap();
-    let (child, prefix) = start_file(&dir, &pid_scenario, &["--rate", "1000"]);
-    wait_for_ticks(&dir, 100);
+    append_to_scenario(&pid_scenario, STANDBY_TABLE);
+    let (child, prefix) = start_file_and_await(&dir, &pid_scenario, &["--rate", "1000"], 100);
     let standby = pid_on_duty(&dir, "controller", "standby");
     // Once the standby steps its law (a Python start-up takes a while on a
     // loaded machine) and has followed a while, kill the active controller.
@@ -335,25 +305,15 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    wait_for_ticks(&dir, recorded_ticks_in(&dir, "samples.mcap") + 300);
+    wait_for_more_ticks(&dir, 300);
     let active = pid_on_duty(&dir, "controller", "active");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(active, libc::SIGKILL) };
-    let since = std::time::Instant::now();
-    while !events(&dir)
-        .iter()
-        .any(|e| matches!(e.kind, EventKind::PromoteStandby(_)))
-    {
-        assert!(
-            since.elapsed() < Duration::from_secs(90),
-            "standby not promoted: {:?}",
-            events(&dir)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let promoted = wait_for_event(&dir, Duration::from_secs(90), "standby not promoted", |e| {
+        matches!(e.kind, EventKind::PromoteStandby(_))
+    });
     assert_eq!(pid_on_duty(&dir, "controller", "active"), standby);
-    wait_for_ticks(&dir, recorded_ticks_in(&dir, "samples.mcap") + 300);
-    stop(&prefix, child);
+    stop_after_more_ticks(&dir, &prefix, child, 300);
 
     let summary = summary(&dir);
     assert_eq!(summary.counters.rejected_commands, 0, "{summary:?}");
@@ -368,10 +328,6 @@ fn a_python_standby_covers_a_killed_python_controller_and_is_promoted() {
         standby_commands > 100,
         "{standby_commands} standby commands"
     );
-    let promoted = events(&dir)
-        .into_iter()
-        .find(|e| matches!(e.kind, EventKind::PromoteStandby(_)))
-        .unwrap();
     let generation = promoted.generation.unwrap();
     let served = log
         .commands()
@@ -398,8 +354,7 @@ fn a_python_law_with_parameters_it_cannot_use_is_refused_and_the_loop_runs_on() 
         text.replace("kd = 110.0\n", "kd = 110.0\ngain = 2.0\n"),
     )
     .unwrap();
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 430);
+    let (child, prefix) = start_lecture_lockstep(&dir, 430);
     for (file, says) in [
         (&missing, "field `controller.params.kd`: missing"),
         (

@@ -359,26 +359,17 @@ fn python_observer_scenario(dir: &Path) -> PathBuf {
 /// ζ 0.7 at 10 kHz): x̂ for every tick from `from` (where it starts at 0)
 /// on the recorded measurements, by tick.
 fn predictor(log: &flexloop_recording::LogReader, from: u64) -> Vec<Option<[f64; 2]>> {
-    let (ts, mass, w, zeta) = (1e-4, 1.0, 2.0 * std::f64::consts::PI * 200.0, 0.7_f64);
-    let decay = (-zeta * w * ts).exp();
-    let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
-    let l1 = a1 + 2.0;
-    let l2 = (decay * decay - 1.0 + l1) / ts;
+    let law = Predictor::example();
     let measurements: std::collections::BTreeMap<u64, &flexloop_protocol::Measurement> =
         log.measurements().map(|m| (m.seq, m)).collect();
     let last = *measurements.keys().last().unwrap();
     let mut x = vec![None; last as usize + 2];
     x[from as usize] = Some([0.0, 0.0]);
     for seq in from..=last {
-        let (Some([p, v]), Some(m)) = (x[seq as usize], measurements.get(&seq)) else {
+        let (Some(x_now), Some(m)) = (x[seq as usize], measurements.get(&seq)) else {
             panic!("no measurement {seq}");
         };
-        let innovation = m.y[0] - p;
-        let u = m.u_applied[0];
-        x[seq as usize + 1] = Some([
-            p + ts * v + ts * ts / (2.0 * mass) * u + l1 * innovation,
-            v + ts / mass * u + l2 * innovation,
-        ]);
+        x[seq as usize + 1] = Some(law.step(x_now, m.y[0], m.u_applied[0]));
     }
     x
 }
@@ -397,15 +388,7 @@ fn assert_estimates_follow_the_predictor(
         .filter(|e| generations.contains(&e.generation))
     {
         let want = x[e.seq as usize].unwrap_or_else(|| panic!("estimate {} before {from}", e.seq));
-        for (i, (got, want)) in e.x_hat.iter().zip(want).enumerate() {
-            assert!(
-                (got - want).abs() <= 1e-12 * want.abs().max(1e-3),
-                "estimate for {} (generation {}): x̂[{i}] {got} against {want}",
-                e.seq,
-                e.generation,
-            );
-        }
-        assert_eq!(e.n_states, 2);
+        assert_estimate_is(e, want);
         checked += 1;
     }
     checked
@@ -440,24 +423,11 @@ fn swap(prefix: &str, args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-/// Waits (bounded) until the process `pid` is gone.
-fn assert_gone(pid: i32) {
-    let since = std::time::Instant::now();
-    while Path::new(&format!("/proc/{pid}")).exists() {
-        assert!(
-            since.elapsed() < Duration::from_secs(30),
-            "process {pid} is still there"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 #[test]
 fn the_python_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() {
     let dir = temp_dir("python-observer");
     let file = python_observer_scenario(&dir);
-    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 1_500);
+    let (child, prefix) = start_file_and_await(&dir, &file, &["--mode", "lockstep"], 1_500);
     // `--exec`: the loop as it stands (its [observer.params] too), served
     // by the same law, which takes its predecessor's x̂ and so continues.
     let py = python();
@@ -467,22 +437,10 @@ fn the_python_observer_estimates_as_its_law_says_and_swaps_to_itself_by_exec() {
         &["observer", "--exec", &py, example.to_str().unwrap()],
     );
     assert!(answer.contains("observer generation 1"), "{answer}");
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 1_500);
-    stop(&prefix, child);
-    let summary = summary(&dir);
-    assert_eq!(summary.counters.misses, 0, "{summary:?}");
-    for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{channel} gaps: {summary:?}"
-        );
-    }
+    stop_after_more_ticks(&dir, &prefix, child, 1_500);
+    assert_lost_nothing(&summary(&dir), "after the swap to itself by --exec");
     let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
-    let generations: std::collections::BTreeSet<u32> =
-        log.estimates().map(|e| e.generation).collect();
-    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert_eq!(estimate_generations(&log), [0, 1]);
     // One law from tick 0, across the swap.
     assert_eq!(observer_law_start(&dir, 0), 0);
     assert!(assert_estimates_follow_the_predictor(&log, 0, &[0, 1]) > 3_000);
@@ -526,8 +484,7 @@ fn the_python_observer_swaps_into_a_running_loop_and_back() {
             python_exec("python/examples/pid.py")
         ),
     );
-    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 1_000);
+    let (child, prefix) = start_file_and_await(&dir, &file, &["--mode", "lockstep"], 1_000);
     let py = python();
     let example = repo().join("python/examples/luenberger.py");
     let answer = swap(
@@ -547,24 +504,14 @@ fn the_python_observer_swaps_into_a_running_loop_and_back() {
     );
     assert!(answer.contains("observer generation 1"), "{answer}");
     let program = pid_on_duty(&dir, "observer", "active");
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 1_500);
+    wait_for_more_ticks(&dir, 1_500);
     // Back to the built-in observer; the program, replaced, exits.
     let back = swap(&prefix, &["observer", file.to_str().unwrap()]);
     assert!(back.contains("observer generation 2"), "{back}");
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 500);
+    wait_for_more_ticks(&dir, 500);
     assert_gone(program);
     stop(&prefix, child);
-    let summary = summary(&dir);
-    assert_eq!(summary.counters.misses, 0, "{summary:?}");
-    for channel in ["measurement", "estimate", "command"] {
-        assert_eq!(
-            of_channel(&summary.gaps, channel),
-            0,
-            "{channel} gaps: {summary:?}"
-        );
-    }
+    assert_lost_nothing(&summary(&dir), "into the Python observer and back");
     let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
     let mut served: Vec<u64> = log
         .estimates()
@@ -605,30 +552,16 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
     let file = python_observer_scenario(&dir);
     // Without warm spares (tests/integration/observer_restart.rs runs the
     // same with them).
-    let mut text = std::fs::read_to_string(&file).unwrap();
-    text.push_str("\n[supervision]\nwarm_spares = false\n");
-    std::fs::write(&file, text).unwrap();
-    let (child, prefix) = start_file(&dir, &file, &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 1_500);
+    append_to_scenario(&file, "[supervision]\nwarm_spares = false");
+    let (child, prefix) = start_file_and_await(&dir, &file, &["--mode", "lockstep"], 1_500);
     let observer = pid_on_duty(&dir, "observer", "active");
     // SAFETY: a process of this test's loop, by the pid its supervisor lists.
     unsafe { libc::kill(observer, libc::SIGKILL) };
     assert_gone(observer);
-    let since = std::time::Instant::now();
-    while !events(&dir)
-        .iter()
-        .any(|e| matches!(e.kind, EventKind::Restart(_)))
-    {
-        assert!(
-            since.elapsed() < Duration::from_secs(60),
-            "no restart: {:?}",
-            events(&dir)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let after = recorded_ticks_in(&dir, "samples.mcap");
-    wait_for_ticks(&dir, after + 1_500);
-    stop(&prefix, child);
+    wait_for_event(&dir, Duration::from_secs(60), "no restart", |e| {
+        matches!(e.kind, EventKind::Restart(_))
+    });
+    stop_after_more_ticks(&dir, &prefix, child, 1_500);
     // The restart took the dead one's x̂ and stepped through every
     // measurement since: the run is one law from tick 0.
     let text = std::fs::read_to_string(dir.join("observer.g1.stderr")).unwrap_or_default();
@@ -637,9 +570,7 @@ fn a_killed_python_observer_is_restarted_and_catches_up_from_its_state() {
         "{text}"
     );
     let log = flexloop_recording::LogReader::open(&dir.join("samples.mcap")).unwrap();
-    let generations: std::collections::BTreeSet<u32> =
-        log.estimates().map(|e| e.generation).collect();
-    assert_eq!(generations.into_iter().collect::<Vec<_>>(), [0, 1]);
+    assert_eq!(estimate_generations(&log), [0, 1]);
     assert!(assert_estimates_follow_the_predictor(&log, 0, &[0, 1]) > 3_000);
     let summary = summary(&dir);
     assert_eq!(summary.gaps.estimate, 0, "{summary:?}");

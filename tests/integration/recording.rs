@@ -266,8 +266,7 @@ fn ends_in_mcap_magic(path: &Path) -> bool {
 #[test]
 fn a_killed_logger_leaves_its_complete_chunks_and_the_run_closes_its_file() {
     let dir = temp_dir("kill-logger");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 500);
+    let (child, prefix) = start_lecture_lockstep(&dir, 500);
     let pid = *pids_of(&dir, "logger").first().expect("a logger");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(pid, libc::SIGKILL) };
@@ -306,8 +305,8 @@ fn a_killed_logger_leaves_its_complete_chunks_and_the_run_closes_its_file() {
 #[test]
 fn a_full_disk_stops_the_recording_not_the_loop() {
     let dir = temp_dir("disk-full");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--rate", "1000"]);
-    wait_for_ticks(&dir, 100);
+    let (child, prefix) =
+        start_and_await(&dir, "lecture-double-integrator", &["--rate", "1000"], 100);
     let pid = *pids_of(&dir, "logger").first().expect("a logger");
     let file = dir.join("samples.mcap");
     // The logger alone may write at most 64 KiB more into any file: its disk
@@ -400,8 +399,7 @@ fn a_full_disk_stops_the_recording_not_the_loop() {
 fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
     // Ctrl-C: SIGINT to the supervisor.
     let dir = temp_dir("ctrl-c");
-    let (child, _prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 200);
+    let (child, _prefix) = start_lecture_lockstep(&dir, 200);
     // SAFETY: the supervisor this test started.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let out = child.wait(Duration::from_secs(60));
@@ -419,8 +417,7 @@ fn ctrl_c_and_a_killed_plant_leave_finished_sample_files() {
 
     // kill -9 of the plant: the supervisor stops the rest, the logger finishes.
     let dir = temp_dir("kill-plant");
-    let (child, _prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 200);
+    let (child, _prefix) = start_lecture_lockstep(&dir, 200);
     let plant = *pids_of(&dir, "plant").first().expect("a plant");
     // SAFETY: a pid of a process this test started (through flexloop).
     unsafe { libc::kill(plant, libc::SIGKILL) };
@@ -447,8 +444,7 @@ fn flexloop_on(command: &str, prefix: &str) -> std::process::Output {
 #[test]
 fn the_next_down_finishes_a_loop_whose_supervisor_and_logger_were_killed() {
     let dir = temp_dir("dead-supervisor");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 500);
+    let (child, prefix) = start_lecture_lockstep(&dir, 500);
     let logger = pid_on_duty(&dir, "logger", "active");
     // SAFETY: pids of processes this test started (through flexloop).
     unsafe {
@@ -615,8 +611,7 @@ fn logger_killed_three_times(name: &str, mode: &[&str]) {
 #[test]
 fn a_test_that_does_not_stop_its_loop_leaves_nothing_behind() {
     let dir = temp_dir("unstopped");
-    let (child, prefix) = start(&dir, "lecture-double-integrator", &["--mode", "lockstep"]);
-    wait_for_ticks(&dir, 100);
+    let (child, prefix) = start_lecture_lockstep(&dir, 100);
     // As a failing test's unwinding drops it.
     drop(child);
     let left = processes_mentioning(&dir.display().to_string());

@@ -1,12 +1,15 @@
 //! Helpers: temp run directories, bounded process waits, leftover checks.
 
+use flexloop_protocol::Estimate;
+use flexloop_recording::LogReader;
 use flexloop_runfiles::events::{
     Crash, EventKind, Restart, Set, Silent, Standby, Stop, SupervisorEvent, Swap, parse_events,
 };
 use flexloop_runfiles::metrics::MetricsFile;
 use flexloop_runfiles::summary::{PerChannel, RunSummary};
-use flexloop_runfiles::supervision::{ProcessEntry, Processes};
+use flexloop_runfiles::supervision::{ProcessEntry, Processes, SwitchRecord};
 use flexloop_runfiles::{FileError, RunDir};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -44,6 +47,30 @@ pub fn scenario_variant(
     let path = dir.join(file);
     std::fs::write(&path, text).unwrap();
     path
+}
+
+/// A standby controller covers the active one (`safe_action = "standby"`):
+/// a table to append to a scenario.
+pub const STANDBY_TABLE: &str = "[supervision]\nsafe_action = \"standby\"";
+
+/// Adds `table` (a table such as `[supervision]`) at the end of the
+/// scenario file `file`.
+pub fn append_to_scenario(file: &Path, table: &str) {
+    let text = std::fs::read_to_string(file).unwrap();
+    std::fs::write(file, format!("{text}\n{table}\n")).unwrap();
+}
+
+/// Writes the thesis chain's model files (second-order M, K, D, B, C and a
+/// state-space A, B, C, D, as .npz and .mat, by NumPy and SciPy) into `dir`.
+pub fn write_chain_models(dir: &Path) {
+    let mut cmd = Command::new(python_with(&["numpy", "scipy"]));
+    cmd.arg(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/integration/python/write_chain_models.py"),
+    )
+    .arg(dir);
+    let out = run_bounded(cmd, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", describe(&out));
 }
 
 /// A fresh directory under target/ for one test.
@@ -210,6 +237,26 @@ pub fn of_channel(counts: &PerChannel, channel: &str) -> u64 {
     counts.get(i)
 }
 
+/// Asserts that the run counts no gap on any of `channels` (`measurement`,
+/// `estimate`, `command`).
+#[track_caller]
+pub fn assert_no_gaps_on(summary: &RunSummary, channels: &[&str], context: &str) {
+    for channel in channels {
+        assert_eq!(
+            of_channel(&summary.gaps, channel),
+            0,
+            "{context}: {channel} gaps: {summary:?}"
+        );
+    }
+}
+
+/// Asserts that the run lost nothing: no miss, no gap on any channel.
+#[track_caller]
+pub fn assert_lost_nothing(summary: &RunSummary, context: &str) {
+    assert_eq!(summary.counters.misses, 0, "{context}: misses: {summary:?}");
+    assert_no_gaps_on(summary, &PerChannel::NAMES, context);
+}
+
 /// Asserts that nothing of the run is left: no process, no shared memory.
 pub fn assert_clean(run_dir: &Path) {
     let procs = processes_mentioning(&run_dir.display().to_string());
@@ -244,6 +291,41 @@ pub fn start_file(dir: &Path, scenario_file: &Path, args: &[&str]) -> (Up, Strin
         prefix: prefix.clone(),
     };
     (up, prefix)
+}
+
+/// [`start`], then waits (bounded) until the loop has recorded `ticks`
+/// measurements.
+pub fn start_and_await(
+    dir: &Path,
+    scenario_name: &str,
+    args: &[&str],
+    ticks: usize,
+) -> (Up, String) {
+    start_file_and_await(dir, &scenario(scenario_name), args, ticks)
+}
+
+/// [`start_file`], then waits (bounded) until the loop has recorded `ticks`
+/// measurements.
+pub fn start_file_and_await(
+    dir: &Path,
+    scenario_file: &Path,
+    args: &[&str],
+    ticks: usize,
+) -> (Up, String) {
+    let started = start_file(dir, scenario_file, args);
+    wait_for_ticks(dir, ticks);
+    started
+}
+
+/// The lecture's loop (lecture-double-integrator) started in lockstep, once
+/// it has recorded `ticks` measurements.
+pub fn start_lecture_lockstep(dir: &Path, ticks: usize) -> (Up, String) {
+    start_and_await(
+        dir,
+        "lecture-double-integrator",
+        &["--mode", "lockstep"],
+        ticks,
+    )
 }
 
 /// A `flexloop up` a test started. A test that ends without stopping it
@@ -344,6 +426,20 @@ pub fn wait_for_ticks(dir: &Path, ticks: usize) {
     wait_for_ticks_in(dir, "samples.mcap", ticks);
 }
 
+/// Waits (bounded) until the first logger has recorded `ticks` more
+/// measurements than it holds now.
+pub fn wait_for_more_ticks(dir: &Path, ticks: usize) {
+    let now = recorded_ticks_in(dir, "samples.mcap");
+    wait_for_ticks(dir, now + ticks);
+}
+
+/// Lets the loop run `ticks` more ticks, then stops it ([`stop`]: asserts
+/// that it ran to its end); its output.
+pub fn stop_after_more_ticks(dir: &Path, prefix: &str, up: Up, ticks: usize) -> Output {
+    wait_for_more_ticks(dir, ticks);
+    stop(prefix, up)
+}
+
 /// `flexloop down` for `prefix`, then waits for `up`; returns its output.
 pub fn stop(prefix: &str, up: Up) -> Output {
     let down = run_bounded(
@@ -388,6 +484,64 @@ pub fn events(dir: &Path) -> Vec<SupervisorEvent> {
     parse_events(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// Waits (at most `limit`) until the supervisor has written an event that
+/// `wanted` accepts; the first such event. Fails saying `missing`, with the
+/// events so far.
+#[track_caller]
+pub fn wait_for_event(
+    dir: &Path,
+    limit: Duration,
+    missing: &str,
+    wanted: impl Fn(&SupervisorEvent) -> bool,
+) -> SupervisorEvent {
+    let since = Instant::now();
+    loop {
+        if let Some(e) = events(dir).into_iter().find(|e| wanted(e)) {
+            return e;
+        }
+        assert!(since.elapsed() < limit, "{missing}: {:?}", events(dir));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Asserts that the supervisor recorded no crash of any process.
+#[track_caller]
+pub fn assert_no_crash(dir: &Path, context: &str) {
+    let events = events(dir);
+    assert!(
+        !events.iter().any(|e| matches!(e.kind, EventKind::Crash(_))),
+        "{context}: {events:?}"
+    );
+}
+
+/// The supervisor's swap events so far, in order.
+pub fn swaps(dir: &Path) -> Vec<SupervisorEvent> {
+    events(dir)
+        .into_iter()
+        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
+        .collect()
+}
+
+/// The supervisor's set events so far, in order.
+pub fn sets(dir: &Path) -> Vec<SupervisorEvent> {
+    events(dir)
+        .into_iter()
+        .filter(|e| matches!(e.kind, EventKind::Set(_)))
+        .collect()
+}
+
+/// Asserts that a switch was bumpless: its step of the command no larger
+/// than twice the larger ordinary step before or after it (1 µN floor).
+#[track_caller]
+pub fn assert_bumpless(switch: &SwitchRecord, context: &str) {
+    let (du_switch, du_before, du_after) = (switch.du_switch, switch.du_before, switch.du_after);
+    assert!(
+        du_switch <= 2.0 * du_before.max(du_after) + 1e-6,
+        "{context}: a switch larger than ordinary steps: step at the switch {du_switch} N, \
+         ordinary steps up to {du_before} N before, {du_after} N after: {switch:?}"
+    );
+}
+
 /// The detail of an event that must be of one kind (a panic showing the
 /// event if it is not): `crash_of(&e).cause`, `swap_of(&e).switch`, ...
 macro_rules! detail_of {
@@ -410,6 +564,19 @@ detail_of! {
     set_of: Set(Set);
     standby_of: Standby(Standby);
     stop_of: Stop(Stop);
+}
+
+/// Waits (bounded) until the process `pid` is gone (the supervisor reaps
+/// its children at once).
+pub fn assert_gone(pid: i32) {
+    let since = Instant::now();
+    while Path::new(&format!("/proc/{pid}")).exists() {
+        assert!(
+            since.elapsed() < Duration::from_secs(30),
+            "process {pid} is still there"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// The run's live processes as its supervisor lists them (`processes.json`;
@@ -509,9 +676,7 @@ pub fn python_with(modules: &[&str]) -> String {
 /// the first controller kept it: every command from generation 0, no miss,
 /// nothing left behind.
 pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, ticks: usize) {
-    let after = recorded_ticks_in(dir, "samples.mcap");
-    wait_for_ticks(dir, after + ticks);
-    stop(prefix, up);
+    stop_after_more_ticks(dir, prefix, up, ticks);
     let summary = summary(dir);
     assert_eq!(summary.counters.misses, 0, "{summary:?}");
     let mut commands_of_others = 0;
@@ -528,4 +693,110 @@ pub fn assert_first_controller_kept_the_loop(dir: &Path, prefix: &str, up: Up, t
 /// The run's scenario as it stands after swaps and sets (`scenario-now.toml`).
 pub fn scenario_now(dir: &Path) -> toml::Table {
     toml::from_str(&std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap()).unwrap()
+}
+
+/// The generations that sent the run's commands, ascending, each once.
+pub fn command_generations(log: &LogReader) -> Vec<u32> {
+    let generations: BTreeSet<u32> = log.commands().map(|c| c.generation).collect();
+    generations.into_iter().collect()
+}
+
+/// The generations that sent the run's estimates, ascending, each once.
+pub fn estimate_generations(log: &LogReader) -> Vec<u32> {
+    let generations: BTreeSet<u32> = log.estimates().map(|e| e.generation).collect();
+    generations.into_iter().collect()
+}
+
+/// The observer examples' law (examples/luenberger-observer,
+/// python/examples/luenberger.py) on one axis, written again here: a
+/// predictor on a rigid mass with its poles at `bandwidth_hz`, damped
+/// `damping`. Each operation in the examples' order: the tests compare
+/// estimates to 1e-12.
+pub struct Predictor {
+    ts: f64,
+    mass: f64,
+    l1: f64,
+    l2: f64,
+}
+
+impl Predictor {
+    pub fn new(ts: f64, mass: f64, bandwidth_hz: f64, damping: f64) -> Self {
+        let (w, zeta) = (2.0 * std::f64::consts::PI * bandwidth_hz, damping);
+        let decay = (-zeta * w * ts).exp();
+        let a1 = -2.0 * decay * (w * ts * (1.0 - zeta * zeta).sqrt()).cos();
+        let l1 = a1 + 2.0;
+        let l2 = (decay * decay - 1.0 + l1) / ts;
+        Self { ts, mass, l1, l2 }
+    }
+
+    /// The examples' scenario: 1 kg, 200 Hz, ζ 0.7 at 10 kHz.
+    pub fn example() -> Self {
+        Self::new(1e-4, 1.0, 200.0, 0.7)
+    }
+
+    /// x̂ (position, velocity) after the measurement `y` with the applied
+    /// input `u`, from `x`.
+    pub fn step(&self, [p, v]: [f64; 2], y: f64, u: f64) -> [f64; 2] {
+        let (ts, mass) = (self.ts, self.mass);
+        let innovation = y - p;
+        [
+            p + ts * v + ts * ts / (2.0 * mass) * u + self.l1 * innovation,
+            v + ts / mass * u + self.l2 * innovation,
+        ]
+    }
+}
+
+/// Asserts that the estimate `e` is `want`: two states, each to 1e-12
+/// relative (with a 1e-3 floor).
+#[track_caller]
+pub fn assert_estimate_is(e: &Estimate, want: [f64; 2]) {
+    for (i, (got, want)) in e.x_hat.iter().zip(want).enumerate() {
+        assert!(
+            (got - want).abs() <= 1e-12 * want.abs().max(1e-3),
+            "estimate for {} (generation {}): x̂[{i}] {got} against {want}",
+            e.seq,
+            e.generation,
+        );
+    }
+    assert_eq!(e.n_states, 2);
+}
+
+/// The controller examples' law (examples/pid-controller,
+/// python/examples/pid.py) on one axis, written again here from their
+/// documentation: a discrete PID with a backward-Euler filtered derivative.
+/// Each operation in the examples' order: the tests compare commands to
+/// 1e-12 or to the bit.
+pub struct ExamplePid {
+    pub kp: f64,
+    pub ki_ts: f64,
+    pub a: f64,
+    pub b: f64,
+    pub integral: f64,
+    pub derivative: f64,
+    pub last_error: f64,
+}
+
+impl ExamplePid {
+    /// The law with gains `kp`, `ki`, `kd` and the derivative filtered at
+    /// `derivative_filter_rad_s`, sampled every `ts` s, from rest.
+    pub fn new(kp: f64, ki: f64, kd: f64, derivative_filter_rad_s: f64, ts: f64) -> Self {
+        let n = derivative_filter_rad_s;
+        Self {
+            kp,
+            ki_ts: ki * ts,
+            a: 1.0 / (1.0 + n * ts),
+            b: kd * n / (1.0 + n * ts),
+            integral: 0.0,
+            derivative: 0.0,
+            last_error: 0.0,
+        }
+    }
+
+    /// One step on the error `r − y`: the command before the input limit.
+    pub fn step(&mut self, error: f64) -> f64 {
+        self.integral += self.ki_ts * error;
+        self.derivative = self.a * self.derivative + self.b * (error - self.last_error);
+        self.last_error = error;
+        self.kp * error + self.integral + self.derivative
+    }
 }
