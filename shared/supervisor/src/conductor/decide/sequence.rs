@@ -442,6 +442,12 @@ impl Core {
                 let old = s.replaced();
                 match self.drain_step(from_seq, old, look.shutting_down) {
                     DrainStep::Passed => self.passed(s, from_seq, look),
+                    // A restart's new instance goes with its failure (the
+                    // next attempt starts afresh); a swap's is announced and
+                    // stays, the old one being the one that did not leave.
+                    DrainStep::RunEnded if old.is_none() => {
+                        self.abandon(s, Failure::RunEndedBeforeSwitch, look)
+                    }
                     DrainStep::RunEnded => self.fail(s, Failure::RunEndedBeforeSwitch),
                     DrainStep::Waiting if waited > DRAIN_TIMEOUT => {
                         let failure = Failure::NotPassed {
@@ -454,7 +460,7 @@ impl Core {
                                 s.phase = Phase::Abandoning(failure);
                                 Step::Carry(Command::Stop(pid))
                             }
-                            None => self.fail(s, failure),
+                            None => self.abandon(s, failure, look),
                         }
                     }
                     DrainStep::Waiting => Step::Wait(DRAIN_LOOK),

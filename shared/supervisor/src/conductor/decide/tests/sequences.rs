@@ -589,3 +589,26 @@ fn a_measurement_starts_ahead_once_the_loop_ticks_and_holds_off_changes_until_it
     assert_eq!(f.core.may_change_the_loop(), Ok(()));
     assert_eq!(f.core.plan_measurement(), Ok(5_001 + 500));
 }
+
+#[test]
+fn a_restart_whose_loop_never_passes_its_boundary_stops_its_instance_and_fails() {
+    let mut f = Fixture::new(policy());
+    f.runs(1..101);
+    f.state(Role::Controller, 0, 100, ACTIVE);
+    f.exit(CONTROLLER, 137, 0);
+    f.tick(0);
+    f.begin(Order::Restart(Role::Controller)).unwrap();
+    f.publishes(0, Role::Controller);
+    f.launches(0, Role::Controller, 1, Joining::Restart);
+    f.state(Role::Controller, 1, 101, ACTIVE);
+    f.waits(1);
+    // No sample past the boundary within the drain's time: the new
+    // instance goes, so that the next attempt starts afresh.
+    f.stops(10_002, NEW);
+    let end = f.done(10_002);
+    assert!(matches!(
+        end.result,
+        Err(Failure::NotPassed { from_seq: 101, .. })
+    ));
+    assert!(f.member(NEW).exit_expected());
+}
