@@ -2,8 +2,10 @@
 //! (docs/control.md, "Measuring the loop"): it polls the order channel at
 //! every tick (no syscall while none comes), designs the excitation on a
 //! thread of its own (the crest factor's iterations take milliseconds and
-//! allocate: not on the loop thread), and hands it to the plant's core from
-//! the first tick it is ready for, no earlier than the order's sample.
+//! allocate: not on the loop thread), which first leaves the plant's real-time
+//! priority and CPU (it inherits both, and at the plant's priority on its CPU
+//! it would hold the ticks back), and hands it to the plant's core from the
+//! first tick it is ready for, no earlier than the order's sample.
 //! The measurement's `EXCITING` flag marks the ticks it actually ran.
 
 use crate::NodeError;
@@ -20,14 +22,21 @@ type Designed = Result<ExcitationPlan, String>;
 pub struct MeasureOrders {
     inlet: Inlet<MeasureOrder>,
     scenario: Scenario,
+    /// The plant's CPU, which the design thread leaves.
+    loop_cpu: Option<usize>,
     designing: Option<Receiver<Designed>>,
 }
 
 impl MeasureOrders {
-    pub fn open(node: &LoopNode, scenario: &Scenario) -> Result<Self, NodeError> {
+    pub fn open(
+        node: &LoopNode,
+        scenario: &Scenario,
+        loop_cpu: Option<usize>,
+    ) -> Result<Self, NodeError> {
         Ok(Self {
             inlet: Inlet::open_polling(node, &MEASURE_ORDER, MEASURE_ORDER.qos.loop_buffer_size)?,
             scenario: scenario.clone(),
+            loop_cpu,
             designing: None,
         })
     }
@@ -69,7 +78,9 @@ impl MeasureOrders {
         let mut scenario = self.scenario.clone();
         let (send, receive) = channel();
         self.designing = Some(receive);
+        let loop_cpu = self.loop_cpu;
         std::thread::spawn(move || {
+            flexloop_runtime::realtime::step_aside(loop_cpu);
             scenario.measure = Some(MeasureSection::from_order(&order, scenario.timing.rate_hz));
             let designed = scenario
                 .measurement_plan()

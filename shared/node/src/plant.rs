@@ -51,7 +51,7 @@ pub fn run(args: &ServiceArgs) -> Result<(), NodeError> {
     )?;
 
     // Measurements ordered on the running loop (`flexloop measure --running`).
-    let mut measure_orders = crate::measure_orders::MeasureOrders::open(&node, &scenario)?;
+    let mut measure_orders = crate::measure_orders::MeasureOrders::open(&node, &scenario, rt.cpu)?;
 
     // Start-up handshake: the observer and the logger subscribe once they are
     // connected and locked; the controller opens its command port last, once
