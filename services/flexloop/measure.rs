@@ -105,6 +105,9 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
     let since = Instant::now();
     loop {
         std::thread::sleep(Duration::from_millis(500));
+        // The run ended (its summary is written last): the log read after
+        // this holds all it ever will.
+        let ended = run.dir.summary().exists();
         let joined = JoinedLog::open(&run_dir)?;
         match run.compute(&label, plan.clone(), &joined, args) {
             Ok(()) => return Ok(0),
@@ -113,7 +116,7 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
                     e.downcast_ref::<MeasurementError>(),
                     Some(MeasurementError::Unfinished { .. } | MeasurementError::Missing { .. })
                 );
-                if !recording || since.elapsed() > patience {
+                if !recording || ended || since.elapsed() > patience {
                     return Err(e);
                 }
             }
