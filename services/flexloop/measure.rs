@@ -24,7 +24,6 @@ use flexloop_runfiles::RunDir;
 use flexloop_runfiles::events::{EventKind, parse_events};
 use flexloop_scenario::schema::MeasureSection;
 use flexloop_scenario::{Mode, Overrides, Scenario};
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -171,14 +170,7 @@ impl Run {
 
     /// The plan of a measurement ordered with `table` (its `[measure]`).
     fn plan_of(&self, table: &str) -> anyhow::Result<ExcitationPlan> {
-        let parsed: toml::Table = toml::from_str(table).context("the ordered [measure]")?;
-        let section = parsed
-            .get("measure")
-            .cloned()
-            .map(MeasureSection::deserialize)
-            .transpose()
-            .context("the ordered [measure]")?
-            .context("the ordered measurement has no [measure] table")?;
+        let section = MeasureSection::from_table(table).context("the ordered [measure]")?;
         let mut scenario = self.scenario.clone();
         // Checked when it was ordered; the run's end may have come since.
         scenario.timing.duration_s = 0.0;

@@ -261,16 +261,20 @@ impl LoopMeasurement {
             });
             Ok(lines)
         };
-        let negated = |x: &[f64]| x.iter().map(|v| -v).collect::<Vec<_>>();
         let d = spectra(&signals.excitation)?;
         let u = spectra(&signals.u)?;
-        let minus_u = spectra(&negated(&signals.u))?;
         let total = spectra(&u_total)?;
         let y = spectra(&signals.y)?;
         let y_true = spectra(&signals.y_true)?;
-        let minus_y_true = spectra(&negated(&signals.y_true))?;
         let between = |out: &LineSpectra, input: &LineSpectra| {
             Frf::between(&plan.signal, out, input).map_err(MeasurementError::Estimate)
+        };
+        // −out / input: the sign flips the ratio, not its coherence.
+        let against = |out: &LineSpectra, input: &LineSpectra| {
+            between(out, input).map(|mut frf| {
+                frf.response.iter_mut().for_each(|h| *h = -*h);
+                frf
+            })
         };
         let lines = plan.signal.frequencies_hz();
         let model = |name| predicted(design, plan.point, name, &lines);
@@ -278,16 +282,16 @@ impl LoopMeasurement {
             InjectionPoint::PlantInput => vec![
                 response("P", between(&y, &total)?, model("P")),
                 response("S_i", between(&total, &d)?, model("S_i")),
-                response("T_i", between(&minus_u, &d)?, model("T_i")),
+                response("T_i", against(&u, &d)?, model("T_i")),
                 response("PS", between(&y, &d)?, model("PS")),
-                response("L_i", between(&minus_u, &total)?, model("L_i")),
+                response("L_i", against(&u, &total)?, model("L_i")),
             ],
             InjectionPoint::Sensor => vec![
                 response("P", between(&y_true, &u)?, model("P")),
                 response("S_o", between(&y, &d)?, model("S_o")),
-                response("T_o", between(&minus_y_true, &d)?, model("T_o")),
-                response("CS", between(&minus_u, &d)?, model("CS")),
-                response("L_o", between(&minus_y_true, &y)?, model("L_o")),
+                response("T_o", against(&y_true, &d)?, model("T_o")),
+                response("CS", against(&u, &d)?, model("CS")),
+                response("L_o", against(&y_true, &y)?, model("L_o")),
             ],
         };
         Ok(Self {

@@ -142,8 +142,7 @@ impl Scenario {
     }
 
     fn measure_period_samples(&self, m: &MeasureSection) -> usize {
-        m.period_samples
-            .unwrap_or_else(|| (self.timing.rate_hz / m.f_min_hz).round() as usize)
+        m.period_samples_at(self.timing.rate_hz)
     }
 
     fn measure_start_tick(&self, m: &MeasureSection) -> u64 {
@@ -195,6 +194,24 @@ impl Scenario {
 }
 
 impl MeasureSection {
+    /// Samples in one period at `rate_hz`: as given, else the rate over
+    /// `f_min_hz`, so that the lowest line is the period's first bin.
+    pub fn period_samples_at(&self, rate_hz: f64) -> usize {
+        self.period_samples
+            .unwrap_or_else(|| (rate_hz / self.f_min_hz).round() as usize)
+    }
+
+    /// A `[measure]` table on its own (the text of a request or of a
+    /// `measure` event), read as a scenario's is.
+    pub fn from_table(text: &str) -> Result<Self, toml::de::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Table {
+            measure: MeasureSection,
+        }
+        Ok(toml::from_str::<Table>(text)?.measure)
+    }
+
     /// The order that starts this measurement on a running loop at
     /// `start_seq` (its `start_s` is then that sample's time).
     pub fn order(&self, rate_hz: f64, start_seq: u64) -> MeasureOrder {
@@ -206,10 +223,7 @@ impl MeasureSection {
             f_max_hz: self.f_max_hz,
             amplitude: self.amplitude,
             lines: self.lines as u32,
-            period_samples: self
-                .period_samples
-                .unwrap_or_else(|| (rate_hz / self.f_min_hz).round() as usize)
-                as u32,
+            period_samples: self.period_samples_at(rate_hz) as u32,
             transient_periods: self.transient_periods as u32,
             periods: self.periods as u32,
             point: match self.point {

@@ -9,7 +9,6 @@ use flexloop_protocol::MeasureOrder;
 use flexloop_runfiles::supervision::{MeasureOutcome, MeasureRequest};
 use flexloop_scenario::Scenario;
 use flexloop_scenario::schema::MeasureSection;
-use serde::Deserialize;
 
 /// What the plant is sent and what the events file says of it.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,14 +36,7 @@ pub fn plan(scenario: &Scenario, request: &MeasureRequest, start_seq: u64) -> Re
         table += &format!("{field} = {}\n", change.value);
     }
     table += &format!("start_s = {}\n", start_seq as f64 / rate);
-    let parsed: toml::Table = toml::from_str(&table).context("measure")?;
-    let section = parsed
-        .get("measure")
-        .cloned()
-        .map(MeasureSection::deserialize)
-        .transpose()
-        .context("measure")?
-        .expect("the table has its [measure]");
+    let section = MeasureSection::from_table(&table).context("measure")?;
     let mut checked = scenario.clone();
     checked.measure = Some(section.clone());
     checked.validate()?;
