@@ -10,6 +10,7 @@
 //! - [`run`]: `run` and `fit-ff`; [`bench`], [`sweep`], [`logging_cost`],
 //!   [`live_cost`], [`probes`]: `bench`; [`chaos`]: `chaos`; [`report`],
 //!   [`design`], [`positions`], [`export`]; [`measure`]: `measure`.
+//! - [`run_measurements`]: a run's measurements, for `measure` and `report`.
 
 mod ab_table;
 mod bench;
@@ -27,6 +28,7 @@ mod positions;
 mod probes;
 mod report;
 mod run;
+mod run_measurements;
 mod running;
 mod sampling;
 mod sweep;

@@ -13,6 +13,7 @@
 //! model fitted to the measured plant is written as a `state-space` plant
 //! file (`plant-fit.npz`).
 
+use crate::run_measurements::{MeasuredRun as Run, folder_of, ordered_label};
 use anyhow::{Context, bail};
 use flexloop_analysis::loop_measurement::{LoopMeasurement, MIN_COHERENCE, MeasurementError};
 use flexloop_analysis::run_log::JoinedLog;
@@ -20,10 +21,6 @@ use flexloop_components::ExcitationPlan;
 use flexloop_control::modal_fit::{ModalFit, ModalFitSpec};
 use flexloop_design::LoopDesign;
 use flexloop_modelfile::{Array, ModelArrays};
-use flexloop_runfiles::RunDir;
-use flexloop_runfiles::events::{EventKind, parse_events};
-use flexloop_scenario::schema::MeasureSection;
-use flexloop_scenario::{Mode, Overrides, Scenario};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -60,7 +57,13 @@ pub fn measure(args: MeasureArgs) -> anyhow::Result<i32> {
     };
     let run = Run::open(Path::new(run_dir))?;
     let joined = JoinedLog::open(run.dir.path())?;
-    let measurements = run.measurements()?;
+    // Every plan first: one that does not read stops the command before
+    // anything is computed.
+    let measurements = run
+        .measurements()?
+        .into_iter()
+        .map(|m| Ok((m.label, m.plan?)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     if measurements.is_empty() {
         bail!(
             "{run_dir}: the run measured nothing: add a [measure] to the scenario \
@@ -95,7 +98,7 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
         run_dir.display()
     );
     let plan = run.plan_of(&ordered.table)?;
-    let label = format!("at-{}", ordered.start_seq);
+    let label = ordered_label(ordered.start_seq);
     // Until its last period is in the sample file (the logger writes it in
     // chunks), bounded: the loop's time at its rate, and a minute more for a
     // slow lockstep loop or a late logger.
@@ -123,63 +126,7 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
     }
 }
 
-/// A run directory and the scenario its measurements are judged against.
-struct Run {
-    dir: RunDir,
-    scenario: Scenario,
-}
-
 impl Run {
-    fn open(path: &Path) -> anyhow::Result<Self> {
-        let dir = RunDir::new(path);
-        // The run's own rate, mode and duration, whatever the file says now;
-        // the scenario as it stands (after sets and swaps) if it changed.
-        let summary = dir.read_summary().ok();
-        let overrides = Overrides {
-            rate_hz: summary.as_ref().map(|s| s.rate_hz),
-            mode: summary.as_ref().and_then(|s| Mode::parse(&s.mode)),
-            duration_s: summary.as_ref().map(|s| s.duration_s),
-            no_realtime: false,
-            tick: None,
-        };
-        let file = [dir.scenario_now(), dir.scenario_copy()]
-            .into_iter()
-            .find(|p| p.exists())
-            .unwrap_or_else(|| dir.scenario_copy());
-        let scenario = Scenario::load(&file, &overrides)?;
-        Ok(Self { dir, scenario })
-    }
-
-    /// The scenario's `[measure]`, and each one ordered while it ran.
-    fn measurements(&self) -> anyhow::Result<Vec<(String, ExcitationPlan)>> {
-        let mut found = Vec::new();
-        if let Some(plan) = self.scenario.measurement_plan()? {
-            found.push(("scenario".to_string(), plan));
-        }
-        let events = std::fs::read_to_string(self.dir.events()).unwrap_or_default();
-        let events =
-            parse_events(&events).with_context(|| format!("{}", self.dir.events().display()))?;
-        for event in events {
-            if let EventKind::Measure(ordered) = event.kind {
-                let plan = self.plan_of(&ordered.outcome.table)?;
-                found.push((format!("at-{}", ordered.outcome.start_seq), plan));
-            }
-        }
-        Ok(found)
-    }
-
-    /// The plan of a measurement ordered with `table` (its `[measure]`).
-    fn plan_of(&self, table: &str) -> anyhow::Result<ExcitationPlan> {
-        let section = MeasureSection::from_table(table).context("the ordered [measure]")?;
-        let mut scenario = self.scenario.clone();
-        // Checked when it was ordered; the run's end may have come since.
-        scenario.timing.duration_s = 0.0;
-        scenario.measure = Some(section);
-        scenario
-            .measurement_plan()?
-            .context("the ordered measurement has no plan")
-    }
-
     /// One measurement, printed and written under `measurement/[label]`.
     fn compute(
         &self,
@@ -192,11 +139,7 @@ impl Run {
         let measurement = LoopMeasurement::of_log(&design, &plan, &joined.log)?;
         println!("measurement {label}:");
         print!("{}", measurement.render_text());
-        let out = if label == "scenario" {
-            self.dir.measurement()
-        } else {
-            self.dir.measurement().join(label)
-        };
+        let out = folder_of(&self.dir, label);
         std::fs::create_dir_all(&out)
             .with_context(|| format!("cannot create {}", out.display()))?;
         let (csv, npz) = (out.join("frf.csv"), out.join("frf.npz"));

@@ -7,6 +7,8 @@ use flexloop_plot::xml::escape;
 pub enum Block {
     Heading(String),
     Subheading(String),
+    /// A heading within a subsection.
+    Minor(String),
     Paragraph(String),
     Table(Table),
     Figure(FigureBlock),
@@ -58,6 +60,7 @@ impl Document {
             match block {
                 Block::Heading(text) => out.push_str(&format!("## {text}\n")),
                 Block::Subheading(text) => out.push_str(&format!("### {text}\n")),
+                Block::Minor(text) => out.push_str(&format!("#### {text}\n")),
                 Block::Paragraph(text) => out.push_str(&format!("{text}\n")),
                 Block::Table(t) => {
                     let cells = |row: &[String]| {
@@ -99,6 +102,7 @@ impl Document {
             match block {
                 Block::Heading(text) => out.push_str(&format!("<h2>{}</h2>\n", escape(text))),
                 Block::Subheading(text) => out.push_str(&format!("<h3>{}</h3>\n", escape(text))),
+                Block::Minor(text) => out.push_str(&format!("<h4>{}</h4>\n", escape(text))),
                 Block::Paragraph(text) => out.push_str(&format!("<p>{}</p>\n", inline_code(text))),
                 Block::Table(t) => {
                     out.push_str("<table>\n<thead><tr>");
@@ -153,7 +157,7 @@ fn inline_code(text: &str) -> String {
 
 const STYLE: &str = "<style>
 body { font-family: sans-serif; max-width: 1000px; margin: 1.5em auto; padding: 0 1em; color: #222; line-height: 1.4; }
-h1 { font-size: 1.6em; } h2 { margin-top: 1.8em; border-bottom: 1px solid #ccc; } h3 { margin-top: 1.3em; }
+h1 { font-size: 1.6em; } h2 { margin-top: 1.8em; border-bottom: 1px solid #ccc; } h3 { margin-top: 1.3em; } h4 { margin: 1em 0 0.4em; }
 table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
 th { background: #f2f2f2; } td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }

@@ -1,19 +1,24 @@
-//! The section "Measured frequency responses", for a run whose scenario had
-//! a `[measure]` (docs/control.md §14): the responses `flexloop measure`
-//! computes from the run directory, drawn and tabled against the design's.
-//! Without `[measure]` the report has no such section; when the
-//! measurement cannot be computed the section says why.
+//! The section "Measured frequency responses", for a run that measured
+//! the loop (docs/control.md §14): its scenario's `[measure]` and each
+//! measurement ordered while it ran (`flexloop measure --running`), each in
+//! a subsection of its own with the responses `flexloop measure` computes
+//! from the run directory, drawn and tabled against the design's. A run
+//! that measured nothing has no such section; a measurement that cannot be
+//! computed says why in its subsection.
 
 use super::RunData;
 use super::document::{Block, FigureBlock, Table};
+use crate::run::RunReport;
+use crate::run_measurements::{MeasuredRun, folder_of, ordered_label};
 use flexloop_analysis::loop_measurement::{
     LoopMeasurement, MIN_COHERENCE, MeasuredResponse, predicted,
 };
 use flexloop_analysis::loop_report::PEAK_LIMIT_DB;
 use flexloop_analysis::run_log::JoinedLog;
-use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
+use flexloop_control::excitation::{ExcitationShape, InjectionPoint};
 use flexloop_design::LoopDesign;
 use flexloop_plot::{Axis, Figure, Marker, Stack};
+use flexloop_runfiles::RunDir;
 use nalgebra::Complex;
 use std::f64::consts::PI;
 
@@ -30,42 +35,166 @@ const RED: &str = "#d62728";
 /// Points of the design's plant drawn between the first and the last line.
 const MODEL_POINTS: usize = 600;
 
-/// The run's measurement as `flexloop measure` computes it, or why it
-/// cannot be.
-pub fn measure(
-    dir: &Path,
-    design: &LoopDesign,
-    plan: &ExcitationPlan,
-) -> Result<LoopMeasurement, String> {
-    // `RunReport::load` keeps what it derives from the sample files, not the
-    // messages: the joined log is opened once more for the excitation's ticks.
-    let joined = JoinedLog::open(dir).map_err(|e| e.to_string())?;
-    LoopMeasurement::of_log(design, plan, &joined.log).map_err(|e| e.to_string())
+/// One measurement of the run, as `flexloop measure` computes it, or why
+/// it cannot be.
+pub struct Measured {
+    /// The tick an ordered measurement was ordered to start at; None for
+    /// the scenario's `[measure]`.
+    pub ordered_start: Option<u64>,
+    /// Where `flexloop measure` writes it, relative to the run directory.
+    pub folder: String,
+    pub result: Result<LoopMeasurement, String>,
 }
 
-/// The section's blocks; none when the run's scenario has no `[measure]`.
-pub fn section(data: &RunData) -> Vec<Block> {
-    let Some(measurement) = &data.measurement else {
-        return Vec::new();
+impl Measured {
+    /// What the subsection's words call it.
+    fn name(&self) -> String {
+        match self.ordered_start {
+            None => "The scenario's `[measure]`".to_string(),
+            Some(tick) => format!("The measurement ordered at tick {tick}"),
+        }
+    }
+
+    fn heading(&self) -> String {
+        match self.ordered_start {
+            None => "The scenario's [measure]".to_string(),
+            Some(tick) => format!("Ordered at tick {tick}"),
+        }
+    }
+
+    /// Words that single out an ordered measurement in a sentence about
+    /// the responses; none for the scenario's.
+    pub fn ordered_words(&self) -> String {
+        self.ordered_start
+            .map(|tick| format!(" of the measurement ordered at tick {tick}"))
+            .unwrap_or_default()
+    }
+
+    /// Appended to its figures' file names and element ids, which must
+    /// differ between the measurements of one page; none for the
+    /// scenario's (its files keep their names).
+    fn suffix(&self) -> String {
+        self.ordered_start
+            .map(|tick| format!("-{}", ordered_label(tick)))
+            .unwrap_or_default()
+    }
+}
+
+/// The run's measurements, and the design they are judged against where it
+/// is not the run's own.
+pub struct Measurements {
+    pub list: Vec<Measured>,
+    pub design: Option<LoopDesign>,
+}
+
+/// Every measurement of the run as `flexloop measure` computes it: the
+/// same list (`run_measurements`), judged against the same scenario (as it
+/// stands after sets and swaps). An error only where the run directory
+/// cannot be read; a measurement that cannot be computed holds why.
+pub fn measure(dir: &Path, run: &RunReport) -> anyhow::Result<Measurements> {
+    let reader = MeasuredRun::open(dir)?;
+    let listed = reader.measurements()?;
+    if listed.is_empty() {
+        return Ok(Measurements {
+            list: Vec::new(),
+            design: None,
+        });
+    }
+    // Designed again only where the scenario changed while the loop ran.
+    let redesigned = (reader.scenario != run.scenario).then(|| {
+        LoopDesign::from_scenario(&reader.scenario).map_err(|e| {
+            format!(
+                "the design of the scenario as it stands ({}): {e}",
+                reader.file.display()
+            )
+        })
+    });
+    let design = match &redesigned {
+        None => Ok(&run.design),
+        Some(d) => d.as_ref().map_err(Clone::clone),
     };
+    // `RunReport::load` keeps what it derives from the sample files, not the
+    // messages: the joined log is opened once more for the excitation's ticks.
+    let joined = JoinedLog::open(dir).map_err(|e| e.to_string());
+    let list = listed
+        .into_iter()
+        .map(|m| {
+            let result = match (&design, &joined, m.plan) {
+                (Err(e), _, _) | (_, Err(e), _) => Err(e.clone()),
+                (_, _, Err(e)) => Err(format!("{e:#}")),
+                (Ok(design), Ok(joined), Ok(plan)) => {
+                    LoopMeasurement::of_log(design, &plan, &joined.log).map_err(|e| e.to_string())
+                }
+            }
+            // A reason goes into a paragraph (a TOML error spans lines).
+            .map_err(|e| e.split_whitespace().collect::<Vec<_>>().join(" "));
+            Measured {
+                ordered_start: m.ordered_start,
+                folder: folder_of(&RunDir::new(""), &m.label).display().to_string(),
+                result,
+            }
+        })
+        .collect();
+    Ok(Measurements {
+        list,
+        design: redesigned.and_then(Result::ok),
+    })
+}
+
+/// The section's blocks; none when the run measured nothing.
+pub fn section(data: &RunData) -> Vec<Block> {
+    if data.measurements.is_empty() {
+        return Vec::new();
+    }
     let mut blocks = vec![Block::Heading(HEADING.into())];
-    let m = match measurement {
+    if data.measurements.len() > 1 {
+        let ordered = data
+            .measurements
+            .iter()
+            .filter(|m| m.ordered_start.is_some())
+            .count();
+        blocks.push(Block::Paragraph(format!(
+            "The run holds {} measurements: {}; each has a subsection of its own below, with its \
+             own figures.",
+            data.measurements.len(),
+            if ordered < data.measurements.len() {
+                format!(
+                    "its scenario's `[measure]` and {ordered} ordered on the running loop \
+                     (`flexloop measure --running`)"
+                )
+            } else {
+                "each ordered on the running loop (`flexloop measure --running`)".to_string()
+            }
+        )));
+    }
+    for m in &data.measurements {
+        blocks.extend(subsection(data, m));
+    }
+    blocks
+}
+
+/// One measurement's heading, words, tables and figures.
+fn subsection(data: &RunData, measured: &Measured) -> Vec<Block> {
+    let mut blocks = vec![Block::Subheading(measured.heading())];
+    let m = match &measured.result {
         Ok(m) => m,
         Err(reason) => {
             blocks.push(Block::Paragraph(format!(
-                "The scenario's `[measure]` excited the loop, but its frequency responses cannot \
-                 be computed from this run directory: {reason}. `flexloop measure` says the same; \
-                 the rest of this report does not depend on them."
+                "{} excited the loop, but its frequency responses cannot be computed from this \
+                 run directory: {reason}. `flexloop measure` says the same; the rest of this \
+                 report does not depend on them.",
+                measured.name()
             )));
             return blocks;
         }
     };
-    let design = &data.run.design;
-    blocks.push(Block::Paragraph(introduction(m)));
-    blocks.push(Block::Subheading("The 6 dB rule, measured".into()));
+    let design = data.measured_design();
+    let suffix = measured.suffix();
+    blocks.push(Block::Paragraph(introduction(measured, m)));
+    blocks.push(Block::Minor("The 6 dB rule, measured".into()));
     blocks.push(Block::Paragraph(rule_words(m)));
     blocks.push(Block::Table(rule_table(m)));
-    blocks.push(Block::Subheading("Measured against the design".into()));
+    blocks.push(Block::Minor("Measured against the design".into()));
     blocks.push(Block::Paragraph(format!(
         "Per response and decade band, the largest difference between the measured response \
          and the design's over the lines of coherence ≥ {MIN_COHERENCE} (as |measured / \
@@ -73,11 +202,11 @@ pub fn section(data: &RunData) -> Vec<Block> {
          line of the band is trusted."
     )));
     blocks.push(Block::Table(deviation_table(m)));
-    let grid = Grid::through(&m.plan.signal.frequencies_hz());
+    let grid = Grid::through(&m.plan.frequencies_hz());
     let design_loop = grid.as_ref().and_then(|g| loop_curves(design, m, g));
-    blocks.push(plant_figure(m, design));
-    blocks.push(sensitivity_figure(m, design_loop.as_ref()));
-    blocks.push(loop_gain_figure(m, design_loop.as_ref()));
+    blocks.push(plant_figure(m, design, &suffix));
+    blocks.push(sensitivity_figure(m, design_loop.as_ref(), &suffix));
+    blocks.push(loop_gain_figure(m, design_loop.as_ref(), &suffix));
     blocks
 }
 
@@ -88,22 +217,42 @@ fn point_words(point: InjectionPoint) -> &'static str {
     }
 }
 
-fn introduction(m: &LoopMeasurement) -> String {
-    let lines = m.plan.signal.frequencies_hz();
+fn introduction(measured: &Measured, m: &LoopMeasurement) -> String {
+    let lines = m.plan.frequencies_hz();
     format!(
-        "The scenario's `[measure]` added a periodic multisine of {} lines from {:.3} to {:.1} Hz \
-         at the {}: {} periods of {} samples averaged after {} transient ones{}. Each response is \
-         a ratio of period-averaged line spectra with the excitation as the instrument, in closed \
-         loop and with no model of the controller (docs/control.md §14), as `flexloop measure` \
-         computes it from this run directory (and writes it to `measurement/frf.csv`); beside \
-         it, the design's response at the same lines. Lines of coherence below {MIN_COHERENCE} \
-         are drawn as grey rings and left out of the verdicts.",
+        "{}{} added {} of {} lines from {:.3} to {:.1} Hz at the {}: {} \
+         periods of {} samples averaged{} after {} transient ones{}. Each response is a ratio of \
+         period-averaged line spectra with the excitation as the instrument, in closed loop and \
+         with no model of the controller (docs/control.md §14), as `flexloop measure` computes \
+         it from this run directory (and writes it to `{}/frf.csv`); beside it, the design's \
+         response at the same lines. Lines of coherence below {MIN_COHERENCE} are drawn as grey \
+         rings and left out of the verdicts.",
+        measured.name(),
+        match measured.ordered_start {
+            // The plant starts it once designed, no earlier than ordered.
+            Some(tick) if tick != m.plan.start_tick => format!(
+                " (`flexloop measure --running`; it started at tick {})",
+                m.plan.start_tick
+            ),
+            Some(_) => " (`flexloop measure --running`)".to_string(),
+            None => String::new(),
+        },
+        match m.plan.shape {
+            ExcitationShape::Multisine => "a periodic multisine",
+            ExcitationShape::SweptSine => "a periodic logarithmic sweep",
+            ExcitationShape::SteppedSine => "a stepped sine",
+        },
         lines.len(),
         lines.first().copied().unwrap_or_default(),
         lines.last().copied().unwrap_or_default(),
         point_words(m.point),
         m.periods_used,
         m.plan.period_samples(),
+        if m.plan.segments.len() > 1 {
+            " over its tones, each"
+        } else {
+            ""
+        },
         m.plan.transient_periods,
         if m.periods_saturated.is_empty() {
             String::new()
@@ -113,6 +262,7 @@ fn introduction(m: &LoopMeasurement) -> String {
                 m.periods_saturated
             )
         },
+        measured.folder,
     )
 }
 
@@ -397,7 +547,7 @@ fn block(title: &str, file: &str, svg: String, caption: String) -> Block {
     })
 }
 
-fn plant_figure(m: &LoopMeasurement, design: &LoopDesign) -> Block {
+fn plant_figure(m: &LoopMeasurement, design: &LoopDesign, suffix: &str) -> Block {
     let p = m.response("P").expect("every measurement has the plant");
     let lines = &p.measured.frequencies_hz;
     let unit = format!("{}/{}", design.output_unit, design.input_unit);
@@ -410,13 +560,13 @@ fn plant_figure(m: &LoopMeasurement, design: &LoopDesign) -> Block {
         });
     let frequency = || Axis::log10("frequency [Hz]");
     let mut magnitude = Figure::new(
-        "measured-plant-magnitude",
+        &format!("measured-plant-magnitude{suffix}"),
         "Magnitude",
         frequency(),
         Axis::linear(&format!("|P| [dB re 1 {unit}]")),
     );
     let mut phase = Figure::new(
-        "measured-plant-phase",
+        &format!("measured-plant-phase{suffix}"),
         "Phase",
         frequency(),
         Axis::linear("∠P [°]"),
@@ -455,7 +605,12 @@ fn plant_figure(m: &LoopMeasurement, design: &LoopDesign) -> Block {
         f.empty_note = "no line of the measurement could be drawn".into();
     }
     let title = "Bode plot of the measured plant P against the design";
-    let svg = Stack::new("measured-plant", title, vec![magnitude, phase]).to_svg();
+    let svg = Stack::new(
+        &format!("measured-plant{suffix}"),
+        title,
+        vec![magnitude, phase],
+    )
+    .to_svg();
     let caption = format!(
         "P, {}, measured at the {} excited lines (dots; grey rings: coherence below \
          {MIN_COHERENCE}, not trusted) against {}. The phase is unwrapped along the model, and \
@@ -469,7 +624,7 @@ fn plant_figure(m: &LoopMeasurement, design: &LoopDesign) -> Block {
             "no model: the design predicts no plant response here"
         }
     );
-    block(title, "measured-plant.svg", svg, caption)
+    block(title, &format!("measured-plant{suffix}.svg"), svg, caption)
 }
 
 /// Words for the design's line in a figure of S or L.
@@ -484,7 +639,7 @@ fn design_words(r: &MeasuredResponse, dense: bool) -> &'static str {
     }
 }
 
-fn sensitivity_figure(m: &LoopMeasurement, design: Option<&DesignLoop>) -> Block {
+fn sensitivity_figure(m: &LoopMeasurement, design: Option<&DesignLoop>, suffix: &str) -> Block {
     let s = m.sensitivity();
     let lines = &s.measured.frequencies_hz;
     let title = format!(
@@ -492,7 +647,7 @@ fn sensitivity_figure(m: &LoopMeasurement, design: Option<&DesignLoop>) -> Block
         s.name
     );
     let mut figure = Figure::new(
-        "measured-sensitivity",
+        &format!("measured-sensitivity{suffix}"),
         &title,
         Axis::log10("frequency [Hz]"),
         Axis::linear(&format!("|{}| [dB]", s.name)),
@@ -538,17 +693,22 @@ fn sensitivity_figure(m: &LoopMeasurement, design: Option<&DesignLoop>) -> Block
         design_words(s, design.is_some()),
         rule_words(m)
     );
-    block(&title, "measured-sensitivity.svg", figure.to_svg(), caption)
+    block(
+        &title,
+        &format!("measured-sensitivity{suffix}.svg"),
+        figure.to_svg(),
+        caption,
+    )
 }
 
-fn loop_gain_figure(m: &LoopMeasurement, design: Option<&DesignLoop>) -> Block {
+fn loop_gain_figure(m: &LoopMeasurement, design: Option<&DesignLoop>, suffix: &str) -> Block {
     let name = loop_gain_name(m.point);
     let l = m
         .response(name)
         .expect("every measurement has its loop gain");
     let title = format!("Nyquist plot of the measured loop gain {name}");
     let mut figure = Figure::new(
-        "measured-loop-gain",
+        &format!("measured-loop-gain{suffix}"),
         &title,
         Axis::linear(&format!("Re {name}")).with_range(-3.0, 1.0),
         Axis::linear(&format!("Im {name}")).with_range(-2.0, 2.0),
@@ -617,7 +777,12 @@ fn loop_gain_figure(m: &LoopMeasurement, design: Option<&DesignLoop>) -> Block {
             String::new()
         }
     );
-    block(&title, "measured-loop-gain.svg", figure.to_svg(), caption)
+    block(
+        &title,
+        &format!("measured-loop-gain{suffix}.svg"),
+        figure.to_svg(),
+        caption,
+    )
 }
 
 #[cfg(test)]

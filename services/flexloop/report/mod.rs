@@ -5,8 +5,9 @@
 //! - [`document`]: the report as blocks, rendered to Markdown and HTML.
 //! - [`content`]: its text and tables.
 //! - [`figures`]: its plots.
-//! - [`measured`]: the measured frequency responses, for a run whose
-//!   scenario had a `[measure]`.
+//! - [`measured`]: the measured frequency responses, for a run that
+//!   measured the loop (its scenario's `[measure]`, or one ordered while it
+//!   ran).
 
 mod content;
 mod document;
@@ -17,7 +18,6 @@ use crate::run::RunReport;
 use anyhow::{Context, anyhow, bail};
 use flexloop_analysis::flexible::{FlexibleComparison, NoComparison};
 use flexloop_analysis::latency_log::LatencyLog;
-use flexloop_analysis::loop_measurement::LoopMeasurement;
 use flexloop_runfiles::RunDir;
 use flexloop_runfiles::events::parse_events;
 use std::path::{Path, PathBuf};
@@ -87,9 +87,14 @@ pub struct RunData {
     /// The sample files read (every logger generation's, in order), when
     /// there is more than one.
     pub joined_files: Vec<String>,
-    /// With a `[measure]` in the scenario: the responses `flexloop measure`
-    /// computes, or why they cannot be computed. None without one.
-    pub measurement: Option<Result<LoopMeasurement, String>>,
+    /// Every measurement of the run (the scenario's `[measure]`, then each
+    /// one ordered while it ran): the responses `flexloop measure` computes,
+    /// or why they cannot be computed. Empty when the run measured nothing.
+    pub measurements: Vec<measured::Measured>,
+    /// The design the measurements are judged against where it is not the
+    /// run's own: the scenario changed while it ran (sets, swaps), and
+    /// `flexloop measure` judges against the scenario as it stands.
+    pub redesigned: Option<flexloop_design::LoopDesign>,
 }
 
 impl RunData {
@@ -108,11 +113,7 @@ impl RunData {
         } else {
             Vec::new()
         };
-        let measurement = run
-            .design
-            .measurement
-            .as_ref()
-            .map(|plan| measured::measure(dir, &run.design, plan));
+        let measured::Measurements { list, design } = measured::measure(dir, &run)?;
         Ok(Self {
             length: Length::for_unit(run.design.output_unit),
             dir: dir.to_path_buf(),
@@ -123,8 +124,14 @@ impl RunData {
             period_ns,
             lockstep,
             joined_files,
-            measurement,
+            measurements: list,
+            redesigned: design,
         })
+    }
+
+    /// The design the measurements are judged against.
+    pub fn measured_design(&self) -> &flexloop_design::LoopDesign {
+        self.redesigned.as_ref().unwrap_or(&self.run.design)
     }
 }
 
@@ -159,11 +166,14 @@ pub fn report(args: ReportArgs) -> anyhow::Result<i32> {
             recording.error.as_deref().unwrap_or("a write failed")
         );
     }
-    if let Some(Err(reason)) = &data.measurement {
-        eprintln!(
-            "flexloop: the measured frequency responses cannot be computed: {reason}; the report \
-             says so in their section"
-        );
+    for m in &data.measurements {
+        if let Err(reason) = &m.result {
+            eprintln!(
+                "flexloop: the measured frequency responses{} cannot be computed: {reason}; the \
+                 report says so in their section",
+                m.ordered_words()
+            );
+        }
     }
     let doc = content::document(&data);
     write_report(&out_dir, &doc)?;

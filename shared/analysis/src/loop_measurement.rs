@@ -57,9 +57,11 @@ pub enum MeasurementError {
         last_tick: u64,
         needed: u64,
     },
-    /// Every measured period touched the actuator's limit.
+    /// Every measured period (of a stepped sine's tone) touched the
+    /// actuator's limit.
     AllSaturated {
         periods: usize,
+        tone_hz: Option<f64>,
     },
     Estimate(FrfError),
 }
@@ -77,10 +79,13 @@ impl std::fmt::Display for MeasurementError {
                 f,
                 "the run ended at tick {last_tick}, before the measured periods did (tick {needed})"
             ),
-            Self::AllSaturated { periods } => write!(
+            Self::AllSaturated { periods, tone_hz } => write!(
                 f,
-                "the actuator reached its limit in all {periods} measured periods: lower \
-                 measure.amplitude"
+                "the actuator reached its limit in all {periods} measured periods{}: lower \
+                 measure.amplitude",
+                tone_hz
+                    .map(|hz| format!(" of the tone at {hz:.3} Hz"))
+                    .unwrap_or_default()
             ),
             Self::Estimate(e) => write!(f, "{e}"),
         }
@@ -211,7 +216,8 @@ pub struct LoopMeasurement {
     pub plan: ExcitationPlan,
     pub responses: Vec<MeasuredResponse>,
     /// Measured periods averaged, and those left out (0-based among the
-    /// measured ones) because the actuator reached its limit in them.
+    /// measured ones, a stepped sine's tones one after another) because
+    /// the actuator reached its limit in them.
     pub periods_used: usize,
     pub periods_saturated: Vec<usize>,
 }
@@ -233,73 +239,102 @@ impl LoopMeasurement {
             .zip(&signals.excitation)
             .map(|(u, d)| if input_force { u + d } else { *u })
             .collect();
-        // A period whose input reached the actuator's limit.
         let limit = design.input_limit * (1.0 - 1e-12);
-        let saturated: Vec<usize> = (0..plan.periods)
-            .filter(|p| {
-                let at = (transient + p) * n;
-                signals.u[at..at + n]
-                    .iter()
-                    .zip(&u_total[at..at + n])
-                    .any(|(u, total)| u.abs() >= limit || total.abs() >= limit)
-            })
-            .collect();
-        if saturated.len() == plan.periods {
-            return Err(MeasurementError::AllSaturated {
-                periods: plan.periods,
-            });
+        // Each segment (one periodic signal, or a stepped sine's tone) is
+        // read on its own; their lines are joined in the order they ran.
+        let mut measured: Vec<Frf> = Vec::new();
+        let mut saturated_all = Vec::new();
+        for (i, segment) in plan.segments.iter().enumerate() {
+            let from = (plan.segment_start(i) - plan.start_tick) as usize;
+            let to = from + (transient + plan.periods) * n;
+            let at = |record: &[f64]| record[from..to].to_vec();
+            // A period whose input reached the actuator's limit.
+            let saturated: Vec<usize> = (0..plan.periods)
+                .filter(|p| {
+                    let k = from + (transient + p) * n;
+                    signals.u[k..k + n]
+                        .iter()
+                        .zip(&u_total[k..k + n])
+                        .any(|(u, total)| u.abs() >= limit || total.abs() >= limit)
+                })
+                .collect();
+            if saturated.len() == plan.periods {
+                return Err(MeasurementError::AllSaturated {
+                    periods: plan.periods,
+                    tone_hz: (plan.segments.len() > 1).then(|| segment.frequencies_hz()[0]),
+                });
+            }
+            saturated_all.extend(saturated.iter().map(|p| i * plan.periods + p));
+            let spectra = |record: &[f64]| -> Result<LineSpectra, MeasurementError> {
+                let record = without_drift(&at(record), n, transient, plan.periods);
+                let mut lines = LineSpectra::of(&record, segment, transient, plan.periods)
+                    .map_err(MeasurementError::Estimate)?;
+                let mut index = 0;
+                lines.periods.retain(|_| {
+                    let keep = !saturated.contains(&index);
+                    index += 1;
+                    keep
+                });
+                Ok(lines)
+            };
+            let d = spectra(&signals.excitation)?;
+            let u = spectra(&signals.u)?;
+            let total = spectra(&u_total)?;
+            let y = spectra(&signals.y)?;
+            let y_true = spectra(&signals.y_true)?;
+            let between = |out: &LineSpectra, input: &LineSpectra| {
+                Frf::between(segment, out, input).map_err(MeasurementError::Estimate)
+            };
+            // −out / input: the sign flips the ratio, not its coherence.
+            let against = |out: &LineSpectra, input: &LineSpectra| {
+                between(out, input).map(|mut frf| {
+                    frf.response.iter_mut().for_each(|h| *h = -*h);
+                    frf
+                })
+            };
+            let these = match plan.point {
+                InjectionPoint::PlantInput => [
+                    between(&y, &total)?,
+                    between(&total, &d)?,
+                    against(&u, &d)?,
+                    between(&y, &d)?,
+                    against(&u, &total)?,
+                ],
+                InjectionPoint::Sensor => [
+                    between(&y_true, &u)?,
+                    between(&y, &d)?,
+                    against(&y_true, &d)?,
+                    against(&u, &d)?,
+                    against(&y_true, &y)?,
+                ],
+            };
+            if measured.is_empty() {
+                measured = these.to_vec();
+            } else {
+                for (joined, more) in measured.iter_mut().zip(these) {
+                    joined.frequencies_hz.extend(more.frequencies_hz);
+                    joined.response.extend(more.response);
+                    joined.coherence.extend(more.coherence);
+                }
+            }
         }
-        let spectra = |record: &[f64]| -> Result<LineSpectra, MeasurementError> {
-            let record = without_drift(record, n, transient, plan.periods);
-            let mut lines = LineSpectra::of(&record, &plan.signal, transient, plan.periods)
-                .map_err(MeasurementError::Estimate)?;
-            let mut index = 0;
-            lines.periods.retain(|_| {
-                let keep = !saturated.contains(&index);
-                index += 1;
-                keep
-            });
-            Ok(lines)
+        let names = match plan.point {
+            InjectionPoint::PlantInput => ["P", "S_i", "T_i", "PS", "L_i"],
+            InjectionPoint::Sensor => ["P", "S_o", "T_o", "CS", "L_o"],
         };
-        let d = spectra(&signals.excitation)?;
-        let u = spectra(&signals.u)?;
-        let total = spectra(&u_total)?;
-        let y = spectra(&signals.y)?;
-        let y_true = spectra(&signals.y_true)?;
-        let between = |out: &LineSpectra, input: &LineSpectra| {
-            Frf::between(&plan.signal, out, input).map_err(MeasurementError::Estimate)
-        };
-        // −out / input: the sign flips the ratio, not its coherence.
-        let against = |out: &LineSpectra, input: &LineSpectra| {
-            between(out, input).map(|mut frf| {
-                frf.response.iter_mut().for_each(|h| *h = -*h);
-                frf
-            })
-        };
-        let lines = plan.signal.frequencies_hz();
-        let model = |name| predicted(design, plan.point, name, &lines);
-        let responses = match plan.point {
-            InjectionPoint::PlantInput => vec![
-                response("P", between(&y, &total)?, model("P")),
-                response("S_i", between(&total, &d)?, model("S_i")),
-                response("T_i", against(&u, &d)?, model("T_i")),
-                response("PS", between(&y, &d)?, model("PS")),
-                response("L_i", against(&u, &total)?, model("L_i")),
-            ],
-            InjectionPoint::Sensor => vec![
-                response("P", between(&y_true, &u)?, model("P")),
-                response("S_o", between(&y, &d)?, model("S_o")),
-                response("T_o", against(&y_true, &d)?, model("T_o")),
-                response("CS", against(&u, &d)?, model("CS")),
-                response("L_o", against(&y_true, &y)?, model("L_o")),
-            ],
-        };
+        let lines = plan.frequencies_hz();
+        let responses = names
+            .into_iter()
+            .zip(measured)
+            .map(|(name, frf)| response(name, frf, predicted(design, plan.point, name, &lines)))
+            .collect();
+        let total_periods = plan.segments.len() * plan.periods;
         Ok(Self {
             point: plan.point,
             plan: plan.clone(),
             responses,
-            periods_used: plan.periods - saturated.len(),
-            periods_saturated: saturated,
+            periods_used: total_periods - saturated_all.len(),
+            periods_saturated: saturated_all,
         })
     }
 
@@ -358,7 +393,7 @@ impl LoopMeasurement {
 
     /// Decade bands over the measured lines, for the per-band comparison.
     pub fn bands(&self) -> Vec<(f64, f64)> {
-        let lines = self.plan.signal.frequencies_hz();
+        let lines = self.plan.frequencies_hz();
         let (Some(&lo), Some(&hi)) = (lines.first(), lines.last()) else {
             return Vec::new();
         };
@@ -376,10 +411,7 @@ impl LoopMeasurement {
     /// real and imaginary parts and coherence, and the design's (`_model_`)
     /// parts where it predicts one.
     fn columns(&self) -> Vec<(String, Vec<f64>)> {
-        let mut columns = vec![(
-            "frequency_hz".to_string(),
-            self.plan.signal.frequencies_hz(),
-        )];
+        let mut columns = vec![("frequency_hz".to_string(), self.plan.frequencies_hz())];
         for r in &self.responses {
             let part = |f: fn(&C64) -> f64, values: &[C64]| values.iter().map(f).collect();
             columns.push((
@@ -445,10 +477,16 @@ impl LoopMeasurement {
 
     /// What `flexloop measure` prints.
     pub fn render_text(&self) -> String {
-        let lines = self.plan.signal.frequencies_hz();
+        let lines = self.plan.frequencies_hz();
+        let each = if self.plan.segments.len() > 1 {
+            " (over all tones)"
+        } else {
+            ""
+        };
         let mut out = format!(
-            "excitation: {} lines from {:.3} to {:.1} Hz at the {}, {} periods of {} samples \
-             averaged after {} transient\n",
+            "excitation: a {} of {} lines from {:.3} to {:.1} Hz at the {}, {} periods of {} \
+             samples averaged{each} after {} transient\n",
+            self.plan.shape.name(),
             lines.len(),
             lines.first().copied().unwrap_or_default(),
             lines.last().copied().unwrap_or_default(),

@@ -9,7 +9,7 @@ use flexloop_components::InProcessLoop;
 use flexloop_control::excitation::InjectionPoint;
 use flexloop_design::LoopDesign;
 use flexloop_protocol::Measurement;
-use flexloop_scenario::schema::{MeasurePhases, MeasurePoint, MeasureSection, ReferenceSection};
+use flexloop_scenario::schema::{MeasurePoint, MeasureSection, MeasureSignal, ReferenceSection};
 use flexloop_scenario::{Overrides, Scenario};
 use std::path::Path;
 
@@ -17,6 +17,17 @@ use std::path::Path;
 /// excitation the loop's only input), measuring at `point`.
 /// `NAME+delay`: with one more sample of loop delay.
 fn measured(name: &str, point: MeasurePoint, amplitude_share: f64) -> (Scenario, LoopDesign) {
+    measured_by(name, point, amplitude_share, MeasureSignal::Multisine, 40)
+}
+
+/// As [`measured`], by `signal` of at most `lines` lines.
+fn measured_by(
+    name: &str,
+    point: MeasurePoint,
+    amplitude_share: f64,
+    signal: MeasureSignal,
+    lines: usize,
+) -> (Scenario, LoopDesign) {
     let (file, delayed) = match name.strip_suffix("+delay") {
         Some(base) => (base, true),
         None => (name, false),
@@ -44,15 +55,16 @@ fn measured(name: &str, point: MeasurePoint, amplitude_share: f64) -> (Scenario,
     s.timing.duration_s = 0.0;
     s.measure = Some(MeasureSection {
         point,
+        signal,
         f_min_hz: rate / 1000.0,
         f_max_hz: 0.2 * rate,
-        lines: 40,
+        lines,
         period_samples: None,
         amplitude: match point {
             MeasurePoint::PlantInput => amplitude_share * s.plant.input_limit,
             MeasurePoint::Sensor => 1e-6,
         },
-        phases: MeasurePhases::Schroeder,
+        phases: None,
         seed: None,
         // The loops' slowest modes (the integrators') settle within these.
         transient_periods: 8,
@@ -101,32 +113,72 @@ fn without_noise_every_response_is_the_designs_at_both_points() {
             let (_, design) = measured(name, point, 0.05);
             let m = run(&design);
             assert_eq!(m.periods_used, 4, "{name} {point:?}");
-            assert_eq!(m.responses.len(), 5);
-            for r in &m.responses {
-                let predicted = r.predicted.as_ref().unwrap();
-                let largest = predicted.iter().map(|h| h.norm()).fold(0.0, f64::max);
-                for (i, f) in r.measured.frequencies_hz.iter().enumerate() {
-                    // Noise-free, a line is uncertain only where the loop's
-                    // own slow settling (not periodic) leaks into a response
-                    // 40 dB below its largest.
-                    if predicted[i].norm() < 0.01 * largest || r.measured.coherence[i] < 0.999 {
-                        continue;
-                    }
-                    let ratio = r.measured.response[i] / predicted[i];
-                    let (db, degrees) = (20.0 * ratio.norm().log10(), ratio.arg().to_degrees());
-                    assert!(
-                        db.abs() < 0.05 && degrees.abs() < 0.5,
-                        "{name} {point:?} {} at {f} Hz: {db} dB, {degrees} deg\n{}",
-                        r.name,
-                        m.render_text()
-                    );
-                }
-            }
-            let (_, _, keeps) = m.rule().unwrap();
-            let designed = m.sensitivity().predicted_peak_db().unwrap().0;
-            assert_eq!(keeps, designed <= 6.0, "{name} {point:?}");
+            is_the_designs(name, point, &m);
         }
     }
+}
+
+/// A periodic sweep and a stepped sine measure what the multisine does:
+/// any periodic excitation in steady state gives each line's response
+/// exactly (on a plant with a rigid body, one with a delay, a flexible
+/// chain and a controller at a command deadline).
+#[test]
+fn a_swept_and_a_stepped_sine_measure_the_designs_responses_too() {
+    for name in [
+        "lecture-double-integrator+delay",
+        "thesis-mc-ad-deadline-30us",
+        "uniform-chain",
+    ] {
+        for point in [MeasurePoint::PlantInput, MeasurePoint::Sensor] {
+            let (_, design) = measured_by(name, point, 0.05, MeasureSignal::SweptSine, 40);
+            let m = run(&design);
+            assert!(m.render_text().contains("a swept-sine of"));
+            assert!(m.sensitivity().measured.frequencies_hz.len() > 30);
+            is_the_designs(name, point, &m);
+            // A stepped sine takes a run per tone: a few, on the cheaper loops.
+            if name.starts_with("thesis") {
+                continue;
+            }
+            let (_, design) = measured_by(name, point, 0.05, MeasureSignal::SteppedSine, 4);
+            let m = run(&design);
+            let plan = design.measurement.as_ref().unwrap();
+            assert_eq!(plan.segments.len(), 4);
+            assert_eq!(m.periods_used, 4 * 4, "{name} {point:?}");
+            assert_eq!(
+                m.sensitivity().measured.frequencies_hz,
+                plan.frequencies_hz()
+            );
+            is_the_designs(name, point, &m);
+        }
+    }
+}
+
+/// Every line of every response is the design's where it is measurable.
+fn is_the_designs(name: &str, point: MeasurePoint, m: &LoopMeasurement) {
+    assert_eq!(m.responses.len(), 5);
+    for r in &m.responses {
+        let predicted = r.predicted.as_ref().unwrap();
+        let largest = predicted.iter().map(|h| h.norm()).fold(0.0, f64::max);
+        for (i, f) in r.measured.frequencies_hz.iter().enumerate() {
+            // Noise-free, a line is uncertain only where the loop's
+            // own slow settling (not periodic) leaks into a response
+            // 40 dB below its largest.
+            if predicted[i].norm() < 0.01 * largest || r.measured.coherence[i] < 0.999 {
+                continue;
+            }
+            let ratio = r.measured.response[i] / predicted[i];
+            let (db, degrees) = (20.0 * ratio.norm().log10(), ratio.arg().to_degrees());
+            assert!(
+                db.abs() < 0.05 && degrees.abs() < 0.5,
+                "{name} {point:?} {} at {f} Hz: {db} dB, {degrees} deg\n{}",
+                r.name,
+                m.render_text()
+            );
+        }
+    }
+    let (_, _, keeps) = m.rule().unwrap();
+    let designed = m.sensitivity().predicted_peak_db().unwrap().0;
+    assert_eq!(keeps, designed <= 6.0, "{name} {point:?}");
 }
 
 #[test]
@@ -137,7 +189,7 @@ fn periods_where_the_actuator_reached_its_limit_are_left_out() {
     let plan = design.measurement.clone().unwrap();
     let mut measurements = recorded(&design);
     // One measured period with a command at the limit.
-    let at = plan.measured_ticks().start as usize + plan.period_samples() + 7;
+    let at = plan.measured_ticks(0).start as usize + plan.period_samples() + 7;
     measurements[at].u_applied[0] = design.input_limit;
     let signals = LoopSignals::from_measurements(&plan, measurements.iter()).unwrap();
     let m = LoopMeasurement::compute(&design, &plan, &signals).unwrap();

@@ -280,16 +280,25 @@ fn an_io_observer_does_not_allocate() {
 }
 
 /// The plant running a scenario's `[measure]` (docs/control.md §14), at
-/// each point: through the excitation's fade in, its periods, its fade out
-/// and after it.
+/// each point and of each signal: through the excitation's fade in, its
+/// periods, its fade out (a stepped sine's from tone to tone) and after it.
 #[test]
 fn an_excited_plant_does_not_allocate() {
-    for point in ["plant-input", "sensor"] {
+    let points = ["plant-input", "sensor"];
+    let signals = ["multisine", "swept-sine", "stepped-sine"];
+    for (point, signal) in points.iter().flat_map(|p| signals.map(|s| (*p, s))) {
         let mut s = default_scenario();
+        // A stepped sine's two tones of a transient and a measured period
+        // with their fade-outs: 0.05 s + 2 × 3 periods of 500.
+        let (lines, periods) = if signal == "stepped-sine" {
+            (2, 1)
+        } else {
+            (30, 3)
+        };
         let text = format!(
-            "point = \"{point}\"\nf_min_hz = 20.0\nf_max_hz = 2000.0\nlines = 30\n\
-             period_samples = 500\namplitude = 1e-7\ntransient_periods = 1\nperiods = 3\n\
-             start_s = 0.05"
+            "point = \"{point}\"\nsignal = \"{signal}\"\nf_min_hz = 20.0\n\
+             f_max_hz = 2000.0\nlines = {lines}\nperiod_samples = 500\namplitude = 1e-7\n\
+             transient_periods = 1\nperiods = {periods}\nstart_s = 0.05"
         );
         s.measure = Some(toml::from_str(&text).unwrap());
         if point == "plant-input" {
@@ -298,8 +307,8 @@ fn an_excited_plant_does_not_allocate() {
         s.validate().unwrap();
         let design = LoopDesign::from_scenario(&s).unwrap();
         let plan = design.measurement.clone().unwrap();
-        // Past the fade out: 0.05 s + 5 periods = 3000 ticks.
-        assert!(plan.end_tick() < TICKS as u64);
+        // Past the fade out: 0.05 s + 5 periods = 3000 ticks (3500 stepped).
+        assert!(plan.end_tick() < TICKS as u64, "{signal}");
         let mut l = InProcessLoop::new(&design).unwrap();
         let mut largest = 0.0_f64;
         assert_no_alloc(|| {
@@ -308,8 +317,12 @@ fn an_excited_plant_does_not_allocate() {
                 largest = largest.max(l.plant.excitation().abs());
             }
         });
-        assert!(largest > 0.0, "{point}");
-        assert_eq!(l.plant.excitation(), 0.0, "{point}: off after the fade out");
+        assert!(largest > 0.0, "{point} {signal}");
+        assert_eq!(
+            l.plant.excitation(),
+            0.0,
+            "{point} {signal}: off after the fade out"
+        );
         assert_eq!(l.plant.counters.misses, 0);
     }
 }

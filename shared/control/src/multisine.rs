@@ -1,6 +1,11 @@
 //! A periodic multisine excitation on the loop's sample grid, for measuring
 //! frequency responses (docs/control.md, "Measuring the loop").
 //!
+//! Any signal that repeats every N samples is a multisine on N's DFT bins:
+//! the designed multisine of equal lines ([`Multisine::design`]), a periodic
+//! logarithmic sweep ([`Multisine::swept`]) and one tone of a stepped sine
+//! ([`Multisine::tone`]) are all read the same way.
+//!
 //! One period holds an integer number of samples and every line sits on a
 //! DFT bin of it, so the DFT of a whole period in steady state has no
 //! leakage: each line's response is read off its own bin. The lines are
@@ -90,10 +95,10 @@ pub struct MultisineSpec {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Multisine {
     pub rate_hz: f64,
-    /// The DFT bins excited, ascending: line i is at bins[i] · rate / N.
+    /// The DFT bins measured, ascending: line i is at bins[i] · rate / N.
     pub bins: Vec<usize>,
     /// Each line's cosine amplitude and phase in the period.
-    pub line_amplitude: f64,
+    pub line_amplitudes: Vec<f64>,
     pub phases: Vec<f64>,
     /// The period, scaled so that its largest |value| is the amplitude.
     pub period: Vec<f64>,
@@ -103,48 +108,8 @@ impl Multisine {
     /// Designs the signal. Allocates (design time).
     pub fn design(spec: &MultisineSpec) -> Result<Self, MultisineError> {
         let n = spec.period_samples;
-        if n < 4 {
-            return Err(MultisineError::PeriodTooShort { samples: n });
-        }
-        let ordered = spec.f_min_hz.is_finite()
-            && spec.f_max_hz.is_finite()
-            && spec.f_min_hz > 0.0
-            && spec.f_max_hz >= spec.f_min_hz;
-        if !ordered {
-            return Err(MultisineError::BadBand {
-                f_min_hz: spec.f_min_hz,
-                f_max_hz: spec.f_max_hz,
-            });
-        }
-        let nyquist_hz = spec.rate_hz / 2.0;
-        if spec.f_max_hz >= nyquist_hz {
-            return Err(MultisineError::AboveNyquist {
-                f_max_hz: spec.f_max_hz,
-                nyquist_hz,
-            });
-        }
-        if !(spec.amplitude.is_finite() && spec.amplitude > 0.0) {
-            return Err(MultisineError::BadAmplitude(spec.amplitude));
-        }
-        let resolution_hz = spec.rate_hz / n as f64;
-        let lowest = (spec.f_min_hz / resolution_hz).ceil().max(1.0) as usize;
-        let highest = ((spec.f_max_hz / resolution_hz).floor() as usize).min((n - 1) / 2);
-        if highest < lowest {
-            return Err(MultisineError::NoLineInBand { resolution_hz });
-        }
-        let lines = spec.max_lines.max(1);
-        let mut bins: Vec<usize> = (0..lines)
-            .map(|i| {
-                let t = if lines == 1 {
-                    0.0
-                } else {
-                    i as f64 / (lines - 1) as f64
-                };
-                let f = (lowest as f64).ln() + t * ((highest as f64).ln() - (lowest as f64).ln());
-                (f.exp().round() as usize).clamp(lowest, highest)
-            })
-            .collect();
-        bins.dedup();
+        let (lowest, highest) = band_bins(spec)?;
+        let bins = log_spaced(lowest, highest, spec.max_lines);
         let count = bins.len();
         let phases: Vec<f64> = match spec.phases {
             // Schroeder's rule for lines of equal power on any set of
@@ -168,11 +133,99 @@ impl Multisine {
         }
         Ok(Self {
             rate_hz: spec.rate_hz,
+            line_amplitudes: vec![scale; bins.len()],
             bins,
-            line_amplitude: scale,
             phases,
             period,
         })
+    }
+
+    /// A periodic logarithmic sweep from `f_min_hz` to `f_max_hz` over one
+    /// period, of peak `amplitude` (crest factor √2; `phases` does not
+    /// apply). The instantaneous frequency f_min · (f_max/f_min)^(t/T) is
+    /// scaled by less than one cycle per period so that the period holds
+    /// whole cycles: it then repeats without a step, and its DFT of a whole
+    /// period has no leakage. It spends time ∝ 1/f at each frequency, so
+    /// its power per line falls as 1/f across the band. The lines measured are log-spaced bins of the band where the sweep's
+    /// line is at least [`SWEEP_LINE_SHARE`] of its stationary-phase level
+    /// (its ripple at the band's edges dips below).
+    pub fn swept(spec: &MultisineSpec) -> Result<Self, MultisineError> {
+        let n = spec.period_samples;
+        let (lowest, highest) = band_bins(spec)?;
+        let (f1, f2) = (spec.f_min_hz, spec.f_max_hz);
+        let period_s = n as f64 / spec.rate_hz;
+        let ratio = f2 / f1;
+        // Cycles in one period of the unscaled sweep, and the scale that
+        // makes them whole (a single tone when the band is one frequency).
+        let cycles = if ratio > 1.0 + 1e-12 {
+            f1 * period_s * (ratio - 1.0) / ratio.ln()
+        } else {
+            f1 * period_s
+        };
+        let scale = cycles.round().max(1.0) / cycles;
+        let phase = |t: f64| {
+            let unscaled = if ratio > 1.0 + 1e-12 {
+                2.0 * PI * f1 * period_s / ratio.ln() * (ratio.powf(t / period_s) - 1.0)
+            } else {
+                2.0 * PI * f1 * t
+            };
+            scale * unscaled
+        };
+        let period: Vec<f64> = (0..n)
+            .map(|k| spec.amplitude * phase(k as f64 / spec.rate_hz).sin())
+            .collect();
+        let mut planner = RealFftPlanner::<f64>::new();
+        let forward = planner.plan_fft_forward(n);
+        let mut input = period.clone();
+        let mut spectrum = forward.make_output_vec();
+        forward
+            .process(&mut input, &mut spectrum)
+            .expect("buffers made by the plan fit it");
+        // Stationary phase: a tone of amplitude A sweeping at df/dt gives a
+        // line of amplitude A / (T √(df/dt)); here df/dt = f ln(ratio) / T,
+        // so A / √(f T ln ratio).
+        let resolution = spec.rate_hz / n as f64;
+        let level = |bin: usize| {
+            let f = bin as f64 * resolution;
+            if ratio > 1.0 + 1e-12 {
+                spec.amplitude * (1.0 / (f * period_s * ratio.ln())).sqrt().min(1.0)
+            } else {
+                spec.amplitude
+            }
+        };
+        let amplitude_at = |bin: usize| 2.0 * spectrum[bin].norm() / n as f64;
+        let strong: Vec<usize> = (lowest..=highest)
+            .filter(|&b| amplitude_at(b) >= SWEEP_LINE_SHARE * level(b))
+            .collect();
+        if strong.is_empty() {
+            return Err(MultisineError::NoLineInBand {
+                resolution_hz: resolution,
+            });
+        }
+        let bins = thin_log_spaced(&strong, spec.max_lines);
+        Ok(Self {
+            rate_hz: spec.rate_hz,
+            line_amplitudes: bins.iter().map(|&b| amplitude_at(b)).collect(),
+            phases: bins.iter().map(|&b| spectrum[b].arg()).collect(),
+            bins,
+            period,
+        })
+    }
+
+    /// One tone of a stepped sine: a cosine of `amplitude` on `bin` of a
+    /// period of `period_samples` at `rate_hz`.
+    pub fn tone(rate_hz: f64, period_samples: usize, bin: usize, amplitude: f64) -> Self {
+        let n = period_samples;
+        let period = (0..n)
+            .map(|k| amplitude * (2.0 * PI * ((bin * k) % n) as f64 / n as f64).cos())
+            .collect();
+        Self {
+            rate_hz,
+            bins: vec![bin],
+            line_amplitudes: vec![amplitude],
+            phases: vec![0.0],
+            period,
+        }
     }
 
     pub fn period_samples(&self) -> usize {
@@ -205,6 +258,86 @@ fn synthesize(inverse: &dyn ComplexToReal<f64>, bins: &[usize], phases: &[f64]) 
         .process(&mut spectrum, &mut period)
         .expect("buffers made by the plan fit it");
     period
+}
+
+/// A sweep's line below this share of its stationary-phase level is not
+/// measured: the band's edges, where the sweep's spectrum ripples down.
+pub const SWEEP_LINE_SHARE: f64 = 0.3;
+
+/// The first and last DFT bins of the band that the period's grid holds,
+/// or why the signal cannot be made.
+fn band_bins(spec: &MultisineSpec) -> Result<(usize, usize), MultisineError> {
+    let n = spec.period_samples;
+    if n < 4 {
+        return Err(MultisineError::PeriodTooShort { samples: n });
+    }
+    let ordered = spec.f_min_hz.is_finite()
+        && spec.f_max_hz.is_finite()
+        && spec.f_min_hz > 0.0
+        && spec.f_max_hz >= spec.f_min_hz;
+    if !ordered {
+        return Err(MultisineError::BadBand {
+            f_min_hz: spec.f_min_hz,
+            f_max_hz: spec.f_max_hz,
+        });
+    }
+    let nyquist_hz = spec.rate_hz / 2.0;
+    if spec.f_max_hz >= nyquist_hz {
+        return Err(MultisineError::AboveNyquist {
+            f_max_hz: spec.f_max_hz,
+            nyquist_hz,
+        });
+    }
+    if !(spec.amplitude.is_finite() && spec.amplitude > 0.0) {
+        return Err(MultisineError::BadAmplitude(spec.amplitude));
+    }
+    let resolution_hz = spec.rate_hz / n as f64;
+    let lowest = (spec.f_min_hz / resolution_hz).ceil().max(1.0) as usize;
+    let highest = ((spec.f_max_hz / resolution_hz).floor() as usize).min((n - 1) / 2);
+    if highest < lowest {
+        return Err(MultisineError::NoLineInBand { resolution_hz });
+    }
+    Ok((lowest, highest))
+}
+
+/// At most `lines` bins log-spaced from `lowest` to `highest`, each once.
+pub fn log_spaced(lowest: usize, highest: usize, lines: usize) -> Vec<usize> {
+    let lines = lines.max(1);
+    let mut bins: Vec<usize> = (0..lines)
+        .map(|i| {
+            let t = if lines == 1 {
+                0.0
+            } else {
+                i as f64 / (lines - 1) as f64
+            };
+            let f = (lowest as f64).ln() + t * ((highest as f64).ln() - (lowest as f64).ln());
+            (f.exp().round() as usize).clamp(lowest, highest)
+        })
+        .collect();
+    bins.dedup();
+    bins
+}
+
+/// At most `lines` of the ascending `candidates`, log-spaced: each target
+/// of [`log_spaced`] takes the nearest candidate (each once).
+fn thin_log_spaced(candidates: &[usize], lines: usize) -> Vec<usize> {
+    let (first, last) = (candidates[0], candidates[candidates.len() - 1]);
+    let mut bins: Vec<usize> = log_spaced(first, last, lines)
+        .into_iter()
+        .map(|target| {
+            let at = candidates.partition_point(|&c| c < target);
+            let above = candidates.get(at).copied();
+            let below = at.checked_sub(1).map(|i| candidates[i]);
+            match (below, above) {
+                (Some(b), Some(a)) if target - b <= a - target => b,
+                (_, Some(a)) => a,
+                (Some(b), None) => b,
+                (None, None) => unreachable!("candidates are not empty"),
+            }
+        })
+        .collect();
+    bins.dedup();
+    bins
 }
 
 /// Peak over rms of a period.
@@ -397,7 +530,7 @@ mod tests {
         let n = m.period_samples() as f64;
         for (bin, magnitude) in spectrum.iter().enumerate() {
             let expected = if m.bins.contains(&bin) {
-                m.line_amplitude * n / 2.0
+                m.line_amplitudes[m.bins.iter().position(|&b| b == bin).unwrap()] * n / 2.0
             } else {
                 0.0
             };
@@ -523,5 +656,57 @@ mod tests {
             largest_step <= ordinary * (1.0 + 1e-12),
             "{largest_step} > {ordinary}"
         );
+    }
+
+    /// A periodic sweep: whole cycles in its period (no step where it
+    /// repeats), peak = amplitude, crest factor √2, and its measured lines
+    /// are in the band and excited as the stationary phase says.
+    #[test]
+    fn a_swept_sine_repeats_without_a_step_and_excites_its_band() {
+        let s = spec();
+        let m = Multisine::swept(&s).unwrap();
+        let n = m.period_samples();
+        assert_eq!(n, 2_000);
+        let peak = m.period.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+        assert!(peak <= 0.5 + 1e-12 && peak > 0.49, "{peak}");
+        assert!((m.crest_factor() - 2.0_f64.sqrt()).abs() < 0.05);
+        // The wrap from the last sample to the first is an ordinary step.
+        let ordinary = m
+            .period
+            .windows(2)
+            .map(|w| (w[1] - w[0]).abs())
+            .fold(0.0, f64::max);
+        assert!((m.period[0] - m.period[n - 1]).abs() <= ordinary);
+        assert!(m.bins.len() > 40 && m.bins.len() <= 60, "{}", m.bins.len());
+        let f = m.frequencies_hz();
+        assert!(f[0] >= 5.0 && *f.last().unwrap() <= 2_000.0, "{f:?}");
+        // Each line's amplitude is the DFT's, and near the 1/√f level.
+        let spectrum = spectrum(&m.period);
+        let ln_ratio = (2_000.0_f64 / 5.0).ln();
+        for (i, &bin) in m.bins.iter().enumerate() {
+            let dft = 2.0 * spectrum[bin] / n as f64;
+            assert!((dft - m.line_amplitudes[i]).abs() < 1e-9, "bin {bin}");
+            let level = 0.5 / (f[i] * 0.2 * ln_ratio).sqrt();
+            assert!(
+                dft >= SWEEP_LINE_SHARE * level,
+                "bin {bin}: {dft} vs {level}"
+            );
+        }
+        // Most of its power is in the band.
+        let power = |bins: std::ops::Range<usize>| bins.map(|b| spectrum[b].powi(2)).sum::<f64>();
+        let (low, high) = (1, 400);
+        let inside = power(low..high + 1);
+        assert!(inside > 0.95 * power(1..n / 2), "{inside}");
+    }
+
+    #[test]
+    fn a_tone_is_one_line_on_its_bin() {
+        let m = Multisine::tone(10_000.0, 2_000, 37, 3.0);
+        assert_eq!(m.frequencies_hz(), vec![185.0]);
+        let spectrum = spectrum(&m.period);
+        for (bin, magnitude) in spectrum.iter().enumerate() {
+            let expected = if bin == 37 { 3.0 * 1_000.0 } else { 0.0 };
+            assert!((magnitude - expected).abs() < 1e-8, "bin {bin}");
+        }
     }
 }

@@ -14,11 +14,17 @@ pub const AT_SENSOR: u32 = 1;
 pub const SCHROEDER: u32 = 0;
 /// `phases`: random, from `seed`.
 pub const RANDOM: u32 = 1;
+/// `signal`: a multisine, every line at once.
+pub const MULTISINE: u32 = 0;
+/// `signal`: a periodic logarithmic sweep.
+pub const SWEPT_SINE: u32 = 1;
+/// `signal`: one line at a time.
+pub const STEPPED_SINE: u32 = 2;
 
 /// The `[measure]` fields (scenarios/README.md) and where it starts.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("flexloop.MeasureOrder.v1")]
+#[type_name("flexloop.MeasureOrder.v2")]
 pub struct MeasureOrder {
     pub published_ns: u64,
     /// The sample the excitation starts at (its fade-in's first).
@@ -35,4 +41,7 @@ pub struct MeasureOrder {
     pub point: u32,
     /// [`SCHROEDER`] or [`RANDOM`].
     pub phases: u32,
+    /// [`MULTISINE`], [`SWEPT_SINE`] or [`STEPPED_SINE`].
+    pub signal: u32,
+    pub _reserved: u32,
 }

@@ -699,14 +699,19 @@ pub enum RestartPolicy {
     Never,
 }
 
-/// A measurement's excitation: a periodic multisine added at one point of
-/// the running loop (docs/control.md, "Measuring the loop").
+/// A measurement's excitation: a periodic multisine, a periodic sweep or a
+/// stepped sine added at one point of the running loop (docs/control.md,
+/// "Measuring the loop").
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MeasureSection {
     /// Where it enters: `"plant-input"` (a force beside the command, N) or
     /// `"sensor"` (added to the first measured output, m).
     pub point: MeasurePoint,
+    /// `"multisine"` (every line at once), `"swept-sine"` (a logarithmic
+    /// sweep each period) or `"stepped-sine"` (one line at a time).
+    #[serde(default)]
+    pub signal: MeasureSignal,
     pub f_min_hz: f64,
     pub f_max_hz: f64,
     /// At most this many log-spaced lines (fewer where DFT bins coincide).
@@ -717,8 +722,8 @@ pub struct MeasureSection {
     pub period_samples: Option<usize>,
     /// The largest |value| the excitation takes (N or m, as the point).
     pub amplitude: f64,
-    #[serde(default)]
-    pub phases: MeasurePhases,
+    /// The multisine's phases (Schroeder's by default); a multisine's only.
+    pub phases: Option<MeasurePhases>,
     /// The random phases' seed (with `phases = "random"` only).
     pub seed: Option<u64>,
     /// Periods dropped before the measured ones; the first is the fade-in.
@@ -737,6 +742,25 @@ pub struct MeasureSection {
 pub enum MeasurePoint {
     PlantInput,
     Sensor,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeasureSignal {
+    #[default]
+    Multisine,
+    SweptSine,
+    SteppedSine,
+}
+
+impl MeasureSignal {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Multisine => "multisine",
+            Self::SweptSine => "swept-sine",
+            Self::SteppedSine => "stepped-sine",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]

@@ -2,11 +2,13 @@
 //! (docs/control.md, "Measuring the loop").
 
 use crate::error::{ScenarioError, number};
-use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, Scenario};
-use flexloop_control::excitation::{ExcitationPlan, InjectionPoint};
-use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases};
+use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, MeasureSignal, Scenario};
+use flexloop_control::excitation::{ExcitationPlan, ExcitationShape, InjectionPoint};
+use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases, log_spaced};
 use flexloop_protocol::MeasureOrder;
-use flexloop_protocol::measure_order::{AT_PLANT_INPUT, AT_SENSOR, RANDOM, SCHROEDER};
+use flexloop_protocol::measure_order::{
+    AT_PLANT_INPUT, AT_SENSOR, MULTISINE, RANDOM, SCHROEDER, STEPPED_SINE, SWEPT_SINE,
+};
 
 /// The most lines a measurement excites: more than a response needs over a
 /// few decades, and what an array of the frequency-response file holds
@@ -46,7 +48,16 @@ impl Scenario {
                 ),
             ));
         }
-        if m.seed.is_some() && m.phases != MeasurePhases::Random {
+        if m.phases.is_some() && m.signal != MeasureSignal::Multisine {
+            return Err(self.err(
+                "measure.phases",
+                format!(
+                    "applies to `signal = \"multisine\"` only; a {}'s phases are its own",
+                    m.signal.name()
+                ),
+            ));
+        }
+        if m.seed.is_some() && m.phases != Some(MeasurePhases::Random) {
             return Err(self.err(
                 "measure.seed",
                 "applies to `phases = \"random\"` only; Schroeder's phases have no seed",
@@ -119,16 +130,22 @@ impl Scenario {
                 ),
             ));
         }
-        // The whole measurement, fade-out included, within the run.
+        // The whole measurement, fade-outs included, within the run.
         if let Some(ticks) = self.ticks() {
+            let steps = self.measure_steps(m);
             let needed = self.measure_start_tick(m)
-                + ((m.transient_periods + m.periods + 1) * samples) as u64;
+                + (steps * (m.transient_periods + m.periods + 1) * samples) as u64;
             if needed > ticks {
+                let each = if steps > 1 {
+                    format!(", for each of its {steps} tones")
+                } else {
+                    String::new()
+                };
                 return Err(self.err(
                     "measure.periods",
                     format!(
-                        "the measurement runs until {} s (its start, {} transient and {} \
-                         measured periods of {samples} samples, and the fade-out), past \
+                        "the measurement runs until {} s (its start, then {} transient and {} \
+                         measured periods of {samples} samples and the fade-out{each}), past \
                          loop.duration_s = {} s",
                         number(needed as f64 / self.timing.rate_hz),
                         m.transient_periods,
@@ -143,6 +160,21 @@ impl Scenario {
 
     fn measure_period_samples(&self, m: &MeasureSection) -> usize {
         m.period_samples_at(self.timing.rate_hz)
+    }
+
+    /// Signals run one after another: a stepped sine's tones, else one.
+    fn measure_steps(&self, m: &MeasureSection) -> usize {
+        if m.signal != MeasureSignal::SteppedSine {
+            return 1;
+        }
+        let n = self.measure_period_samples(m);
+        let resolution = self.timing.rate_hz / n as f64;
+        let lowest = (m.f_min_hz / resolution).ceil().max(1.0) as usize;
+        let highest = ((m.f_max_hz / resolution).floor() as usize).min((n - 1) / 2);
+        if highest < lowest {
+            return 1;
+        }
+        log_spaced(lowest, highest, m.lines).len()
     }
 
     fn measure_start_tick(&self, m: &MeasureSection) -> u64 {
@@ -162,14 +194,28 @@ impl Scenario {
             f_max_hz: m.f_max_hz,
             max_lines: m.lines,
             amplitude: m.amplitude,
-            phases: match m.phases {
+            phases: match m.phases.unwrap_or_default() {
                 MeasurePhases::Schroeder => Phases::Schroeder,
                 MeasurePhases::Random => Phases::Random {
                     seed: m.seed.unwrap_or(0),
                 },
             },
         };
-        let signal = Multisine::design(&spec).map_err(|e| {
+        let designed = match m.signal {
+            MeasureSignal::Multisine => Multisine::design(&spec).map(|s| vec![s]),
+            MeasureSignal::SweptSine => Multisine::swept(&spec).map(|s| vec![s]),
+            // The multisine's lines, one tone each at the full amplitude.
+            MeasureSignal::SteppedSine => Multisine::design(&spec).map(|lines| {
+                lines
+                    .bins
+                    .iter()
+                    .map(|&bin| {
+                        Multisine::tone(spec.rate_hz, spec.period_samples, bin, spec.amplitude)
+                    })
+                    .collect()
+            }),
+        };
+        let segments = designed.map_err(|e| {
             let field = match e {
                 MultisineError::PeriodTooShort { .. } | MultisineError::NoLineInBand { .. } => {
                     "measure.period_samples"
@@ -185,7 +231,12 @@ impl Scenario {
                 MeasurePoint::PlantInput => InjectionPoint::PlantInput,
                 MeasurePoint::Sensor => InjectionPoint::Sensor,
             },
-            signal,
+            shape: match m.signal {
+                MeasureSignal::Multisine => ExcitationShape::Multisine,
+                MeasureSignal::SweptSine => ExcitationShape::SweptSine,
+                MeasureSignal::SteppedSine => ExcitationShape::SteppedSine,
+            },
+            segments,
             start_tick: self.measure_start_tick(m),
             transient_periods: m.transient_periods,
             periods: m.periods,
@@ -230,10 +281,16 @@ impl MeasureSection {
                 MeasurePoint::PlantInput => AT_PLANT_INPUT,
                 MeasurePoint::Sensor => AT_SENSOR,
             },
-            phases: match self.phases {
+            phases: match self.phases.unwrap_or_default() {
                 MeasurePhases::Schroeder => SCHROEDER,
                 MeasurePhases::Random => RANDOM,
             },
+            signal: match self.signal {
+                MeasureSignal::Multisine => MULTISINE,
+                MeasureSignal::SweptSine => SWEPT_SINE,
+                MeasureSignal::SteppedSine => STEPPED_SINE,
+            },
+            _reserved: 0,
         }
     }
 
@@ -252,11 +309,17 @@ impl MeasureSection {
             lines: order.lines as usize,
             period_samples: Some(order.period_samples as usize),
             amplitude: order.amplitude,
-            phases: if random {
+            signal: match order.signal {
+                SWEPT_SINE => MeasureSignal::SweptSine,
+                STEPPED_SINE => MeasureSignal::SteppedSine,
+                _ => MeasureSignal::Multisine,
+            },
+            // A multisine's only: the others' are their own.
+            phases: (order.signal == MULTISINE).then_some(if random {
                 MeasurePhases::Random
             } else {
                 MeasurePhases::Schroeder
-            },
+            }),
             seed: random.then_some(order.seed),
             transient_periods: order.transient_periods as usize,
             periods: order.periods as usize,

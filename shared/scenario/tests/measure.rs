@@ -1,7 +1,7 @@
 //! `[measure]`: each refusal names its field and says why; what is accepted
 //! is the excitation the loop runs (docs/control.md, "Measuring the loop").
 
-use flexloop_control::excitation::InjectionPoint;
+use flexloop_control::excitation::{ExcitationShape, InjectionPoint};
 use flexloop_scenario::{Overrides, Scenario, ScenarioError};
 use std::path::Path;
 
@@ -61,13 +61,14 @@ fn an_accepted_measurement_is_the_excitation_the_plant_runs() {
     assert_eq!(plan.point, InjectionPoint::PlantInput);
     // rate / f_min: the lowest line is the period's first bin.
     assert_eq!(plan.period_samples(), 2000);
-    assert_eq!(plan.signal.bins[0], 1);
-    assert!(*plan.signal.bins.last().unwrap() <= 400);
+    assert_eq!(plan.shape, ExcitationShape::Multisine);
+    assert_eq!(plan.segments.len(), 1);
+    assert_eq!(plan.segments[0].bins[0], 1);
+    assert!(*plan.segments[0].bins.last().unwrap() <= 400);
     assert_eq!(plan.start_tick, 1000);
     assert_eq!((plan.transient_periods, plan.periods), (2, 10));
     assert_eq!(plan.end_tick(), 1000 + 13 * 2000);
-    let largest = plan
-        .signal
+    let largest = plan.segments[0]
         .period
         .iter()
         .fold(0.0_f64, |m, v| m.max(v.abs()));
@@ -159,4 +160,36 @@ fn counts_and_the_seed_are_checked() {
     refused("period_samples = 100", "measure.period_samples", "lengthen");
     refused("start_s = -1", "measure.start_s", "");
     refused("wobble = 1", "measure.wobble", "");
+}
+
+#[test]
+fn a_swept_or_stepped_sine_is_the_excitation_asked_for_and_has_no_phases() {
+    let plan = |change: &str| with(change).unwrap().measurement_plan().unwrap().unwrap();
+    let swept = plan("signal = \"swept-sine\"");
+    assert_eq!(swept.shape, ExcitationShape::SweptSine);
+    assert_eq!(swept.segments.len(), 1);
+    assert!(swept.segments[0].bins.len() > 30);
+    // A stepped sine: a tone per line of the multisine's grid, one after
+    // another, each for its transient, measured and fade-out periods.
+    let stepped = plan("signal = \"stepped-sine\"\nlines = 5\nperiods = 1\ntransient_periods = 1");
+    assert_eq!(stepped.shape, ExcitationShape::SteppedSine);
+    let multisine = plan("lines = 5");
+    assert_eq!(stepped.frequencies_hz(), multisine.frequencies_hz());
+    assert_eq!(stepped.segments.len(), 5);
+    assert!(stepped.segments.iter().all(|s| s.bins.len() == 1));
+    assert_eq!(stepped.end_tick(), 1000 + 5 * 3 * 2000);
+    for signal in ["swept-sine", "stepped-sine"] {
+        refused(
+            &format!("signal = \"{signal}\"\nphases = \"random\""),
+            "measure.phases",
+            "multisine",
+        );
+    }
+    refused("signal = \"chirp\"", "measure.signal", "");
+    // Every tone runs within the run: 60 tones of 13 periods do not.
+    refused(
+        "signal = \"stepped-sine\"",
+        "measure.periods",
+        "for each of its",
+    );
 }

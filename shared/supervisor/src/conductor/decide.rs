@@ -771,6 +771,9 @@ impl Core {
         if let Some(until) = self.measurement_under_way() {
             return Err(Failure::Measuring { until });
         }
+        if self.sequence.is_some() {
+            return Err(Failure::Changing);
+        }
         Ok(self.boundary_ahead())
     }
 

@@ -264,6 +264,7 @@ impl Conductor {
                 Step::Wait(wait) => {
                     std::thread::sleep(wait);
                     self.observe(running);
+                    self.refuse_measurements_meanwhile();
                 }
                 Step::Done(end) => {
                     for action in end.actions {
@@ -282,6 +283,19 @@ impl Conductor {
                         Err(failure) => Err(self.explain(running, failure)),
                     };
                 }
+            }
+        }
+    }
+
+    /// A measurement asked for while a sequence changes the loop would span
+    /// two loops: it is refused at once (a swap or a set waits its turn).
+    fn refuse_measurements_meanwhile(&self) {
+        for request in requests::pending(self.files.run_dir()) {
+            if !requests::is_measure(&request) {
+                continue;
+            }
+            if let Err(refusal) = self.core.plan_measurement() {
+                self.refuse(&request, refusal.to_string());
             }
         }
     }

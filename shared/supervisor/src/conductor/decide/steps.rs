@@ -112,6 +112,9 @@ pub enum Failure {
     Measuring {
         until: u64,
     },
+    /// A measurement asked for while a swap, restart or standby's start
+    /// changes the loop.
+    Changing,
     /// The new instance exited before it followed the loop.
     NewInstanceExited {
         role: Role,
@@ -150,6 +153,11 @@ impl std::fmt::Display for Failure {
             ),
             Failure::Carrying(why) => write!(f, "{why}"),
             Failure::NotTickingYet => write!(f, "the loop has not ticked yet: nothing to measure"),
+            Failure::Changing => write!(
+                f,
+                "a swap, restart or standby's start is changing the loop: a measurement would \
+                 span two loops; ask again once it ended"
+            ),
             Failure::Measuring { until } => write!(
                 f,
                 "a measurement of the loop runs until sample {until}: it would measure another \

@@ -329,12 +329,15 @@ fn a_second_order_during_a_swap_is_refused_and_the_swap_goes_on() {
     assert_eq!(f.begin(swap(Role::Observer)), Err(Failure::Busy));
     assert_eq!(f.begin(Order::Restart(Role::Observer)), Err(Failure::Busy));
     assert_eq!(f.begin(standby_order(2)), Err(Failure::Busy));
+    // A measurement would span the old loop and the new one.
+    assert_eq!(f.core.plan_measurement(), Err(Failure::Changing));
     f.state(Role::Controller, 1, 100, FOLLOWING);
     f.publishes(1, Role::Controller);
     f.runs(101..800);
     f.exit(CONTROLLER, 0, 2);
     assert_eq!(switch_of(&f.done(2)).generation, 1);
-    // Once it is over, the next one begins.
+    // Once it is over, the next one begins, and a measurement may.
+    assert!(f.core.plan_measurement().is_ok());
     assert_eq!(f.begin(swap(Role::Observer)), Ok(()));
 }
 
