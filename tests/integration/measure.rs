@@ -1,14 +1,19 @@
 //! `[measure]` through the processes and `flexloop measure` on the run
 //! directory (docs/control.md §14): the built-in loop's responses against
-//! its design and a plant file fitted to them that `design` takes; a
-//! program of one's own measured at the sensor, with no model of its law.
+//! its design and a plant file fitted to them that `design` takes (its
+//! modes and largest f_bw the chain's); a plant file of one's own measured
+//! as its model and its design; a program of one's own measured at the
+//! sensor, and the Rust example PID at the plant input, with no model of
+//! their law.
 
+use crate::own_components::example_program;
 use crate::util::*;
-use flexloop_modelfile::ModelArrays;
-use flexloop_modelfile::VectorAs;
+use flexloop_modelfile::{Array, ModelArrays, VectorAs};
 use flexloop_runfiles::events::EventKind;
-use nalgebra::{Complex, DVector};
-use std::path::Path;
+use flexloop_scenario::ProgramRole;
+use flexloop_scenario::program::served_by_program;
+use nalgebra::{Complex, DMatrix, DVector};
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// `flexloop run` of `file` in lockstep into `run_dir`.
@@ -76,6 +81,89 @@ fn response(frf: &ModelArrays, name: &str) -> Response {
     }
 }
 
+/// How far the measured `name` is from the model's on the lines of
+/// coherence >= 0.99: the lines compared, the largest deviation in dB and
+/// in degrees. Asserts that every such line is within `db` and `degrees`
+/// and that at least `lines` of them are.
+#[track_caller]
+fn assert_model_within(
+    frf: &ModelArrays,
+    name: &str,
+    (db, degrees): (f64, f64),
+    lines: usize,
+    printed: &str,
+) -> (usize, f64, f64) {
+    let Response {
+        measured,
+        model,
+        coherence,
+    } = response(frf, name);
+    let model = model.unwrap_or_else(|| panic!("{name}: no model"));
+    let (mut checked, mut worst_db, mut worst_degrees) = (0, 0.0_f64, 0.0_f64);
+    for i in 0..measured.len() {
+        if coherence[i] < 0.99 {
+            continue;
+        }
+        checked += 1;
+        let ratio = measured[i] / model[i];
+        let (off_db, off_degrees) = (20.0 * ratio.norm().log10(), ratio.arg().to_degrees());
+        assert!(
+            off_db.abs() < db && off_degrees.abs() < degrees,
+            "{name} line {i}: {off_db} dB, {off_degrees} deg\n{printed}"
+        );
+        worst_db = worst_db.max(off_db.abs());
+        worst_degrees = worst_degrees.max(off_degrees.abs());
+    }
+    assert!(
+        checked >= lines,
+        "{name}: {checked} lines trusted\n{printed}"
+    );
+    (checked, worst_db, worst_degrees)
+}
+
+/// The peak of |name| (dB) measured on the lines of coherence >= 0.99, and
+/// the model's on every line.
+fn peaks_db(frf: &ModelArrays, name: &str) -> (f64, f64) {
+    let r = response(frf, name);
+    let db = |h: &Complex<f64>| 20.0 * h.norm().log10();
+    let measured = r
+        .measured
+        .iter()
+        .zip(&r.coherence)
+        .filter(|(_, c)| **c >= 0.99)
+        .map(|(h, _)| db(h))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let model = r
+        .model
+        .unwrap_or_else(|| panic!("{name}: no model"))
+        .iter()
+        .map(db)
+        .fold(f64::NEG_INFINITY, f64::max);
+    (measured, model)
+}
+
+/// `flexloop design --json` of `file`: its loop report.
+fn design_json(file: &Path) -> serde_json::Value {
+    let mut cmd = flexloop();
+    cmd.arg("design").arg(file).arg("--json");
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    report["loop"].clone()
+}
+
+/// The scenario `file` as a table, to edit.
+fn scenario_table(file: &Path) -> toml::Table {
+    toml::from_str(&std::fs::read_to_string(file).unwrap()).unwrap()
+}
+
+/// `table` (a scenario) as `dir/name`.
+fn write_table(dir: &Path, name: &str, table: &toml::Table) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, toml::to_string(table).unwrap()).unwrap();
+    path
+}
+
 #[test]
 fn a_measured_loop_shows_its_design_and_gives_a_plant_file_the_design_takes() {
     let dir = temp_dir("measure-default");
@@ -92,26 +180,7 @@ fn a_measured_loop_shows_its_design_and_gives_a_plant_file_the_design_takes() {
     let frf = ModelArrays::read(&run_dir.join("measurement/frf.npz")).unwrap();
     assert_eq!(column(&frf, "frequency_hz").len(), 46);
     for name in ["P", "S_i", "T_i", "PS", "L_i"] {
-        let Response {
-            measured,
-            model,
-            coherence,
-        } = response(&frf, name);
-        let model = model.unwrap_or_else(|| panic!("{name}: no model"));
-        let mut checked = 0;
-        for i in 0..measured.len() {
-            if coherence[i] < 0.99 {
-                continue;
-            }
-            checked += 1;
-            let ratio = measured[i] / model[i];
-            let db = 20.0 * ratio.norm().log10();
-            assert!(
-                db.abs() < 0.5 && ratio.arg().to_degrees().abs() < 3.0,
-                "{name} line {i}: {db} dB\n{printed}"
-            );
-        }
-        assert!(checked >= 40, "{name}: {checked} lines trusted\n{printed}");
+        assert_model_within(&frf, name, (0.5, 3.0), 40, &printed);
     }
     let csv = std::fs::read_to_string(run_dir.join("measurement/frf.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 46);
@@ -132,12 +201,37 @@ fn a_measured_loop_shows_its_design_and_gives_a_plant_file_the_design_takes() {
         .replace("model = \"thesis-chain\"\n", "")
         .replace("output = 5\n", "");
     std::fs::write(&fitted, format!("{before}{plant}{rest}")).unwrap();
-    let mut cmd = flexloop();
-    cmd.arg("design").arg(&fitted);
-    let out = run_bounded(cmd, Duration::from_secs(120));
-    assert!(out.status.success(), "{}", describe(&out));
-    let design = String::from_utf8_lossy(&out.stdout);
-    assert!(design.contains("6 dB rule met"), "{design}");
+    let on_fit = design_json(&fitted);
+    assert_eq!(on_fit["meets_6db_rule"], true, "{on_fit}");
+
+    // The fitted file's modes are the chain's: the first three (the ones
+    // the observer keeps) within 0.5 % in frequency and 10 % in damping;
+    // and the design finds the same largest f_bw on it as on the chain.
+    let chain = design_json(&scenario("measure-default"));
+    for i in 0..3 {
+        let (mode, truth) = (&on_fit["flexible_modes"][i], &chain["flexible_modes"][i]);
+        let off = |field: &str| {
+            let (got, want) = (
+                mode[field].as_f64().unwrap(),
+                truth[field].as_f64().unwrap(),
+            );
+            (got - want).abs() / want
+        };
+        assert!(
+            off("frequency_hz") < 0.005,
+            "mode {i}: {mode} against {truth}"
+        );
+        assert!(off("open_loop") < 0.10, "mode {i}: {mode} against {truth}");
+    }
+    let bandwidth = |design: &serde_json::Value| {
+        design["largest_bandwidth_hz"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no largest f_bw: {design}"))
+    };
+    assert!(
+        (bandwidth(&on_fit) - bandwidth(&chain)).abs() <= 0.5,
+        "fitted {on_fit}\nchain {chain}"
+    );
 }
 
 #[test]
@@ -209,6 +303,139 @@ fn a_program_of_ones_own_is_measured_at_the_sensor_without_a_model_of_its_law() 
         let from_parts = t[i] / s[i];
         assert!((from_parts - l[i]).norm() <= 1e-6 * l[i].norm(), "line {i}");
     }
+}
+
+/// The drive train of scenarios/drive-train.toml (motor 2 kg, carriage
+/// 8 kg, tool holder 1.5 kg, end effector 0.6 kg; belt 3e6, 1.5e7 and
+/// 6e6 N/m; the force on the motor, the sensor on the end effector) as a
+/// finite-element export would give it: M, K, B, C in an .npz.
+fn write_drive_train_mk(path: &Path) {
+    let masses = [2.0, 8.0, 1.5, 0.6];
+    let springs = [(0, 1, 3e6), (1, 2, 1.5e7), (2, 3, 6e6)];
+    let m = DMatrix::from_diagonal(&DVector::from_column_slice(&masses));
+    let mut k = DMatrix::zeros(4, 4);
+    for (i, j, stiffness) in springs {
+        k[(i, i)] += stiffness;
+        k[(j, j)] += stiffness;
+        k[(i, j)] -= stiffness;
+        k[(j, i)] -= stiffness;
+    }
+    let mut b = DMatrix::zeros(4, 1);
+    b[(0, 0)] = 1.0;
+    let mut c = DMatrix::zeros(1, 4);
+    c[(0, 3)] = 1.0;
+    let arrays =
+        [("M", m), ("K", k), ("B", b), ("C", c)].map(|(name, a)| (name, Array::from_matrix(&a)));
+    ModelArrays::write_npz(path, &arrays).unwrap();
+}
+
+/// A short measurement of 200 N at the plant input: 40 lines asked from
+/// 10 Hz (periods of 0.1 s) to `f_max_hz`, 2 transient and 5 measured
+/// periods from 0.05 s, done by 0.85 s with its fade-out.
+fn short_measure_at_plant_input(f_max_hz: f64) -> toml::Value {
+    toml::Value::Table(
+        toml::from_str(&format!(
+            "point = \"plant-input\"\nf_min_hz = 10.0\nf_max_hz = {f_max_hz:?}\nlines = 40\n\
+             amplitude = 200.0\ntransient_periods = 2\nperiods = 5\nstart_s = 0.05\n"
+        ))
+        .unwrap(),
+    )
+}
+
+#[test]
+fn a_plant_of_ones_own_is_measured_as_its_model_and_its_design() {
+    let dir = temp_dir("measure-own-plant");
+    let model = dir.join("drive_train_mk.npz");
+    write_drive_train_mk(&model);
+    // The drive train's loop (Kalman, MC + AD, PID f_bw "auto") on the
+    // file, the reference held, measured at the plant input.
+    let mut table = scenario_table(&scenario("drive-train"));
+    let plant = table["plant"].as_table_mut().unwrap();
+    for field in ["masses_kg", "springs", "forces", "positions"] {
+        plant.remove(field).unwrap();
+    }
+    plant.insert("model".into(), "second-order".into());
+    plant.insert("file".into(), model.display().to_string().into());
+    // Held: no scan, and so no feedforward either.
+    table.remove("reference");
+    let controller = table["controller"].as_table_mut().unwrap();
+    controller.remove("feedforward").unwrap();
+    controller.remove("feedforward_form").unwrap();
+    table["loop"]["duration_s"] = toml::Value::Float(1.0);
+    // To 1 kHz: the modes are at 212 to 700 Hz, and above them the end
+    // effector's response falls below its sensor's noise.
+    table.insert("measure".into(), short_measure_at_plant_input(1000.0));
+    let file = write_table(&dir, "own-plant.toml", &table);
+    let run_dir = dir.join("run");
+    run_lockstep(&file, &run_dir);
+    let printed = measure(&run_dir, &[]);
+
+    // P is the file's model, S_i the design's loop on it, line by line and
+    // at its peak.
+    let frf = ModelArrays::read(&run_dir.join("measurement/frf.npz")).unwrap();
+    for name in ["P", "S_i"] {
+        let (lines, db, degrees) = assert_model_within(&frf, name, (0.5, 2.0), 25, &printed);
+        eprintln!("own plant: {name} within {db:.3} dB and {degrees:.2} deg on {lines} lines");
+    }
+    let (measured, design) = peaks_db(&frf, "S_i");
+    eprintln!("own plant: peak of |S_i| {measured:.5} dB, the design's {design:.5} dB");
+    assert!(
+        (measured - design).abs() <= 0.3,
+        "peak of |S_i| {measured} dB, the design's {design} dB\n{printed}"
+    );
+}
+
+#[test]
+fn a_controller_of_ones_own_in_rust_is_measured_at_the_plant_input() {
+    let dir = temp_dir("measure-own-controller");
+    // The measured chain (the thesis chain with its noise) under the
+    // example PID at f_bw 20 Hz for its 12.5 kg (Table 3.3's tuning, as the
+    // program matrix gives it): flexible modes in P, a law flexloop has no
+    // model of.
+    let mut table = scenario_table(&scenario("measure-default"));
+    let w = 2.0 * std::f64::consts::PI * 20.0;
+    let kp = 12.5 * w * w / 3.0;
+    let params: toml::Table = [
+        ("kp", kp),
+        ("ki", kp * w / 9.0),
+        ("kd", 3.0 * kp / w),
+        ("derivative_filter_rad_s", 3.0 * w),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), toml::Value::Float(v)))
+    .collect();
+    served_by_program(
+        &mut table,
+        ProgramRole::Controller,
+        &[example_program().display().to_string()],
+        None,
+        Some(params),
+    );
+    table["loop"]["duration_s"] = toml::Value::Float(1.0);
+    table.insert("measure".into(), short_measure_at_plant_input(2000.0));
+    let file = write_table(&dir, "own-controller.toml", &table);
+    let run_dir = dir.join("run");
+    run_lockstep(&file, &run_dir);
+    let printed = measure(&run_dir, &[]);
+    assert!(printed.contains("peak of |S_i|"), "{printed}");
+
+    // The plant is flexloop's: its model, through the program's loop.
+    let frf = ModelArrays::read(&run_dir.join("measurement/frf.npz")).unwrap();
+    let (lines, db, degrees) = assert_model_within(&frf, "P", (0.5, 2.0), 25, &printed);
+    eprintln!("own controller: P within {db:.3} dB and {degrees:.2} deg on {lines} lines");
+    // No model of the program's law, but the file's S_i and L_i agree
+    // with each other: S_i = 1 / (1 + L_i).
+    let s = response(&frf, "S_i");
+    assert!(s.model.is_none());
+    let l = response(&frf, "L_i").measured;
+    let mut worst = 0.0_f64;
+    for i in (0..s.measured.len()).filter(|&i| s.coherence[i] >= 0.99) {
+        let from_loop = 1.0 / (1.0 + l[i]);
+        let off = (from_loop - s.measured[i]).norm() / s.measured[i].norm();
+        assert!(off <= 1e-6, "line {i}: {off}\n{printed}");
+        worst = worst.max(off);
+    }
+    eprintln!("own controller: S_i = 1/(1 + L_i) to {worst:e}");
 }
 
 /// `flexloop measure --running --prefix P fields…`, started.
@@ -349,4 +576,41 @@ fn a_measurement_needs_a_running_loop_and_a_run_that_measured() {
         !out.status.success() && said.contains("measured nothing"),
         "{said}"
     );
+}
+
+/// A swept and a stepped sine through the processes: the plant runs each
+/// (a stepped sine's tones one after another, each faded in and out), the
+/// recording holds it, and the plant measured through the loop is its
+/// model (the same bounds as the multisine's).
+#[test]
+fn a_swept_and_a_stepped_sine_measure_the_plant_through_the_processes() {
+    let dir = temp_dir("measure-signals");
+    // (signal, lines, loop.duration_s): a stepped sine's 4 tones of 0.6 s
+    // (2 transient, 3 measured and a fade-out period of 0.1 s) each.
+    for (signal, lines, duration_s, trusted) in
+        [("swept-sine", 40, 1.0, 25), ("stepped-sine", 4, 2.6, 4)]
+    {
+        let mut table = scenario_table(&scenario("measure-default"));
+        table["loop"]["duration_s"] = toml::Value::Float(duration_s);
+        let mut section = short_measure_at_plant_input(2000.0);
+        let fields = section.as_table_mut().unwrap();
+        fields.insert("signal".into(), signal.into());
+        fields.insert("lines".into(), toml::Value::Integer(lines));
+        fields.insert("periods".into(), toml::Value::Integer(3));
+        table.insert("measure".into(), section);
+        let file = write_table(&dir, &format!("{signal}.toml"), &table);
+        let run_dir = dir.join(signal);
+        run_lockstep(&file, &run_dir);
+        let printed = measure(&run_dir, &[]);
+        assert!(printed.contains(&format!("a {signal} of")), "{printed}");
+        let frf = ModelArrays::read(&run_dir.join("measurement/frf.npz")).unwrap();
+        let (lines, db, degrees) = assert_model_within(&frf, "P", (0.5, 2.0), trusted, &printed);
+        eprintln!("{signal}: P within {db:.3} dB and {degrees:.2} deg on {lines} lines");
+        let (measured, design) = peaks_db(&frf, "S_i");
+        eprintln!("{signal}: peak of |S_i| {measured:.3} dB, the design's {design:.3} dB");
+        assert!(
+            (measured - design).abs() <= 0.3,
+            "{signal}: peak of |S_i| {measured} dB, the design's {design} dB\n{printed}"
+        );
+    }
 }

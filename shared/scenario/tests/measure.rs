@@ -193,3 +193,30 @@ fn a_swept_or_stepped_sine_is_the_excitation_asked_for_and_has_no_phases() {
         "for each of its",
     );
 }
+
+/// An order on a running loop carries the measurement whole: what the
+/// plant rebuilds from it is the `[measure]` the supervisor checked.
+#[test]
+fn an_order_carries_every_signal_and_its_fields() {
+    for change in [
+        "",
+        "phases = \"random\"\nseed = 9",
+        "signal = \"swept-sine\"",
+        "signal = \"stepped-sine\"\nlines = 3\nperiods = 2\nperiod_samples = 400\nf_min_hz = 5 => f_min_hz = 25",
+    ] {
+        let s = with(change).unwrap();
+        let section = s.measure.clone().unwrap();
+        let order = section.order(s.timing.rate_hz, 1000);
+        assert_eq!(
+            flexloop_scenario::schema::MeasureSection::from_order(&order, s.timing.rate_hz),
+            flexloop_scenario::schema::MeasureSection {
+                period_samples: Some(section.period_samples_at(s.timing.rate_hz)),
+                phases: section.phases.or((section.signal
+                    == flexloop_scenario::schema::MeasureSignal::Multisine)
+                    .then_some(flexloop_scenario::schema::MeasurePhases::Schroeder)),
+                ..section
+            },
+            "{change}"
+        );
+    }
+}
