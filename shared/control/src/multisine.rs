@@ -108,8 +108,7 @@ impl Multisine {
     /// Designs the signal. Allocates (design time).
     pub fn design(spec: &MultisineSpec) -> Result<Self, MultisineError> {
         let n = spec.period_samples;
-        let (lowest, highest) = band_bins(spec)?;
-        let bins = log_spaced(lowest, highest, spec.max_lines);
+        let bins = line_bins(spec)?;
         let count = bins.len();
         let phases: Vec<f64> = match spec.phases {
             // Schroeder's rule for lines of equal power on any set of
@@ -300,8 +299,15 @@ fn band_bins(spec: &MultisineSpec) -> Result<(usize, usize), MultisineError> {
     Ok((lowest, highest))
 }
 
+/// The bins a multisine of `spec` excites (a stepped sine's tones): at
+/// most `max_lines`, log-spaced over the band, each once.
+pub fn line_bins(spec: &MultisineSpec) -> Result<Vec<usize>, MultisineError> {
+    let (lowest, highest) = band_bins(spec)?;
+    Ok(log_spaced(lowest, highest, spec.max_lines))
+}
+
 /// At most `lines` bins log-spaced from `lowest` to `highest`, each once.
-pub fn log_spaced(lowest: usize, highest: usize, lines: usize) -> Vec<usize> {
+fn log_spaced(lowest: usize, highest: usize, lines: usize) -> Vec<usize> {
     let lines = lines.max(1);
     let mut bins: Vec<usize> = (0..lines)
         .map(|i| {

@@ -4,7 +4,7 @@
 use crate::error::{ScenarioError, number};
 use crate::schema::{MeasurePhases, MeasurePoint, MeasureSection, MeasureSignal, Scenario};
 use flexloop_control::excitation::{ExcitationPlan, ExcitationShape, InjectionPoint};
-use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases, log_spaced};
+use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases, line_bins};
 use flexloop_protocol::MeasureOrder;
 use flexloop_protocol::measure_order::{
     AT_PLANT_INPUT, AT_SENSOR, MULTISINE, RANDOM, SCHROEDER, STEPPED_SINE, SWEPT_SINE,
@@ -164,30 +164,15 @@ impl Scenario {
 
     /// Signals run one after another: a stepped sine's tones, else one.
     fn measure_steps(&self, m: &MeasureSection) -> usize {
-        if m.signal != MeasureSignal::SteppedSine {
-            return 1;
+        match m.signal {
+            MeasureSignal::SteppedSine => line_bins(&self.multisine_spec(m)).map_or(1, |b| b.len()),
+            _ => 1,
         }
-        let n = self.measure_period_samples(m);
-        let resolution = self.timing.rate_hz / n as f64;
-        let lowest = (m.f_min_hz / resolution).ceil().max(1.0) as usize;
-        let highest = ((m.f_max_hz / resolution).floor() as usize).min((n - 1) / 2);
-        if highest < lowest {
-            return 1;
-        }
-        log_spaced(lowest, highest, m.lines).len()
     }
 
-    fn measure_start_tick(&self, m: &MeasureSection) -> u64 {
-        (m.start_s * self.timing.rate_hz).round() as u64
-    }
-
-    /// The excitation the loop runs, designed (milliseconds: the crest
-    /// factor's iterations), or None without `[measure]`.
-    pub fn measurement_plan(&self) -> Result<Option<ExcitationPlan>, ScenarioError> {
-        let Some(m) = &self.measure else {
-            return Ok(None);
-        };
-        let spec = MultisineSpec {
+    /// The multisine `[measure]` asks for (a stepped sine's tones are its lines).
+    fn multisine_spec(&self, m: &MeasureSection) -> MultisineSpec {
+        MultisineSpec {
             rate_hz: self.timing.rate_hz,
             period_samples: self.measure_period_samples(m),
             f_min_hz: m.f_min_hz,
@@ -200,7 +185,20 @@ impl Scenario {
                     seed: m.seed.unwrap_or(0),
                 },
             },
+        }
+    }
+
+    fn measure_start_tick(&self, m: &MeasureSection) -> u64 {
+        (m.start_s * self.timing.rate_hz).round() as u64
+    }
+
+    /// The excitation the loop runs, designed (milliseconds: the crest
+    /// factor's iterations), or None without `[measure]`.
+    pub fn measurement_plan(&self) -> Result<Option<ExcitationPlan>, ScenarioError> {
+        let Some(m) = &self.measure else {
+            return Ok(None);
         };
+        let spec = self.multisine_spec(m);
         let designed = match m.signal {
             MeasureSignal::Multisine => Multisine::design(&spec).map(|s| vec![s]),
             MeasureSignal::SweptSine => Multisine::swept(&spec).map(|s| vec![s]),
