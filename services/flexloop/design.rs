@@ -169,18 +169,27 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         None
     };
     let programs = programs_of(&s)?;
+    let design_file = s.design_file_path().map(|p| p.display().to_string());
     if json {
         let value = serde_json::json!({
             "loop": own,
             "study": study_part,
             "deadline_sweep": sweep_part,
             "programs": programs,
+            "design_file": design_file,
         });
         println!("{}", serde_json::to_string_pretty(&value)?);
         return Ok(0);
     }
     if let Some(notice) = programs_notice(&programs) {
         println!("{notice}\n");
+    }
+    if let Some(file) = &design_file {
+        println!(
+            "The observer and the controller are designed on {file} (plant.design_file); the \
+             loop below is that design around the plant `{}`, the one that runs.\n",
+            s.plant.model
+        );
     }
     print!("{}", own.render_text());
     if let (Some([from, to]), OwnLoop::Analysed(_)) = (s.plant.sensor_scan, &own) {

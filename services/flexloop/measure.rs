@@ -11,13 +11,16 @@
 //! Each is printed against the design and written under
 //! `RUN_DIR/measurement/` as `frf.csv` and `frf.npz`; with `--fit` a modal
 //! model fitted to the measured plant is written as a `state-space` plant
-//! file (`plant-fit.npz`).
+//! file (`plant-fit.npz`). The round in one step (docs/control.md §14):
+//! `--retune FILE` writes the run's scenario redesigned on that fit
+//! (`plant.design_file`, a PID's f_bw "auto"), checked as `up` checks a
+//! file; with `--running --swap` it is handed over to the running loop
+//! (observer, then controller) and measured again.
 
-use crate::run_measurements::{MeasuredRun as Run, folder_of, ordered_label};
+use crate::run_measurements::{Judged, MeasuredRun as Run, folder_of, ordered_label};
 use anyhow::{Context, bail};
 use flexloop_analysis::loop_measurement::{LoopMeasurement, MIN_COHERENCE, MeasurementError};
 use flexloop_analysis::run_log::JoinedLog;
-use flexloop_components::ExcitationPlan;
 use flexloop_control::modal_fit::{ModalFit, ModalFitSpec};
 use flexloop_design::LoopDesign;
 use flexloop_modelfile::{Array, ModelArrays};
@@ -43,6 +46,15 @@ pub struct MeasureArgs {
     /// No rigid body in the fitted model (a plant held to the ground)
     #[arg(long, requires = "fit")]
     pub no_rigid_body: bool,
+    /// Write FILE: the run's scenario with its observer and controller
+    /// designed on the fitted model (plant.design_file; a PID's f_bw "auto"),
+    /// checked as `up` checks a file
+    #[arg(long, value_name = "FILE", requires = "fit")]
+    pub retune: Option<PathBuf>,
+    /// With --running and --retune: hand FILE over to the running loop
+    /// (observer, then controller) and measure it again
+    #[arg(long, requires = "retune", requires = "running")]
+    pub swap: bool,
 }
 
 pub fn measure(args: MeasureArgs) -> anyhow::Result<i32> {
@@ -62,7 +74,7 @@ pub fn measure(args: MeasureArgs) -> anyhow::Result<i32> {
     let measurements = run
         .measurements()?
         .into_iter()
-        .map(|m| Ok((m.label, m.plan?)))
+        .map(|m| Ok((m.label, m.judged?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     if measurements.is_empty() {
         bail!(
@@ -70,8 +82,8 @@ pub fn measure(args: MeasureArgs) -> anyhow::Result<i32> {
              (scenarios/README.md), or order one with `flexloop measure --running`"
         );
     }
-    for (label, plan) in measurements {
-        run.compute(&label, plan, &joined, &args)?;
+    for (label, judged) in measurements {
+        run.compute(&label, &judged, &joined, &args)?;
     }
     Ok(0)
 }
@@ -97,7 +109,7 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
         (ordered.end_seq - ordered.start_seq) as f64 / rate,
         run_dir.display()
     );
-    let plan = run.plan_of(&ordered.table)?;
+    let judged = run.ordered(ordered.start_seq, &ordered.table)?;
     let label = ordered_label(ordered.start_seq);
     // Until its last period is in the sample file (the logger writes it in
     // chunks), bounded: the loop's time at its rate, and a minute more for a
@@ -111,7 +123,8 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
         // this holds all it ever will.
         let ended = run.dir.summary().exists();
         let joined = JoinedLog::open(&run_dir)?;
-        match run.compute(&label, plan.clone(), &joined, args) {
+        match run.compute(&label, &judged, &joined, args) {
+            Ok(()) if args.swap => return hand_over_and_measure_again(args, &run_dir),
             Ok(()) => return Ok(0),
             Err(e) => {
                 let recording = matches!(
@@ -131,12 +144,12 @@ impl Run {
     fn compute(
         &self,
         label: &str,
-        plan: ExcitationPlan,
+        judged: &Judged,
         joined: &JoinedLog,
         args: &MeasureArgs,
     ) -> anyhow::Result<()> {
-        let design = LoopDesign::from_scenario(&self.scenario)?;
-        let measurement = LoopMeasurement::of_log(&design, &plan, &joined.log)?;
+        let design = LoopDesign::from_scenario(&judged.scenario)?;
+        let measurement = LoopMeasurement::of_log(&design, &judged.plan, &joined.log)?;
         println!("measurement {label}:");
         print!("{}", measurement.render_text());
         let out = folder_of(&self.dir, label);
@@ -149,16 +162,147 @@ impl Run {
         measurement.write_npz(&npz)?;
         println!("responses: {} and {}", csv.display(), npz.display());
         if let Some(modes) = args.fit {
-            fit(
+            let fitted = fit(
                 &measurement,
                 modes,
                 !args.no_rigid_body,
                 self.scenario.timing.rate_hz,
                 &out,
             )?;
+            if let Some(file) = &args.retune {
+                retune(judged, &fitted, file)?;
+            }
         }
         Ok(())
     }
+}
+
+/// Writes `file`: the scenario of the loop measured, its observer and
+/// controller designed on `fitted`, and checks it as `up` would.
+fn retune(judged: &Judged, fitted: &Path, file: &Path) -> anyhow::Result<()> {
+    let source = &judged.file;
+    let scenario = &judged.scenario;
+    if scenario.controller.exec.is_some() && scenario.observer.exec.is_some() {
+        bail!(
+            "--retune: programs of one's own serve the observer and the controller; there \
+             is no built-in law to redesign on the fit"
+        );
+    }
+    let text = std::fs::read_to_string(source).with_context(|| format!("{}", source.display()))?;
+    let mut table: toml::Table =
+        toml::from_str(&text).with_context(|| format!("{}", source.display()))?;
+    // Its files found from wherever the new one is written.
+    flexloop_scenario::plant_description::anchor_files(&mut table, source);
+    let fitted = std::path::absolute(fitted)?;
+    let section = |table: &mut toml::Table, name: &str| -> anyhow::Result<toml::Table> {
+        match table.remove(name) {
+            Some(toml::Value::Table(t)) => Ok(t),
+            None => Ok(toml::Table::new()),
+            Some(_) => bail!("{}: [{name}] is not a table", source.display()),
+        }
+    };
+    let mut plant = section(&mut table, "plant")?;
+    plant.insert(
+        "design_file".into(),
+        toml::Value::String(fitted.display().to_string()),
+    );
+    table.insert("plant".into(), toml::Value::Table(plant));
+    let auto = scenario.controller.feedback == "pid" && scenario.controller.exec.is_none();
+    if auto {
+        let mut controller = section(&mut table, "controller")?;
+        controller.insert("bandwidth_hz".into(), toml::Value::String("auto".into()));
+        table.insert("controller".into(), toml::Value::Table(controller));
+    }
+    let header = format!(
+        "# {} redesigned on the model fitted to its measurement ({}): its observer and \
+         controller\n# designed on plant.design_file{}; the plant emulated is unchanged \
+         (docs/control.md §14).\n",
+        source.display(),
+        fitted.display(),
+        if auto {
+            ", the PID's f_bw \"auto\""
+        } else {
+            ""
+        }
+    );
+    let written = header + &toml::to_string(&table)?;
+    let tmp = file.with_extension("toml.tmp");
+    std::fs::write(&tmp, written)
+        .and_then(|()| std::fs::rename(&tmp, file))
+        .with_context(|| format!("cannot write {}", file.display()))?;
+    let accepted = flexloop_design::acceptance::accept(
+        file,
+        &flexloop_scenario::Overrides::default(),
+        flexloop_runtime::realtime::online_cpus(),
+    )
+    .with_context(|| format!("the retuned scenario {}", file.display()))?;
+    println!("retuned scenario: {}", file.display());
+    if let Some(p) = accepted.design.pid_bandwidth {
+        println!(
+            "  PID f_bw on the fit: {:.1} Hz{}",
+            p.hz,
+            if p.auto {
+                " (\"auto\": the largest meeting the 6 dB rule on the fit)"
+            } else {
+                ""
+            }
+        );
+    }
+    match flexloop_analysis::loop_report::loop_report(&accepted.scenario, &accepted.design) {
+        Ok(report) => println!(
+            "  that design around the plant that runs: peak |S^I| {:.2} dB, |S^O| {:.2} dB: {}",
+            report.peak_si_sigma_db,
+            report.peak_so_sigma_db,
+            if report.meets_6db_rule {
+                "keeps the 6 dB rule"
+            } else {
+                "breaks the 6 dB rule"
+            }
+        ),
+        Err(e) => println!("  the loop is not analysed: {e}"),
+    }
+    println!(
+        "  hand it over: flexloop swap observer {0} && flexloop swap controller {0}",
+        file.display()
+    );
+    Ok(())
+}
+
+/// `--swap`: the retuned scenario handed over to the running loop, the
+/// observer first (the controller's corrections read its estimate), then
+/// measured again with the same fields.
+fn hand_over_and_measure_again(args: &MeasureArgs, run_dir: &Path) -> anyhow::Result<i32> {
+    let file = args
+        .retune
+        .as_ref()
+        .expect("clap: --swap requires --retune");
+    let file = std::path::absolute(file)?;
+    for role in ["observer", "controller"] {
+        let answer = flexloop_supervisor::conductor::request_swap(run_dir, role, &file)?;
+        match (answer.ok, answer.switch) {
+            (true, Some(switch)) => println!(
+                "swapped the {role}: generation {} active from sample {}",
+                switch.generation, switch.from_seq
+            ),
+            _ => bail!(
+                "swap of the {role} refused: {}",
+                answer.error.as_deref().unwrap_or("no reason given")
+            ),
+        }
+    }
+    println!("measuring the retuned loop again:");
+    let again = MeasureArgs {
+        args: args.args.clone(),
+        running: true,
+        which: crate::loop_command::PrefixArg {
+            prefix: args.which.prefix.clone(),
+        },
+        fit: None,
+        no_rigid_body: false,
+        retune: None,
+        swap: false,
+    };
+    measure_running(&again)
 }
 
 /// A modal model fitted to the measured plant, written as a plant file.

@@ -1,8 +1,10 @@
 //! The measurements of a run (docs/control.md §14): the scenario's
 //! `[measure]` and each one ordered on the running loop (its `measure`
 //! event). `flexloop measure` and `flexloop report` both list them here, so
-//! that the two show the same measurements, judged against the same
-//! scenario.
+//! that the two show the same measurements, each judged against the loop it
+//! measured: the scenario's `[measure]` against the scenario the run
+//! started with, an ordered one against the scenario as it stood when it
+//! was ordered (the supervisor's snapshot; swaps and sets may follow).
 
 use anyhow::Context;
 use flexloop_components::ExcitationPlan;
@@ -15,18 +17,33 @@ use std::path::{Path, PathBuf};
 /// The label of the scenario's `[measure]`; its files are `measurement/`'s own.
 pub const SCENARIO_LABEL: &str = "scenario";
 
-/// The label of a measurement ordered to start at `start_seq`, and the name
-/// of its folder under `measurement/`.
+/// The label of a measurement ordered to start at `start_seq`, the name of
+/// its folder under `measurement/` (`RunDir::ordered_measurement`).
 pub fn ordered_label(start_seq: u64) -> String {
-    format!("at-{start_seq}")
+    RunDir::new("")
+        .ordered_measurement(start_seq)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
-/// A run directory and the scenario its measurements are judged against.
+/// A run directory and the scenario as it stands (after sets and swaps).
 pub struct MeasuredRun {
     pub dir: RunDir,
     pub scenario: Scenario,
     /// The file `scenario` was read from.
     pub file: PathBuf,
+    /// The run's own rate, mode and duration.
+    overrides: Overrides,
+}
+
+/// The loop a measurement measured, and its excitation.
+#[derive(Clone)]
+pub struct Judged {
+    pub scenario: Scenario,
+    /// The file `scenario` was read from.
+    pub file: PathBuf,
+    pub plan: ExcitationPlan,
 }
 
 /// One measurement of a run.
@@ -36,9 +53,9 @@ pub struct Measurement {
     /// The tick an ordered measurement was ordered to start at; None for
     /// the scenario's `[measure]`.
     pub ordered_start: Option<u64>,
-    /// Its excitation, or why it cannot be planned (a `measure` event whose
-    /// table does not read).
-    pub plan: anyhow::Result<ExcitationPlan>,
+    /// The loop it measured and its excitation, or why they cannot be read
+    /// (a `measure` event whose table does not read).
+    pub judged: anyhow::Result<Judged>,
 }
 
 /// Where `flexloop measure` writes the measurement `label` of the run `dir`.
@@ -72,6 +89,7 @@ impl MeasuredRun {
             dir,
             scenario,
             file,
+            overrides,
         })
     }
 
@@ -79,11 +97,26 @@ impl MeasuredRun {
     /// the order they were ordered.
     pub fn measurements(&self) -> anyhow::Result<Vec<Measurement>> {
         let mut found = Vec::new();
-        if let Some(plan) = self.scenario.measurement_plan()? {
+        // The scenario's own ran from the start: the loop as it started
+        // (a swap keeps `[measure]`, so the scenario now has the same one).
+        if self.scenario.measure.is_some() {
+            let file = self.dir.scenario_copy();
+            let judged = Scenario::load(&file, &self.overrides)
+                .map_err(anyhow::Error::from)
+                .and_then(|scenario| {
+                    let plan = scenario
+                        .measurement_plan()?
+                        .context("the scenario's [measure] has no plan")?;
+                    Ok(Judged {
+                        scenario,
+                        file,
+                        plan,
+                    })
+                });
             found.push(Measurement {
                 label: SCENARIO_LABEL.to_string(),
                 ordered_start: None,
-                plan: Ok(plan),
+                judged,
             });
         }
         let path = self.dir.events();
@@ -95,27 +128,42 @@ impl MeasuredRun {
                 found.push(Measurement {
                     label: ordered_label(start),
                     ordered_start: Some(start),
-                    plan: self.plan_of(&ordered.outcome.table).with_context(|| {
-                        format!(
-                            "{}: the measurement ordered at tick {start}",
-                            path.display()
-                        )
-                    }),
+                    judged: self
+                        .ordered(start, &ordered.outcome.table)
+                        .with_context(|| {
+                            format!(
+                                "{}: the measurement ordered at tick {start}",
+                                path.display()
+                            )
+                        }),
                 });
             }
         }
         Ok(found)
     }
 
-    /// The plan of a measurement ordered with `table` (its `[measure]`).
-    pub fn plan_of(&self, table: &str) -> anyhow::Result<ExcitationPlan> {
+    /// The measurement ordered at `start` with `table` (its `[measure]`):
+    /// the loop as it stood then (the supervisor's snapshot; a run recorded
+    /// before snapshots were taken: the scenario as it stands) and its plan.
+    pub fn ordered(&self, start: u64, table: &str) -> anyhow::Result<Judged> {
+        let snapshot = self.dir.measured_scenario(start);
+        let (scenario, file) = if snapshot.exists() {
+            (Scenario::load(&snapshot, &self.overrides)?, snapshot)
+        } else {
+            (self.scenario.clone(), self.file.clone())
+        };
         let section = MeasureSection::from_table(table).context("the ordered [measure]")?;
-        let mut scenario = self.scenario.clone();
+        let mut planned = scenario.clone();
         // Checked when it was ordered; the run's end may have come since.
-        scenario.timing.duration_s = 0.0;
-        scenario.measure = Some(section);
-        scenario
+        planned.timing.duration_s = 0.0;
+        planned.measure = Some(section);
+        let plan = planned
             .measurement_plan()?
-            .context("the ordered measurement has no plan")
+            .context("the ordered measurement has no plan")?;
+        Ok(Judged {
+            scenario,
+            file,
+            plan,
+        })
     }
 }

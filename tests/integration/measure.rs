@@ -614,3 +614,79 @@ fn a_swept_and_a_stepped_sine_measure_the_plant_through_the_processes() {
         );
     }
 }
+
+/// The round in one step on a running loop: measured, fitted, redesigned
+/// on the fit (`plant.design_file`, f_bw "auto"), checked, handed over and
+/// measured again; the loop ends as it runs, on the laws of the fit.
+#[test]
+fn a_running_loop_is_measured_fitted_retuned_handed_over_and_measured_again() {
+    let dir = temp_dir("measure-round");
+    let held = dir.join("held.toml");
+    let text = std::fs::read_to_string(scenario("measure-default")).unwrap();
+    let (loop_only, _) = text.split_once("[measure]").unwrap();
+    std::fs::write(&held, loop_only).unwrap();
+    let (up, prefix) = start_file_and_await(&dir, &held, &["--mode", "lockstep"], 2_000);
+    let retuned = dir.join("retuned.toml");
+    let mut cmd = flexloop();
+    cmd.args(["measure", "--running", "--prefix", &prefix])
+        .args(AT_PLANT_INPUT)
+        .args(["--fit", "4", "--swap", "--retune"])
+        .arg(&retuned);
+    let out = run_bounded(cmd, Duration::from_secs(600));
+    let printed = describe(&out);
+    assert!(out.status.success(), "{printed}");
+    for words in [
+        "fitted mode: 470",
+        "retuned scenario:",
+        "PID f_bw on the fit:",
+        "that design around the plant that runs",
+        "swapped the observer",
+        "swapped the controller",
+        "measuring the retuned loop again",
+    ] {
+        assert!(printed.contains(words), "{words}: {printed}");
+    }
+    // Two measurements, the second of the new loop, each its design's: the
+    // peak of |S_i| against the design's prediction. ("auto" chose the
+    // largest f_bw that meets the rule on the fit, so the new loop sits on
+    // the 6 dB line and noise may put it either side.)
+    let peaks: Vec<(f64, f64)> = printed
+        .lines()
+        .filter_map(|l| l.strip_prefix("peak of |S_i|: "))
+        .map(|l| {
+            let measured = l.split(' ').next().unwrap().parse().unwrap();
+            let (_, design) = l.split_once("(the design: ").unwrap();
+            (measured, design.split(' ').next().unwrap().parse().unwrap())
+        })
+        .collect();
+    assert_eq!(peaks.len(), 2, "{printed}");
+    for (measured, design) in peaks {
+        assert!((measured - design).abs() <= 0.3, "{printed}");
+    }
+    let events = events(&dir);
+    let swaps = events
+        .iter()
+        .filter(|e| matches!(e.kind, EventKind::Swap(_)))
+        .count();
+    let measured = events
+        .iter()
+        .filter(|e| matches!(e.kind, EventKind::Measure(_)))
+        .count();
+    assert_eq!((swaps, measured), (2, 2), "{printed}");
+    // The loop runs the retuned file: its design model is the fit.
+    let now = std::fs::read_to_string(dir.join("scenario-now.toml")).unwrap();
+    assert!(
+        now.contains("design_file") && now.contains("plant-fit.npz"),
+        "{now}"
+    );
+    stop(&prefix, up);
+    // The retuned file stands on its own: `design` takes it and says so.
+    let mut cmd = flexloop();
+    cmd.arg("design").arg(&retuned);
+    let out = run_bounded(cmd, Duration::from_secs(300));
+    let said = describe(&out);
+    assert!(
+        out.status.success() && said.contains("(plant.design_file)"),
+        "{said}"
+    );
+}

@@ -43,7 +43,8 @@ pub struct Measured {
     pub ordered_start: Option<u64>,
     /// Where `flexloop measure` writes it, relative to the run directory.
     pub folder: String,
-    pub result: Result<LoopMeasurement, String>,
+    /// The measurement and the design of the loop it measured.
+    pub result: Result<(LoopMeasurement, Box<LoopDesign>), String>,
 }
 
 impl Measured {
@@ -80,50 +81,43 @@ impl Measured {
     }
 }
 
-/// The run's measurements, and the design they are judged against where it
-/// is not the run's own.
-pub struct Measurements {
-    pub list: Vec<Measured>,
-    pub design: Option<LoopDesign>,
-}
-
 /// Every measurement of the run as `flexloop measure` computes it: the
-/// same list (`run_measurements`), judged against the same scenario (as it
-/// stands after sets and swaps). An error only where the run directory
-/// cannot be read; a measurement that cannot be computed holds why.
-pub fn measure(dir: &Path, run: &RunReport) -> anyhow::Result<Measurements> {
+/// same list (`run_measurements`), each judged against the loop it
+/// measured. An error only where the run directory cannot be read; a
+/// measurement that cannot be computed holds why.
+pub fn measure(dir: &Path, run: &RunReport) -> anyhow::Result<Vec<Measured>> {
     let reader = MeasuredRun::open(dir)?;
     let listed = reader.measurements()?;
     if listed.is_empty() {
-        return Ok(Measurements {
-            list: Vec::new(),
-            design: None,
-        });
+        return Ok(Vec::new());
     }
-    // Designed again only where the scenario changed while the loop ran.
-    let redesigned = (reader.scenario != run.scenario).then(|| {
-        LoopDesign::from_scenario(&reader.scenario).map_err(|e| {
-            format!(
-                "the design of the scenario as it stands ({}): {e}",
-                reader.file.display()
-            )
-        })
-    });
-    let design = match &redesigned {
-        None => Ok(&run.design),
-        Some(d) => d.as_ref().map_err(Clone::clone),
-    };
     // `RunReport::load` keeps what it derives from the sample files, not the
     // messages: the joined log is opened once more for the excitation's ticks.
     let joined = JoinedLog::open(dir).map_err(|e| e.to_string());
     let list = listed
         .into_iter()
         .map(|m| {
-            let result = match (&design, &joined, m.plan) {
-                (Err(e), _, _) | (_, Err(e), _) => Err(e.clone()),
-                (_, _, Err(e)) => Err(format!("{e:#}")),
-                (Ok(design), Ok(joined), Ok(plan)) => {
-                    LoopMeasurement::of_log(design, &plan, &joined.log).map_err(|e| e.to_string())
+            let result = match (&joined, m.judged) {
+                (Err(e), _) => Err(e.clone()),
+                (_, Err(e)) => Err(format!("{e:#}")),
+                (Ok(joined), Ok(judged)) => {
+                    // Designed again only where the loop measured is not
+                    // the one the run started with (a swap or set came first).
+                    let design = if judged.scenario == run.scenario {
+                        Ok(run.design.clone())
+                    } else {
+                        LoopDesign::from_scenario(&judged.scenario).map_err(|e| {
+                            format!(
+                                "the design of the loop it measured ({}): {e}",
+                                judged.file.display()
+                            )
+                        })
+                    };
+                    design.and_then(|design| {
+                        LoopMeasurement::of_log(&design, &judged.plan, &joined.log)
+                            .map(|m| (m, Box::new(design)))
+                            .map_err(|e| e.to_string())
+                    })
                 }
             }
             // A reason goes into a paragraph (a TOML error spans lines).
@@ -135,10 +129,7 @@ pub fn measure(dir: &Path, run: &RunReport) -> anyhow::Result<Measurements> {
             }
         })
         .collect();
-    Ok(Measurements {
-        list,
-        design: redesigned.and_then(Result::ok),
-    })
+    Ok(list)
 }
 
 /// The section's blocks; none when the run measured nothing.
@@ -168,16 +159,16 @@ pub fn section(data: &RunData) -> Vec<Block> {
         )));
     }
     for m in &data.measurements {
-        blocks.extend(subsection(data, m));
+        blocks.extend(subsection(m));
     }
     blocks
 }
 
 /// One measurement's heading, words, tables and figures.
-fn subsection(data: &RunData, measured: &Measured) -> Vec<Block> {
+fn subsection(measured: &Measured) -> Vec<Block> {
     let mut blocks = vec![Block::Subheading(measured.heading())];
-    let m = match &measured.result {
-        Ok(m) => m,
+    let (m, design) = match &measured.result {
+        Ok((m, design)) => (m, design.as_ref()),
         Err(reason) => {
             blocks.push(Block::Paragraph(format!(
                 "{} excited the loop, but its frequency responses cannot be computed from this \
@@ -188,7 +179,6 @@ fn subsection(data: &RunData, measured: &Measured) -> Vec<Block> {
             return blocks;
         }
     };
-    let design = data.measured_design();
     let suffix = measured.suffix();
     blocks.push(Block::Paragraph(introduction(measured, m)));
     blocks.push(Block::Minor("The 6 dB rule, measured".into()));

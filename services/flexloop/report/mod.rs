@@ -90,11 +90,8 @@ pub struct RunData {
     /// Every measurement of the run (the scenario's `[measure]`, then each
     /// one ordered while it ran): the responses `flexloop measure` computes,
     /// or why they cannot be computed. Empty when the run measured nothing.
+    /// Each with the design of the loop it measured.
     pub measurements: Vec<measured::Measured>,
-    /// The design the measurements are judged against where it is not the
-    /// run's own: the scenario changed while it ran (sets, swaps), and
-    /// `flexloop measure` judges against the scenario as it stands.
-    pub redesigned: Option<flexloop_design::LoopDesign>,
 }
 
 impl RunData {
@@ -113,7 +110,7 @@ impl RunData {
         } else {
             Vec::new()
         };
-        let measured::Measurements { list, design } = measured::measure(dir, &run)?;
+        let measurements = measured::measure(dir, &run)?;
         Ok(Self {
             length: Length::for_unit(run.design.output_unit),
             dir: dir.to_path_buf(),
@@ -124,14 +121,8 @@ impl RunData {
             period_ns,
             lockstep,
             joined_files,
-            measurements: list,
-            redesigned: design,
+            measurements,
         })
-    }
-
-    /// The design the measurements are judged against.
-    pub fn measured_design(&self) -> &flexloop_design::LoopDesign {
-        self.redesigned.as_ref().unwrap_or(&self.run.design)
     }
 }
 

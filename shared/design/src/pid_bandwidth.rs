@@ -128,7 +128,8 @@ pub fn resolve(
                 )));
             };
             let siso = SisoLoop {
-                plant: &parts.plant_u,
+                // Tuned on the model the loop is designed on.
+                plant: parts.design_plant(),
                 observer: observer_of(&parts.observer),
                 loop_delay,
                 mass,

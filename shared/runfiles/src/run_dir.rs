@@ -74,6 +74,18 @@ impl RunDir {
         self.join("measurement")
     }
 
+    /// The folder of the measurement ordered to start at `start_seq`.
+    pub fn ordered_measurement(&self, start_seq: u64) -> PathBuf {
+        self.measurement().join(format!("at-{start_seq}"))
+    }
+
+    /// The scenario as it stood when the measurement ordered to start at
+    /// `start_seq` was ordered: the loop it measures, whatever swaps and
+    /// sets came after.
+    pub fn measured_scenario(&self, start_seq: u64) -> PathBuf {
+        self.ordered_measurement(start_seq).join("scenario.toml")
+    }
+
     pub fn summary(&self) -> PathBuf {
         self.join(Self::SUMMARY)
     }

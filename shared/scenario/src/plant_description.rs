@@ -149,8 +149,9 @@ impl<'de> Deserialize<'de> for Damper {
 
 /// The fields that name a file relative to the scenario's directory: the
 /// plant's model and the IO observer's correction filter.
-const FILE_FIELDS: [(&str, &str); 4] = [
+const FILE_FIELDS: [(&str, &str); 5] = [
     ("plant", "file"),
+    ("plant", "design_file"),
     ("observer", "correction_file"),
     ("controller", "workdir"),
     ("observer", "workdir"),

@@ -166,6 +166,11 @@ pub struct PlantSection {
     /// `second-order`, `state-space`: the arrays inline, instead of a file
     /// (rows as arrays of numbers).
     pub arrays: Option<toml::Table>,
+    /// A `state-space` plant file (.npz or .mat) the observer and the
+    /// controller are designed on, instead of the plant emulated (a model
+    /// fitted to a measurement: docs/control.md §14); relative to the
+    /// scenario's directory. The plant process runs `model` as before.
+    pub design_file: Option<PathBuf>,
     /// Whether the file named `output` (not part of the format): `output`
     /// has a default, so only the text tells a given one from the default.
     #[serde(skip)]
@@ -890,6 +895,11 @@ impl Scenario {
     /// `plant.file` resolved against the scenario's directory.
     pub fn plant_file_path(&self) -> Option<PathBuf> {
         self.beside(self.plant.file.as_ref()?)
+    }
+
+    /// `plant.design_file` resolved against the scenario's directory.
+    pub fn design_file_path(&self) -> Option<PathBuf> {
+        self.beside(self.plant.design_file.as_ref()?)
     }
 
     /// `observer.correction_file` resolved against the scenario's directory.

@@ -100,6 +100,9 @@ fn plant_conflicts(a: &PlantSection, b: &PlantSection, check: &mut impl FnMut(&'
         positions,
         file: _,
         arrays,
+        // The observer's and the controller's design model: a swap hands
+        // over a design made on another (the plant runs what it runs).
+        design_file: _,
     } = a;
     check("plant.masses_kg", *masses_kg != b.masses_kg);
     check(

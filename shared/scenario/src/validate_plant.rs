@@ -26,6 +26,7 @@ impl Scenario {
         if p.masses_kg.is_some() && !(chain || lumped) {
             return refuse("plant.masses_kg", "`thesis-chain` and `lumped`");
         }
+        self.validate_design_file()?;
         if p.stiffness_n_per_m.is_some() && !chain {
             return refuse(
                 "plant.stiffness_n_per_m",
@@ -359,6 +360,43 @@ impl Scenario {
                 ));
             }
             self.positive_up_to("observer.max_mode_hz", f, self.timing.rate_hz / 2.0)?;
+        }
+        Ok(())
+    }
+}
+
+impl Scenario {
+    /// `plant.design_file` designs the built-in observer and controller:
+    /// where neither is designed from the plant model, it would not act.
+    fn validate_design_file(&self) -> Result<(), ScenarioError> {
+        let Some(file) = &self.plant.design_file else {
+            return Ok(());
+        };
+        let field = "plant.design_file";
+        if self.controller.exec.is_some() && self.observer.exec.is_some() {
+            return Err(self.err(
+                field,
+                "designs the built-in observer and controller, and programs of one's own serve \
+                 both",
+            ));
+        }
+        if self.plant.sensor_scan.is_some() {
+            return Err(self.err(
+                field,
+                "a scanned sensor's scheduled observer is designed on the thesis chain itself",
+            ));
+        }
+        let known = file
+            .extension()
+            .is_some_and(|x| x.eq_ignore_ascii_case("npz") || x.eq_ignore_ascii_case("mat"));
+        if !known {
+            return Err(self.err(
+                field,
+                format!(
+                    "{}: a `state-space` plant file is an .npz or a .mat (docs/own-plant.md)",
+                    file.display()
+                ),
+            ));
         }
         Ok(())
     }

@@ -157,7 +157,11 @@ fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyho
         })
     };
     let programs = scenario.controller.exec.is_some() || scenario.observer.exec.is_some();
-    if !programs && !leaves(&scenario.plant.file) && !leaves(&scenario.observer.correction_file) {
+    if !programs
+        && !leaves(&scenario.plant.file)
+        && !leaves(&scenario.plant.design_file)
+        && !leaves(&scenario.observer.correction_file)
+    {
         std::fs::write(copy, text)?;
         return Ok(());
     }
@@ -167,6 +171,7 @@ fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyho
     // finds the copy.
     for (section, key, file) in [
         ("plant", "file", &scenario.plant.file),
+        ("plant", "design_file", &scenario.plant.design_file),
         (
             "observer",
             "correction_file",
@@ -189,14 +194,16 @@ fn write_scenario_copy(source: &Path, scenario: &Scenario, copy: &Path) -> anyho
     Ok(())
 }
 
-/// The plant's model file and the IO observer's correction file beside the
-/// run's copy of the scenario, where the copy's relative `plant.file` and
-/// `observer.correction_file` find them (`run`, `report` and `fit-ff`
+/// The plant's model file, its design model and the IO observer's
+/// correction file beside the run's copy of the scenario, where the copy's
+/// relative `plant.file`, `plant.design_file` and `observer.correction_file`
+/// find them (`run`, `report` and `fit-ff`
 /// design the run again from the copy). An absolute path, or one leaving the
 /// scenario's directory, is read where it is.
 fn copy_model_file(scenario: &Scenario, run_dir: &Path) -> anyhow::Result<()> {
     let files = [
         (&scenario.plant.file, scenario.plant_file_path()),
+        (&scenario.plant.design_file, scenario.design_file_path()),
         (
             &scenario.observer.correction_file,
             scenario.correction_file_path(),

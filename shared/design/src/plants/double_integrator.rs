@@ -85,6 +85,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         .map_err(|e| err("observer", format!("observer block: {e}")))?;
     let observer_modes = discrete_modes(&(&ae - &ke * &ce), ts).unwrap_or_default();
     Ok(Parts {
+        design_file_plant: None,
         output_prediction: OutputPrediction {
             c: ce,
             d: plant.d.clone(),

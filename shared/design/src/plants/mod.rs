@@ -31,6 +31,9 @@ pub struct Parts {
     /// `continuous_plant`, or with a command deadline its two-piece
     /// integration in the delayed-input form ([`model_parts`]).
     pub plant_u: DiscreteStateSpace,
+    /// With `plant.design_file`: the model the observer and the controller
+    /// are designed on, sampled as `plant_u` is ([`Parts::design_plant`]).
+    pub design_file_plant: Option<DiscreteStateSpace>,
     /// The plant in continuous time, what `plant_u` samples.
     pub continuous_plant: ContinuousStateSpace,
     /// With a command deadline: G_new of the plant's two-piece sample
@@ -45,8 +48,95 @@ pub struct Parts {
     pub observer_modes: Vec<(f64, f64)>,
 }
 
-/// The parts of the model `plant.model` names.
+/// The parts of the model `plant.model` names; with `plant.design_file`,
+/// the observer, the feedback and the feedforward designed on that file's
+/// model instead, around the plant `plant.model` names (the loop that
+/// runs: docs/control.md §14).
 pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
+    let emulated = sampled_parts(s, ts, extra_delay)?;
+    let Some(design_scenario) = design_model_scenario(s) else {
+        return Ok(emulated);
+    };
+    // The same inputs and outputs first: a model of another shape fails
+    // its own design for reasons that would not say so.
+    let ours = &emulated.plant_u;
+    if let Some((inputs, outputs)) = file_shape(&design_scenario)
+        && (inputs, outputs) != (ours.inputs(), ours.outputs())
+    {
+        return Err(ScenarioError::new(
+            &s.source,
+            Some("plant.design_file"),
+            format!(
+                "the design model has {inputs} input{} and {outputs} output{}; the plant `{}` \
+                 has {} and {}",
+                if inputs == 1 { "" } else { "s" },
+                if outputs == 1 { "" } else { "s" },
+                s.plant.model,
+                ours.inputs(),
+                ours.outputs()
+            ),
+        ));
+    }
+    let on_file = sampled_parts(&design_scenario, ts, extra_delay).map_err(|e| {
+        // The design model's errors are about the design file.
+        let field = match e.field.as_deref() {
+            Some("plant.file") | Some("plant") | None => "plant.design_file".to_string(),
+            Some(other) => other.to_string(),
+        };
+        ScenarioError::new(
+            &s.source,
+            Some(&field),
+            format!("the design model: {}", e.reason),
+        )
+    })?;
+    Ok(Parts {
+        design_file_plant: Some(on_file.plant_u.clone()),
+        plant_u: emulated.plant_u,
+        continuous_plant: emulated.continuous_plant,
+        plant_g_new: emulated.plant_g_new,
+        output_names: emulated.output_names,
+        flexible_modes: emulated.flexible_modes,
+        ..on_file
+    })
+}
+
+/// The scenario whose plant is `plant.design_file`'s `state-space` model,
+/// for the design; None without one.
+fn design_model_scenario(s: &Scenario) -> Option<Scenario> {
+    let file = s.design_file_path()?;
+    let mut design = s.clone();
+    let p = &mut design.plant;
+    p.model = "state-space".into();
+    p.file = Some(file);
+    p.design_file = None;
+    p.arrays = None;
+    p.output_given = false;
+    p.masses_kg = None;
+    p.stiffness_n_per_m = None;
+    p.actuator_node = None;
+    p.zeta = None;
+    p.rayleigh = None;
+    p.springs.clear();
+    p.dampers.clear();
+    p.forces.clear();
+    p.positions.clear();
+    p.nodes = None;
+    p.encoders = None;
+    p.sensor_position = None;
+    Some(design)
+}
+
+/// The inputs and outputs of a `state-space` file's B and C, when it reads.
+fn file_shape(s: &Scenario) -> Option<(usize, usize)> {
+    use flexloop_modelfile::{ModelArrays, VectorAs};
+    let arrays = ModelArrays::read(&s.plant_file_path()?).ok()?;
+    let b = arrays.matrix("B", VectorAs::Column).ok()?;
+    let c = arrays.matrix("C", VectorAs::Row).ok()?;
+    Some((b.ncols(), c.nrows()))
+}
+
+/// The parts of `s`'s own plant, sampled as the loop samples it.
+fn sampled_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, ScenarioError> {
     let mut parts = model_parts_one_sample(s, ts, extra_delay)?;
     if let Some(tau) = s.command_deadline_s() {
         // The observer reads the deadline from the scenario itself
@@ -64,6 +154,13 @@ pub fn model_parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, S
         parts.plant_g_new = Some(split.g_new);
     }
     Ok(parts)
+}
+
+impl Parts {
+    /// The plant the observer and the controller are designed on.
+    pub fn design_plant(&self) -> &DiscreteStateSpace {
+        self.design_file_plant.as_ref().unwrap_or(&self.plant_u)
+    }
 }
 
 fn model_parts_one_sample(

@@ -124,6 +124,7 @@ pub fn modal_parts(
             Ok((reduced, model_weights))
         })?;
     Ok(Parts {
+        design_file_plant: None,
         plant_u,
         continuous_plant: full.state_space(),
         plant_g_new: None,

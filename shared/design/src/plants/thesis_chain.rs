@@ -45,6 +45,7 @@ pub fn parts(s: &Scenario, ts: f64, extra_delay: usize) -> Result<Parts, Scenari
         _ => format!("y{}", s.plant.output),
     }];
     Ok(Parts {
+        design_file_plant: None,
         plant_u: plant,
         continuous_plant: modal.state_space(),
         plant_g_new: None,

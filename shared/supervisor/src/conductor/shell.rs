@@ -15,7 +15,7 @@ use super::requests;
 use super::switch::Switch;
 use super::tuning::Tuning;
 use crate::children::{Outcome, RunningLoop};
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use flexloop_design::LoopDesign;
 use flexloop_node::Role;
 use flexloop_protocol::Joining;
@@ -525,6 +525,13 @@ impl Conductor {
     ) -> Result<MeasureOutcome> {
         let start_seq = self.core.plan_measurement()?;
         let planned = super::measuring::plan(&self.scenario, request, start_seq)?;
+        // The loop it measures, as it stands now: its design is what the
+        // measurement is judged against, whatever swaps come after.
+        let run_dir = RunDir::new(self.files.run_dir());
+        let snapshot = run_dir.measured_scenario(planned.outcome.start_seq);
+        self.tuning
+            .snapshot(&run_dir, &self.scenario, &snapshot)
+            .context("the scenario the measurement measures")?;
         self.ports.send_measure_order(planned.order)?;
         let outcome = planned.outcome;
         self.core

@@ -190,6 +190,19 @@ impl Tuning {
         }))
     }
 
+    /// Writes the scenario as it stands to `to` (its files anchored, so it
+    /// reads from anywhere): what a measurement ordered now measures.
+    pub fn snapshot(&mut self, run_dir: &RunDir, running: &Scenario, to: &Path) -> Result<()> {
+        let text = toml::to_string(self.now(run_dir, running)?)?;
+        if let Some(dir) = to.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+        }
+        let tmp = to.with_extension("toml.tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("{}", tmp.display()))?;
+        std::fs::rename(&tmp, to).with_context(|| format!("{}", to.display()))?;
+        Ok(())
+    }
+
     /// `role` now runs `file` (a swap or a set's hand-over): its part of
     /// the scenario as it stands is now that file's, rewritten in
     /// `scenario-now.toml`. The controller's part is `[controller]` and
@@ -210,6 +223,12 @@ impl Tuning {
         flexloop_scenario::plant_description::anchor_files(&mut from, file);
         self.now(run_dir, running)?;
         let now = self.now.as_mut().expect("loaded above");
+        // The observer's and the controller's design model goes with either
+        // (a swap of both, as `flexloop measure --swap` makes, leaves them
+        // on one).
+        if matches!(role, Role::Observer | Role::Controller) {
+            take_plant_design_file(now, &from);
+        }
         match role {
             Role::Observer => take(now, &from, "observer"),
             Role::Plant => {
@@ -227,6 +246,20 @@ impl Tuning {
         std::fs::write(&tmp, text).with_context(|| format!("{}", tmp.display()))?;
         std::fs::rename(&tmp, &path).with_context(|| format!("{}", path.display()))?;
         Ok(())
+    }
+}
+
+/// `plant.design_file` as `from` has it (absent: none).
+fn take_plant_design_file(table: &mut toml::Table, from: &toml::Table) {
+    let value = from
+        .get("plant")
+        .and_then(|p| p.get("design_file"))
+        .cloned();
+    if let Some(toml::Value::Table(plant)) = table.get_mut("plant") {
+        match value {
+            Some(v) => plant.insert("design_file".into(), v),
+            None => plant.remove("design_file"),
+        };
     }
 }
 
