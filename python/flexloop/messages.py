@@ -43,6 +43,7 @@ class Flags:
     STANDBY = 1 << 8
     CONVERGING = 1 << 9
     EXCITING = 1 << 10
+    EXCITING_REFERENCE = 1 << 11
 
 
 class HandoverMark:

@@ -484,8 +484,8 @@ fn a_measurement_ordered_on_a_running_loop_is_checked_run_and_computed() {
     saturating[3] = "amplitude=1500";
     refused(&prefix, &saturating, "saturate");
     let mut nowhere = AT_PLANT_INPUT;
-    nowhere[0] = "point=\"reference\"";
-    refused(&prefix, &nowhere, "unknown variant `reference`");
+    nowhere[0] = "point=\"actuator\"";
+    refused(&prefix, &nowhere, "unknown variant `actuator`");
 
     // Twenty periods of 0.2 s: seconds of a lockstep loop, during which a
     // second order and a swap are refused.
@@ -689,4 +689,29 @@ fn a_running_loop_is_measured_fitted_retuned_handed_over_and_measured_again() {
         out.status.success() && said.contains("(plant.design_file)"),
         "{said}"
     );
+}
+
+/// The reference as the point (the built-in controller adds the plant's
+/// excitation to its set-point): through the processes, the plant and the
+/// tracking responses are the design's.
+#[test]
+fn a_measurement_at_the_reference_gives_the_designs_tracking() {
+    let dir = temp_dir("measure-reference");
+    let mut table = scenario_table(&scenario("measure-default"));
+    table["loop"]["duration_s"] = toml::Value::Float(1.0);
+    let mut section = short_measure_at_plant_input(2000.0);
+    let fields = section.as_table_mut().unwrap();
+    fields.insert("point".into(), "reference".into());
+    fields.insert("amplitude".into(), toml::Value::Float(5e-5));
+    table.insert("measure".into(), section);
+    let file = write_table(&dir, "reference.toml", &table);
+    let run_dir = dir.join("run");
+    run_lockstep(&file, &run_dir);
+    let printed = measure(&run_dir, &[]);
+    assert!(printed.contains("peak of |S_r|"), "{printed}");
+    let frf = ModelArrays::read(&run_dir.join("measurement/frf.npz")).unwrap();
+    for name in ["P", "T_r", "S_r", "CS_r"] {
+        let (lines, db, degrees) = assert_model_within(&frf, name, (0.5, 2.0), 20, &printed);
+        eprintln!("reference: {name} within {db:.3} dB and {degrees:.2} deg on {lines} lines");
+    }
 }

@@ -204,6 +204,9 @@ fn point_words(point: InjectionPoint) -> &'static str {
     match point {
         InjectionPoint::PlantInput => "plant input (a force beside the applied command)",
         InjectionPoint::Sensor => "sensor (an error added to the measured output)",
+        InjectionPoint::Reference => {
+            "reference (added by the controller to the first output's set-point)"
+        }
     }
 }
 
@@ -498,6 +501,7 @@ fn loop_gain_name(point: InjectionPoint) -> &'static str {
     match point {
         InjectionPoint::PlantInput => "L_i",
         InjectionPoint::Sensor => "L_o",
+        InjectionPoint::Reference => "L_r",
     }
 }
 

@@ -8,13 +8,13 @@
 //! the controller (so a program of one's own is measured as the built-in
 //! law is):
 //!
-//! | at the plant input (d) | at the sensor (n) |
-//! |---|---|
-//! | P = Y / (U + D) | P = Y_true / U |
-//! | S_i = (U + D) / D, the input sensitivity | S_o = Y / N, the output sensitivity |
-//! | T_i = −U / D | T_o = −Y_true / N |
-//! | PS = Y / D, the process sensitivity | CS = −U / N, the control sensitivity |
-//! | L_i = −U / (U + D), the loop gain | L_o = −Y_true / Y |
+//! | at the plant input (d) | at the sensor (n) | at the reference (r) |
+//! |---|---|---|
+//! | P = Y / (U + D) | P = Y_true / U | P = Y_true / U |
+//! | S_i = (U + D) / D, the input sensitivity | S_o = Y / N, the output sensitivity | S_r = (R − Y) / R |
+//! | T_i = −U / D | T_o = −Y_true / N | T_r = Y / R |
+//! | PS = Y / D, the process sensitivity | CS = −U / N, the control sensitivity | CS_r = U / R |
+//! | L_i = −U / (U + D), the loop gain | L_o = −Y_true / Y | L_r = Y / (R − Y) |
 //!
 //! (U the command applied, Y the measured output, Y_true without sensor
 //! noise.) Beside each, the design's prediction: the exact discrete
@@ -240,6 +240,15 @@ impl LoopMeasurement {
             .map(|(u, d)| if input_force { u + d } else { *u })
             .collect();
         let limit = design.input_limit * (1.0 - 1e-12);
+        let tracking_error: Vec<f64> = match plan.point {
+            InjectionPoint::Reference => signals
+                .excitation
+                .iter()
+                .zip(&signals.y)
+                .map(|(d, y)| d - y)
+                .collect(),
+            _ => Vec::new(),
+        };
         // Each segment (one periodic signal, or a stepped sine's tone) is
         // read on its own; their lines are joined in the order they ran.
         let mut measured: Vec<Frf> = Vec::new();
@@ -282,6 +291,12 @@ impl LoopMeasurement {
             let total = spectra(&u_total)?;
             let y = spectra(&signals.y)?;
             let y_true = spectra(&signals.y_true)?;
+            // At the reference: the set-point's error, excitation less output
+            // (the held reference is a constant, on no line).
+            let error = match plan.point {
+                InjectionPoint::Reference => Some(spectra(&tracking_error)?),
+                _ => None,
+            };
             let between = |out: &LineSpectra, input: &LineSpectra| {
                 Frf::between(segment, out, input).map_err(MeasurementError::Estimate)
             };
@@ -292,15 +307,23 @@ impl LoopMeasurement {
                     frf
                 })
             };
-            let these = match plan.point {
-                InjectionPoint::PlantInput => [
+            let these = match (plan.point, &error) {
+                (InjectionPoint::Reference, Some(e)) => [
+                    between(&y_true, &u)?,
+                    between(&y, &d)?,
+                    between(e, &d)?,
+                    between(&u, &d)?,
+                    between(&y, e)?,
+                ],
+                (InjectionPoint::Reference, None) => unreachable!("read above"),
+                (InjectionPoint::PlantInput, _) => [
                     between(&y, &total)?,
                     between(&total, &d)?,
                     against(&u, &d)?,
                     between(&y, &d)?,
                     against(&u, &total)?,
                 ],
-                InjectionPoint::Sensor => [
+                (InjectionPoint::Sensor, _) => [
                     between(&y_true, &u)?,
                     between(&y, &d)?,
                     against(&y_true, &d)?,
@@ -321,6 +344,7 @@ impl LoopMeasurement {
         let names = match plan.point {
             InjectionPoint::PlantInput => ["P", "S_i", "T_i", "PS", "L_i"],
             InjectionPoint::Sensor => ["P", "S_o", "T_o", "CS", "L_o"],
+            InjectionPoint::Reference => ["P", "T_r", "S_r", "CS_r", "L_r"],
         };
         let lines = plan.frequencies_hz();
         let responses = names
@@ -364,11 +388,12 @@ impl LoopMeasurement {
         self.responses.iter().find(|r| r.name == name)
     }
 
-    /// The loop gain at the measured point (`L_i` or `L_o`).
+    /// The loop gain at the measured point (`L_i`, `L_o` or `L_r`).
     pub fn loop_gain(&self) -> &MeasuredResponse {
         let name = match self.point {
             InjectionPoint::PlantInput => "L_i",
             InjectionPoint::Sensor => "L_o",
+            InjectionPoint::Reference => "L_r",
         };
         self.response(name)
             .expect("every measurement has its loop gain")
@@ -379,6 +404,9 @@ impl LoopMeasurement {
         let name = match self.point {
             InjectionPoint::PlantInput => "S_i",
             InjectionPoint::Sensor => "S_o",
+            // The set-point's error: the output sensitivity of a loop
+            // without MC (with MC the error the feedback sees differs).
+            InjectionPoint::Reference => "S_r",
         };
         self.response(name)
             .expect("every measurement has its sensitivity")
@@ -588,6 +616,10 @@ fn meaning(name: &str) -> &'static str {
         "T_o" => "the output complementary sensitivity PC/(1 + PC)",
         "CS" => "the control sensitivity C/(1 + PC)",
         "L_o" => "the loop gain PC at the sensor",
+        "T_r" => "the reference's complementary sensitivity y / r",
+        "S_r" => "the reference's sensitivity (r - y) / r",
+        "CS_r" => "the reference's control sensitivity u / r",
+        "L_r" => "T_r / S_r, the loop gain PC of a loop without MC",
         _ => "",
     }
 }
@@ -615,6 +647,10 @@ pub fn predicted(
         (InjectionPoint::Sensor, "T_o") => at.map(|g| g.e_true_from_n),
         (InjectionPoint::Sensor, "CS") => at.map(|g| -g.u_c_from_n),
         (InjectionPoint::Sensor, "L_o") => at.map(|g| g.e_true_from_n / g.y_from_n),
+        (InjectionPoint::Reference, "T_r") => at.map(|g| g.y_from_r),
+        (InjectionPoint::Reference, "S_r") => at.map(|g| one - g.y_from_r),
+        (InjectionPoint::Reference, "CS_r") => at.map(|g| g.u_c_from_r),
+        (InjectionPoint::Reference, "L_r") => at.map(|g| g.y_from_r / (one - g.y_from_r)),
         _ => None,
     }
 }
@@ -628,6 +664,8 @@ struct LoopAt {
     y_from_n: C64,
     u_c_from_n: C64,
     e_true_from_n: C64,
+    y_from_r: C64,
+    u_c_from_r: C64,
 }
 
 /// The design's responses at the lines.
@@ -661,6 +699,8 @@ impl Prediction {
                         y_from_n: m[(y_meas, n)],
                         u_c_from_n: applied * m[(u_c, n)],
                         e_true_from_n: m[(e_true, n)],
+                        y_from_r: m[(y_meas, 0)],
+                        u_c_from_r: applied * m[(u_c, 0)],
                     }
                 })
                 .collect()

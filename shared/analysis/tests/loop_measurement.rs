@@ -62,7 +62,7 @@ fn measured_by(
         period_samples: None,
         amplitude: match point {
             MeasurePoint::PlantInput => amplitude_share * s.plant.input_limit,
-            MeasurePoint::Sensor => 1e-6,
+            MeasurePoint::Sensor | MeasurePoint::Reference => 1e-6,
         },
         phases: None,
         seed: None,
@@ -107,9 +107,13 @@ const MATRIX: [&str; 8] = [
 ];
 
 #[test]
-fn without_noise_every_response_is_the_designs_at_both_points() {
+fn without_noise_every_response_is_the_designs_at_every_point() {
     for name in MATRIX {
-        for point in [MeasurePoint::PlantInput, MeasurePoint::Sensor] {
+        for point in [
+            MeasurePoint::PlantInput,
+            MeasurePoint::Sensor,
+            MeasurePoint::Reference,
+        ] {
             let (_, design) = measured(name, point, 0.05);
             let m = run(&design);
             assert_eq!(m.periods_used, 4, "{name} {point:?}");

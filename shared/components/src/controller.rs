@@ -359,6 +359,14 @@ impl ControllerCore {
         }
         let t_now = m.seq as f64 * self.ts;
         let r_now = self.reference.sample(t_now);
+        // A measurement at the reference (docs/control.md §14): the plant's
+        // excitation enters the first output's set-point of the feedback,
+        // not the feedforward's trajectory.
+        let r_excitation = if m.flags & flags::EXCITING_REFERENCE != 0 {
+            m.excitation
+        } else {
+            0.0
+        };
         // Appendix A's block runs on the set-point alone: samples this
         // instance did not process (misses, a late join) are stepped through
         // so that its state stays on the loop's time base.
@@ -370,7 +378,7 @@ impl ControllerCore {
         self.fill_feedforward_input(m.seq);
         for i in 0..ny {
             let y_comp = m.y[i] - self.observer_output[i];
-            let r = self.direction[i] * r_now[0];
+            let r = self.direction[i] * r_now[0] + if i == 0 { r_excitation } else { 0.0 };
             out.r[i] = r;
             self.error[i] = r - y_comp;
             out.e_meas[i] = self.error[i];

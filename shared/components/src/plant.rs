@@ -362,6 +362,9 @@ impl PlantCore {
         if let Some(excitation) = self.excitation.as_mut() {
             if excitation.runs_at(k) {
                 tick_flags |= flags::EXCITING;
+                if excitation.point() == InjectionPoint::Reference {
+                    tick_flags |= flags::EXCITING_REFERENCE;
+                }
             }
             self.excitation_now = excitation.value_at(k);
         }

@@ -279,12 +279,12 @@ fn an_io_observer_does_not_allocate() {
     assert_eq!(l.plant.counters.misses, 0);
 }
 
-/// The plant running a scenario's `[measure]` (docs/control.md §14), at
-/// each point and of each signal: through the excitation's fade in, its
+/// The plant (and at the reference the controller) running a scenario's
+/// `[measure]` (docs/control.md §14), at each point and of each signal: through the excitation's fade in, its
 /// periods, its fade out (a stepped sine's from tone to tone) and after it.
 #[test]
 fn an_excited_plant_does_not_allocate() {
-    let points = ["plant-input", "sensor"];
+    let points = ["plant-input", "sensor", "reference"];
     let signals = ["multisine", "swept-sine", "stepped-sine"];
     for (point, signal) in points.iter().flat_map(|p| signals.map(|s| (*p, s))) {
         let mut s = default_scenario();

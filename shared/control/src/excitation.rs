@@ -20,6 +20,9 @@ pub enum InjectionPoint {
     PlantInput,
     /// Added to the first measured output, as a sensor error would be.
     Sensor,
+    /// Added by the controller to the first output's reference (the plant
+    /// publishes it, flagged for the controller).
+    Reference,
 }
 
 impl InjectionPoint {
@@ -28,6 +31,7 @@ impl InjectionPoint {
         match self {
             InjectionPoint::PlantInput => "plant-input",
             InjectionPoint::Sensor => "sensor",
+            InjectionPoint::Reference => "reference",
         }
     }
 }

@@ -10,6 +10,8 @@ use iceoryx2::prelude::*;
 pub const AT_PLANT_INPUT: u32 = 0;
 /// `point`: added to the first measured output.
 pub const AT_SENSOR: u32 = 1;
+/// `point`: added by the controller to the first output's reference.
+pub const AT_REFERENCE: u32 = 2;
 /// `phases`: Schroeder's.
 pub const SCHROEDER: u32 = 0;
 /// `phases`: random, from `seed`.
@@ -37,7 +39,7 @@ pub struct MeasureOrder {
     pub period_samples: u32,
     pub transient_periods: u32,
     pub periods: u32,
-    /// [`AT_PLANT_INPUT`] or [`AT_SENSOR`].
+    /// [`AT_PLANT_INPUT`], [`AT_SENSOR`] or [`AT_REFERENCE`].
     pub point: u32,
     /// [`SCHROEDER`] or [`RANDOM`].
     pub phases: u32,

@@ -62,6 +62,10 @@ pub mod flags {
     /// Measurement: a measurement's excitation runs at this tick (from its
     /// fade-in's first sample to its fade-out's last; docs/control.md §14).
     pub const EXCITING: u32 = 1 << 10;
+    /// Measurement: the excitation is the controller's: it adds `excitation`
+    /// to its reference for the first output at this tick (docs/control.md
+    /// §14, the reference point); the plant adds nothing itself.
+    pub const EXCITING_REFERENCE: u32 = 1 << 11;
 }
 
 /// y(k) from the plant, published at tick k.

@@ -115,6 +115,7 @@ pub fn description() -> Value {
             "OBSERVER_FALLBACK": flags::OBSERVER_FALLBACK,
             "STANDBY": flags::STANDBY,
             "EXCITING": flags::EXCITING,
+            "EXCITING_REFERENCE": flags::EXCITING_REFERENCE,
         },
         "handover_marks": {
             "ACTIVE": handover::ACTIVE,

@@ -747,6 +747,7 @@ pub struct MeasureSection {
 pub enum MeasurePoint {
     PlantInput,
     Sensor,
+    Reference,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]

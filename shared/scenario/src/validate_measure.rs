@@ -7,7 +7,7 @@ use flexloop_control::excitation::{ExcitationPlan, ExcitationShape, InjectionPoi
 use flexloop_control::multisine::{Multisine, MultisineError, MultisineSpec, Phases, line_bins};
 use flexloop_protocol::MeasureOrder;
 use flexloop_protocol::measure_order::{
-    AT_PLANT_INPUT, AT_SENSOR, MULTISINE, RANDOM, SCHROEDER, STEPPED_SINE, SWEPT_SINE,
+    AT_PLANT_INPUT, AT_REFERENCE, AT_SENSOR, MULTISINE, RANDOM, SCHROEDER, STEPPED_SINE, SWEPT_SINE,
 };
 
 /// The most lines a measurement excites: more than a response needs over a
@@ -116,6 +116,16 @@ impl Scenario {
             return Err(self.err(
                 "measure.amplitude",
                 format!("must be a positive number, got {}", number(m.amplitude)),
+            ));
+        }
+        // The built-in controller adds a reference excitation; a program's
+        // law computes its own reference.
+        if m.point == MeasurePoint::Reference && self.controller.exec.is_some() {
+            return Err(self.err(
+                "measure.point",
+                "\"reference\" is added by the built-in controller to its set-point; a program \
+                 of one's own computes its own reference: measure at \"plant-input\" or \
+                 \"sensor\"",
             ));
         }
         let share = INPUT_SHARE * self.plant.input_limit;
@@ -228,6 +238,7 @@ impl Scenario {
             point: match m.point {
                 MeasurePoint::PlantInput => InjectionPoint::PlantInput,
                 MeasurePoint::Sensor => InjectionPoint::Sensor,
+                MeasurePoint::Reference => InjectionPoint::Reference,
             },
             shape: match m.signal {
                 MeasureSignal::Multisine => ExcitationShape::Multisine,
@@ -278,6 +289,7 @@ impl MeasureSection {
             point: match self.point {
                 MeasurePoint::PlantInput => AT_PLANT_INPUT,
                 MeasurePoint::Sensor => AT_SENSOR,
+                MeasurePoint::Reference => AT_REFERENCE,
             },
             phases: match self.phases.unwrap_or_default() {
                 MeasurePhases::Schroeder => SCHROEDER,
@@ -297,10 +309,10 @@ impl MeasureSection {
     pub fn from_order(order: &MeasureOrder, rate_hz: f64) -> Self {
         let random = order.phases == RANDOM;
         Self {
-            point: if order.point == AT_SENSOR {
-                MeasurePoint::Sensor
-            } else {
-                MeasurePoint::PlantInput
+            point: match order.point {
+                AT_SENSOR => MeasurePoint::Sensor,
+                AT_REFERENCE => MeasurePoint::Reference,
+                _ => MeasurePoint::PlantInput,
             },
             f_min_hz: order.f_min_hz,
             f_max_hz: order.f_max_hz,

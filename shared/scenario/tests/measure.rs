@@ -125,10 +125,12 @@ fn an_amplitude_that_would_saturate_the_actuator_is_refused() {
 
 #[test]
 fn a_point_that_does_not_exist_is_refused_naming_the_ones_that_do() {
-    let e = with("point = \"plant-input\" => point = \"reference\"").unwrap_err();
+    let e = with("point = \"plant-input\" => point = \"actuator\"").unwrap_err();
     assert_eq!(e.field.as_deref(), Some("measure.point"), "{e}");
     assert!(
-        e.reason.contains("plant-input") && e.reason.contains("sensor"),
+        e.reason.contains("plant-input")
+            && e.reason.contains("sensor")
+            && e.reason.contains("reference"),
         "{e}"
     );
 }
@@ -219,4 +221,27 @@ fn an_order_carries_every_signal_and_its_fields() {
             "{change}"
         );
     }
+}
+
+/// The reference is the built-in controller's set-point: a program of
+/// one's own computes its own, so the point is refused for it.
+#[test]
+fn the_reference_is_a_point_of_the_built_in_controller_only() {
+    let plan = with(
+        "point = \"plant-input\" => point = \"reference\"\namplitude = 100 => amplitude = 1e-6",
+    )
+    .unwrap()
+    .measurement_plan()
+    .unwrap()
+    .unwrap();
+    assert_eq!(plan.point, InjectionPoint::Reference);
+    let text = format!(
+        "{LOOP}[controller]\nexec = [\"/bin/sh\"]\n{}",
+        MEASURE
+            .replace("point = \"plant-input\"", "point = \"reference\"")
+            .replace("amplitude = 100", "amplitude = 1e-6")
+    );
+    let e = validated(&text).unwrap_err();
+    assert_eq!(e.field.as_deref(), Some("measure.point"), "{e}");
+    assert!(e.reason.contains("program of one's own"), "{e}");
 }
