@@ -10,6 +10,7 @@ mod bench;
 mod chaos;
 mod design;
 mod hangs;
+mod live_measure;
 mod live_view;
 mod loop_processes;
 mod measure;

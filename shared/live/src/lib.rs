@@ -4,7 +4,8 @@
 //! the loop's channels as one more polling subscriber and serves them with
 //! the sample file's schemas, so a layout made on a recording works live:
 //! `/measurement`, `/estimate`, `/command` (ros1msg), `/events`, a
-//! once-a-second `/latency` and `/scenario`. The loop's tunables are its
+//! once-a-second `/latency`, `/scenario`, and `/measurement/response`, a
+//! measurement's frequency responses while it runs. The loop's tunables are its
 //! parameters; setting one goes through the same check and hand-over as
 //! `flexloop set` (docs/live.md).
 //!
@@ -18,12 +19,17 @@
 //! - [`server`]: the server, its parameters and the loop that feeds it.
 //! - `reader`: the loop's samples as the server reads them.
 //! - `feeds`: what the JSON channels carry (latency, events, scenario).
+//! - `measured`, `estimate`: `/measurement/response`, the periods of a
+//!   measurement collected from the samples read, and its responses
+//!   computed on worker threads.
 
 pub mod clients;
 mod counts;
 mod error;
+mod estimate;
 mod feeds;
 pub mod gate;
+mod measured;
 pub mod options;
 pub mod parameters;
 mod reader;

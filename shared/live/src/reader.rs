@@ -39,12 +39,16 @@ impl LoopReader {
     }
 
     /// Everything the channels hold now, to `each(channel, seq,
-    /// published_ns, bytes)` (channel 0 measurement, 1 estimate, 2 command).
+    /// published_ns, bytes)` (channel 0 measurement, 1 estimate, 2
+    /// command); each measurement also to `measured` (what
+    /// `/measurement/response` collects).
     pub fn drain(
         &mut self,
         each: &mut impl FnMut(usize, u64, u64, &[u8]),
+        measured: &mut impl FnMut(&Measurement),
     ) -> Result<(), LiveError> {
         while let Some(m) = self.measurements.receive()? {
+            measured(&m);
             each(0, m.seq, m.published_ns, m.wire_bytes());
         }
         self.estimate_order.drain(

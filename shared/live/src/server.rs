@@ -23,6 +23,7 @@ use crate::counts::Counts;
 pub use crate::error::LiveError;
 use crate::feeds::{EventsTail, LatencyFeed, ScenarioWatch};
 use crate::gate::{Admissions, Gate, GateCounts, Limits, MARK_PARAMETER, MAX_CLIENTS, Mark};
+use crate::measured::MeasureFeed;
 use crate::options::LiveOptions;
 use crate::parameters;
 use crate::reader::LoopReader;
@@ -54,6 +55,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 pub const LATENCY_TOPIC: &str = "/latency";
 pub const SCENARIO_TOPIC: &str = "/scenario";
+pub const RESPONSE_TOPIC: &str = "/measurement/response";
 
 /// Messages queued per client before the oldest are dropped (and, apart,
 /// control messages: statuses and parameter answers, a client that lets
@@ -100,6 +102,32 @@ const SCENARIO_SCHEMA: &str = r#"{
   }
 }"#;
 
+const RESPONSE_SCHEMA: &str = r#"{
+  "title": "flexloop/MeasuredResponse",
+  "description": "A measurement's frequency responses while it runs (docs/control.md §14): after each measured period (a stepped sine: each tone), the responses over the periods so far, as `flexloop measure` computes them; a stopped live estimate says why. Plot an array of `responses` against `frequencies_hz` (Plot panel, x axis: path (current))",
+  "type": "object",
+  "properties": {
+    "measurement": {"type": "string", "description": "`scenario` (its [measure]) or `at-<start tick>` (ordered on the running loop): the label `flexloop measure` gives it"},
+    "state": {"type": "string", "enum": ["measuring", "done", "stopped", "failed", "unavailable"], "description": "stopped: the server missed samples of a period (or its start), the estimate of the periods before stands; failed: the measurement cannot be computed; unavailable: not estimated live (why in note)"},
+    "note": {"type": "string", "description": "why it stopped, failed or is unavailable, and that `flexloop measure RUN_DIR` computes it from the recording"},
+    "missed_samples": {"type": "integer", "description": "with state stopped: the samples of the period (or before the start) the server did not see"},
+    "start_tick": {"type": ["integer", "null"], "description": "the first tick the excitation ran (EXCITING)"},
+    "planned_start_tick": {"type": "integer"},
+    "point": {"type": "string", "description": "where the excitation enters (plant-input, sensor, ...)"},
+    "signal": {"type": "string", "description": "multisine, swept-sine or stepped-sine"},
+    "period_samples": {"type": "integer"},
+    "transient_periods": {"type": "integer"},
+    "periods_done": {"type": "integer", "description": "measured periods the estimate averages (a stepped sine: of all its tones so far)"},
+    "periods_total": {"type": "integer"},
+    "frequencies_hz": {"type": "array", "items": {"type": "number"}, "description": "the lines estimated so far"},
+    "log10_frequencies_hz": {"type": "array", "items": {"type": "number"}, "description": "the same, log10: a logarithmic frequency axis for a plot without one"},
+    "responses": {"type": "object", "description": "per response, named as `flexloop measure` names them (P, S_i, T_i, PS, L_i at the plant input; P, S_o, T_o, CS, L_o at the sensor): meaning, magnitude_db, phase_deg, coherence at each line, and where the design predicts it model_magnitude_db, model_phase_deg"},
+    "periods_used": {"type": "integer"},
+    "periods_saturated": {"type": "array", "items": {"type": "integer"}, "description": "measured periods left out: the actuator reached its limit in them"},
+    "sensitivity": {"type": "object", "description": "the measured sensitivity's peak over the lines of coherence >= min_coherence (peak_db, peak_hz), whether it keeps the 6 dB rule (keeps_6db_rule, limit_db), and the design's peak over the same lines (model_peak_db, model_peak_hz)"}
+  }
+}"#;
+
 /// The running loop the server serves.
 #[derive(Debug, Clone)]
 pub struct LoopSide {
@@ -119,6 +147,10 @@ struct Shared {
     /// Clients that subscribed to `/scenario` and wait for it.
     scenario_wanted: Mutex<Vec<SinkId>>,
     scenario_topic_id: Mutex<Option<u64>>,
+    /// Clients that subscribed to `/measurement/response` and wait for
+    /// its latest message.
+    response_wanted: Mutex<Vec<SinkId>>,
+    response_topic_id: u64,
     options: LiveOptions,
     tuner: Arc<dyn Tuner>,
     server: Mutex<Option<WebSocketServerHandle>>,
@@ -148,6 +180,9 @@ impl ServerListener for Listener {
         }
         if *lock(&self.0.scenario_topic_id) == Some(id) {
             lock(&self.0.scenario_wanted).push(sink);
+        }
+        if self.0.response_topic_id == id {
+            lock(&self.0.response_wanted).push(sink);
         }
     }
 
@@ -429,6 +464,7 @@ struct Channels {
     events: Arc<RawChannel>,
     latency: Arc<RawChannel>,
     scenario: Arc<RawChannel>,
+    response: Arc<RawChannel>,
 }
 
 impl Channels {
@@ -468,6 +504,7 @@ impl Channels {
             events: json(EVENTS_TOPIC, EVENT_SCHEMA_NAME, EVENT_SCHEMA)?,
             latency: json(LATENCY_TOPIC, "flexloop/Latency", LATENCY_SCHEMA)?,
             scenario: json(SCENARIO_TOPIC, "flexloop/Scenario", SCENARIO_SCHEMA)?,
+            response: json(RESPONSE_TOPIC, "flexloop/MeasuredResponse", RESPONSE_SCHEMA)?,
         })
     }
 }
@@ -496,6 +533,8 @@ pub fn serve(
         throttle: Mutex::new(Throttle::default()),
         scenario_wanted: Mutex::new(Vec::new()),
         scenario_topic_id: Mutex::new(Some(u64::from(channels.scenario.id()))),
+        response_wanted: Mutex::new(Vec::new()),
+        response_topic_id: u64::from(channels.response.id()),
         options: options.clone(),
         tuner,
         server: Mutex::new(None),
@@ -588,6 +627,10 @@ fn feed(
     let mut events = EventsTail::new(RunDir::new(&side.run_dir).events());
     let mut scenario = ScenarioWatch::default();
     let mut latency = LatencyFeed::open(&node)?;
+    // Planned, designed and estimated on threads of its own: this loop
+    // only copies the samples of a measurement's periods.
+    let mut measuring = MeasureFeed::start(&side.run_dir, side.rate_hz);
+    let mut latest_response: Option<String> = None;
     let offset_ns = wall_clock_ns().saturating_sub(monotonic_ns());
     let ids = channels.samples.each_ref().map(|c| u64::from(c.id()));
     let mut routes: Vec<Route<SinkId>> = Vec::new();
@@ -604,20 +647,27 @@ fn feed(
                 counts.forget_gone(&routes);
             }
         }
-        reader.drain(&mut |k, seq, published_ns, bytes| {
-            counts.read(k, seq);
-            targets(&routes, ids[k], seq, &mut out);
-            for sink in &out {
-                channels.samples[k].log_with_meta_to_sink(
-                    bytes,
-                    PartialMetadata {
-                        log_time: Some(published_ns.wrapping_add(offset_ns)),
-                    },
-                    Some(*sink),
-                );
-                counts.handed(*sink);
-            }
-        })?;
+        reader.drain(
+            &mut |k, seq, published_ns, bytes| {
+                counts.read(k, seq);
+                targets(&routes, ids[k], seq, &mut out);
+                for sink in &out {
+                    channels.samples[k].log_with_meta_to_sink(
+                        bytes,
+                        PartialMetadata {
+                            log_time: Some(published_ns.wrapping_add(offset_ns)),
+                        },
+                        Some(*sink),
+                    );
+                    counts.handed(*sink);
+                }
+            },
+            &mut |m| measuring.sample(m),
+        )?;
+        measuring.poll(&mut |json| {
+            counts.log_to_subscribers(&channels.response, &routes, json.as_bytes());
+            latest_response = Some(json);
+        });
         if let Some(mut json) = latency.poll(counts, routes.len(), gate)? {
             // Each client's own copy says how many messages the server
             // handed to it before this one: what it received less that is
@@ -635,6 +685,16 @@ fn feed(
             next_events += EVENTS_EVERY;
             for line in events.new_lines() {
                 counts.log_to_subscribers(&channels.events, &routes, line.as_bytes());
+                measuring.event(&line);
+            }
+            // A client that subscribes while a measurement runs (or after)
+            // gets its latest message at once.
+            let wanted: Vec<SinkId> = std::mem::take(&mut *lock(&shared.response_wanted));
+            if let Some(json) = &latest_response {
+                for sink in wanted {
+                    channels.response.log_to_sink(json.as_bytes(), Some(sink));
+                    counts.handed(sink);
+                }
             }
             let wanted: Vec<SinkId> = std::mem::take(&mut *lock(&shared.scenario_wanted));
             if let Some(json) = scenario.changed(&shared.tuner) {
