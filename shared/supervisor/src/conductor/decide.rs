@@ -206,10 +206,14 @@ impl Core {
                 command_seq,
                 u,
                 fresh,
+                answered_late,
                 stalled,
             } => {
                 self.applied.push(seq, command_seq, u);
-                self.silence.tick(seq, fresh, stalled);
+                // A controller whose commands come late (a command deadline
+                // the machine cannot meet) is alive: its misses are counted
+                // as misses, and killing it would only add restarts.
+                self.silence.tick(seq, fresh || answered_late, stalled);
                 Vec::new()
             }
             Event::Estimate { seq } => {

@@ -115,8 +115,8 @@ mod tests {
         saturating[3] = ("amplitude", "1500");
         refused(&saturating, "saturate");
         let mut nowhere = PLANT_INPUT;
-        nowhere[0] = ("point", "\"reference\"");
-        refused(&nowhere, "unknown variant `reference`");
+        nowhere[0] = ("point", "\"actuator\"");
+        refused(&nowhere, "unknown variant `actuator`");
         refused(&PLANT_INPUT[..3], "missing field `amplitude`");
         let mut start = PLANT_INPUT.to_vec();
         start.push(("start_s", "1"));

@@ -38,13 +38,16 @@ pub enum Event<'a> {
     },
     /// The plant's sample `seq`: the command it applied over it and its
     /// value; `fresh`: a command made for it (the plant neither held its
-    /// input nor applied its safe action); `stalled`: the plant woke late
-    /// for it (a machine stall).
+    /// input nor applied its safe action); `answered_late`: the active
+    /// controller's command came, but too late to apply (after its tick,
+    /// or its command deadline): a late controller, not a silent one;
+    /// `stalled`: the plant woke late for it (a machine stall).
     Applied {
         seq: u64,
         command_seq: u64,
         u: [f64; MAX_INPUTS],
         fresh: bool,
+        answered_late: bool,
         stalled: bool,
     },
     /// The observer's estimate for `seq` (it follows the measurement of `seq - 1`).

@@ -684,6 +684,7 @@ impl Fixture {
                 command_seq,
                 u,
                 fresh: command_seq + 1 == seq,
+                answered_late: false,
                 stalled: false,
             });
         }
@@ -998,6 +999,7 @@ fn the_step_at_a_switch_is_the_one_the_plant_applied() {
             command_seq,
             u,
             fresh: true,
+            answered_late: false,
             stalled: false,
         }
     };
@@ -1095,12 +1097,27 @@ impl Fixture {
     /// The loop's ticks `from..to` as the plant reports them, with a fresh
     /// command or not, and the observer's estimates or not; then a poll at `ms`.
     fn ticks(&mut self, from: u64, to: u64, commands: bool, estimates: bool, ms: u64) {
+        self.ticks_answered(from, to, commands, false, estimates, ms);
+    }
+
+    /// As [`Fixture::ticks`]; `late`: the controller's commands came, each
+    /// too late to apply (the plant held its input).
+    fn ticks_answered(
+        &mut self,
+        from: u64,
+        to: u64,
+        commands: bool,
+        late: bool,
+        estimates: bool,
+        ms: u64,
+    ) {
         for seq in from..to {
             self.core.handle(Event::Applied {
                 seq,
                 command_seq: if commands { seq - 1 } else { from - 1 },
                 u: [0.0; MAX_INPUTS],
                 fresh: commands,
+                answered_late: late,
                 stalled: false,
             });
             if estimates {
@@ -1153,6 +1170,24 @@ fn a_hung_controller_is_killed_and_restarted_as_after_a_crash() {
     assert!(f.exit(CONTROLLER, 137, 7).is_empty());
     assert_eq!(f.member(CONTROLLER).exit, Some(137));
     assert!(f.tick(8).is_empty());
+}
+
+/// A controller whose every command comes too late to apply (a command
+/// deadline the machine cannot meet) is alive: the plant holds its input
+/// and counts the misses, and the supervisor does not kill it as hung.
+#[test]
+fn a_controller_whose_commands_come_late_is_not_silent() {
+    let mut f = Fixture::new(policy());
+    f.ticks(1, 100, true, true, 0);
+    f.ticks_answered(100, 400, false, true, true, 30);
+    assert!(f.silence_stage(30).is_empty());
+    assert!(f.member(CONTROLLER).alive());
+    // When they stop coming, it is silent.
+    f.ticks(400, 430, false, true, 33);
+    assert_eq!(
+        record(&f.silence_stage(33), "silent").role,
+        Role::Controller
+    );
 }
 
 impl Fixture {
