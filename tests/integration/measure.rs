@@ -715,3 +715,110 @@ fn a_measurement_at_the_reference_gives_the_designs_tracking() {
         eprintln!("reference: {name} within {db:.3} dB and {degrees:.2} deg on {lines} lines");
     }
 }
+
+/// The measured plant against an independent reference: SciPy's exact ZOH
+/// (`cont2discrete`) and frequency response (`dfreqresp`) of the same
+/// continuous state space the plant file holds, at the measured lines. A
+/// noise-free lockstep loop: the measurement is the plant's response.
+#[test]
+fn the_measured_plant_is_scipys_zoh_response_of_the_same_state_space() {
+    let dir = temp_dir("measure-scipy");
+    // Two masses (5 kg driven, 1 kg beyond a 4e5 N/m spring, D = 2e-4 K:
+    // its 110 Hz mode at ζ 0.07 settles within the transient periods), the
+    // driven one measured: A, B, C, continuous.
+    let (m1, m2, k, beta) = (5.0, 1.0, 4e5, 2e-4);
+    let a = DMatrix::from_row_slice(
+        4,
+        4,
+        &[
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+            -k / m1,
+            k / m1,
+            -beta * k / m1,
+            beta * k / m1,
+            k / m2,
+            -k / m2,
+            beta * k / m2,
+            -beta * k / m2,
+        ],
+    );
+    let b = DMatrix::from_column_slice(4, 1, &[0.0, 0.0, 1.0 / m1, 0.0]);
+    let c = DMatrix::from_row_slice(1, 4, &[1.0, 0.0, 0.0, 0.0]);
+    let plant = dir.join("two-mass.npz");
+    let arrays = [("A", a), ("B", b), ("C", c)].map(|(n, m)| (n, Array::from_matrix(&m)));
+    ModelArrays::write_npz(&plant, &arrays).unwrap();
+    let file = dir.join("two-mass.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "name = \"two-mass\"\n[loop]\nrate_hz = 10000\nduration_s = 1.0\n\
+             [plant]\nmodel = \"state-space\"\nfile = \"{}\"\ninput_limit = 1000\n\
+             [observer]\ndesign = \"kalman\"\n[controller]\nfeedback = \"pid\"\n\
+             bandwidth_hz = \"auto\"\n\
+             [measure]\npoint = \"plant-input\"\nf_min_hz = 10.0\nf_max_hz = 2000.0\n\
+             lines = 30\namplitude = 20.0\ntransient_periods = 3\nperiods = 4\nstart_s = 0.05\n",
+            plant.display()
+        ),
+    )
+    .unwrap();
+    let run_dir = dir.join("run");
+    run_lockstep(&file, &run_dir);
+    let printed = measure(&run_dir, &[]);
+    let frf = run_dir.join("measurement/frf.npz");
+
+    let python = python_with(&["numpy", "scipy"]);
+    let script = "import sys, json, numpy as np\n\
+        from scipy.signal import cont2discrete, dfreqresp, dlti\n\
+        m = np.load(sys.argv[1]); f = np.load(sys.argv[2])['frequency_hz']\n\
+        ts = 1e-4\n\
+        ad, bd, cd, dd, _ = cont2discrete((m['A'], m['B'], m['C'], np.zeros((1, 1))), ts, 'zoh')\n\
+        _, h = dfreqresp(dlti(ad, bd, cd, dd, dt=ts), w=2 * np.pi * f * ts)\n\
+        print(json.dumps([[z.real, z.imag] for z in np.ravel(h)]))\n";
+    let out = std::process::Command::new(&python)
+        .args(["-c", script])
+        .arg(&plant)
+        .arg(&frf)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let scipy: Vec<[f64; 2]> = serde_json::from_slice(&out.stdout).unwrap();
+    let frf = ModelArrays::read(&frf).unwrap();
+    let p = response(&frf, "P");
+    let model = p.model.unwrap();
+    assert_eq!(scipy.len(), p.measured.len());
+    let mut checked = 0;
+    for (i, [re, im]) in scipy.iter().enumerate() {
+        let reference = Complex::new(*re, *im);
+        // The design's prediction (the plant it emulates) is SciPy's to
+        // 4e-4 (measured: 8e-5 at 10 Hz, 4e-4 at the mode; the file's model
+        // passes through its modal form, the suspect, not yet traced).
+        let off = (model[i] / reference - 1.0).norm();
+        assert!(
+            off <= 1e-3,
+            "line {i}: the model {} against SciPy's {reference}",
+            model[i]
+        );
+        if p.coherence[i] < 0.999 {
+            continue;
+        }
+        let ratio = p.measured[i] / reference;
+        let (db, degrees) = (20.0 * ratio.norm().log10(), ratio.arg().to_degrees());
+        assert!(
+            db.abs() < 0.01 && degrees.abs() < 0.1,
+            "line {i}: {db} dB, {degrees} deg\n{printed}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 25, "{checked} lines\n{printed}");
+}
