@@ -44,6 +44,7 @@ class Flags:
     CONVERGING = 1 << 9
     EXCITING = 1 << 10
     EXCITING_REFERENCE = 1 << 11
+    ANSWERED_LATE = 1 << 12
 
 
 class HandoverMark:

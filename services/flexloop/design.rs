@@ -122,6 +122,16 @@ pub fn design(args: DesignArgs) -> anyhow::Result<i32> {
         }
         Err(e) => return Err(anyhow::Error::msg(e).context(path.display().to_string())),
     };
+    // The study and the sweep redesign the scenario's own plant model: they
+    // would not be the design the file's laws are made on.
+    if s.plant.design_file.is_some() && (study || deadline_sweep) {
+        bail!(
+            "{}: field plant.design_file: --study and --deadline-sweep redesign the plant \
+             `{}` itself, not the design file's model; leave them out, or the design file",
+            path.display(),
+            s.plant.model
+        );
+    }
     // The study's mass: the sensor's, or the nearest (a scanned sensor
     // starts at its scan's first point).
     let study_output = if study {

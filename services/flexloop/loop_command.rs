@@ -67,7 +67,7 @@ pub fn warn_about_design(prepared: &Prepared) {
 }
 
 /// `[--prefix P]`: which running loop (default: every one, or the only one).
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct PrefixArg {
     /// The loop's iceoryx2 prefix, as `flexloop status` shows it
     #[arg(long, value_name = "P")]

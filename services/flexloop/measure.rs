@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// `measure RUN_DIR | --running FIELD=VALUE... [--fit MODES]`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct MeasureArgs {
     /// The run's directory; with --running, the `[measure]` fields as
     /// FIELD=VALUE (point="plant-input" f_min_hz=5 f_max_hz=2000 amplitude=200)
@@ -82,8 +82,22 @@ pub fn measure(args: MeasureArgs) -> anyhow::Result<i32> {
              (scenarios/README.md), or order one with `flexloop measure --running`"
         );
     }
-    for (label, judged) in measurements {
-        run.compute(&label, &judged, &joined, &args)?;
+    // One retuned file: from the last measurement (said when there are more).
+    let last = measurements.len() - 1;
+    for (i, (label, judged)) in measurements.into_iter().enumerate() {
+        if i < last && args.retune.is_some() {
+            println!("(--retune: from the last measurement only, not {label})");
+        }
+        let retune = if i == last { args.retune.clone() } else { None };
+        run.compute(
+            &label,
+            &judged,
+            &joined,
+            &MeasureArgs {
+                retune,
+                ..args.clone()
+            },
+        )?;
     }
     Ok(0)
 }
@@ -124,7 +138,9 @@ fn measure_running(args: &MeasureArgs) -> anyhow::Result<i32> {
         let ended = run.dir.summary().exists();
         let joined = JoinedLog::open(&run_dir)?;
         match run.compute(&label, &judged, &joined, args) {
-            Ok(()) if args.swap => return hand_over_and_measure_again(args, &run_dir),
+            Ok(()) if args.swap => {
+                return hand_over_and_measure_again(args, &run_dir, &judged.file);
+            }
             Ok(()) => return Ok(0),
             Err(e) => {
                 let recording = matches!(
@@ -201,6 +217,18 @@ fn retune(judged: &Judged, fitted: &Path, file: &Path) -> anyhow::Result<()> {
             Some(_) => bail!("{}: [{name}] is not a table", source.display()),
         }
     };
+    // The rate and mode the loop ran at (a run's overrides are not in its
+    // scenario's copy).
+    let mut timing = section(&mut table, "loop")?;
+    timing.insert(
+        "rate_hz".into(),
+        toml::Value::Float(scenario.timing.rate_hz),
+    );
+    timing.insert(
+        "mode".into(),
+        toml::Value::String(scenario.timing.mode.as_str().into()),
+    );
+    table.insert("loop".into(), toml::Value::Table(timing));
     let mut plant = section(&mut table, "plant")?;
     plant.insert(
         "design_file".into(),
@@ -271,7 +299,11 @@ fn retune(judged: &Judged, fitted: &Path, file: &Path) -> anyhow::Result<()> {
 /// `--swap`: the retuned scenario handed over to the running loop, the
 /// observer first (the controller's corrections read its estimate), then
 /// measured again with the same fields.
-fn hand_over_and_measure_again(args: &MeasureArgs, run_dir: &Path) -> anyhow::Result<i32> {
+fn hand_over_and_measure_again(
+    args: &MeasureArgs,
+    run_dir: &Path,
+    measured: &Path,
+) -> anyhow::Result<i32> {
     let file = args
         .retune
         .as_ref()
@@ -284,10 +316,24 @@ fn hand_over_and_measure_again(args: &MeasureArgs, run_dir: &Path) -> anyhow::Re
                 "swapped the {role}: generation {} active from sample {}",
                 switch.generation, switch.from_seq
             ),
-            _ => bail!(
-                "swap of the {role} refused: {}",
-                answer.error.as_deref().unwrap_or("no reason given")
-            ),
+            _ => {
+                let refused = answer.error.as_deref().unwrap_or("no reason given");
+                if role == "controller" {
+                    // Both laws on one design model: the observer goes back.
+                    let back = flexloop_supervisor::conductor::request_swap(
+                        run_dir, "observer", measured,
+                    )?;
+                    if !back.ok {
+                        bail!(
+                            "swap of the controller refused ({refused}), and the observer's way \
+                             back to {} too: {}; the observer runs the retuned design",
+                            measured.display(),
+                            back.error.as_deref().unwrap_or("no reason given")
+                        );
+                    }
+                }
+                bail!("swap of the {role} refused: {refused}");
+            }
         }
     }
     println!("measuring the retuned loop again:");

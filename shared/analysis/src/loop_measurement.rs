@@ -413,8 +413,13 @@ impl LoopMeasurement {
     }
 
     /// The measured sensitivity's peak (dB, Hz) over the trusted lines, and
-    /// whether it keeps the 6 dB rule.
+    /// whether it keeps the 6 dB rule; None at the reference, whose S_r is
+    /// the loop's sensitivity only without MC (the rule is read at the plant
+    /// input or the sensor).
     pub fn rule(&self) -> Option<(f64, f64, bool)> {
+        if self.point == InjectionPoint::Reference {
+            return None;
+        }
         let (db, hz) = self.sensitivity().measured.peak_db(MIN_COHERENCE)?;
         Some((db, hz, db <= PEAK_LIMIT_DB))
     }

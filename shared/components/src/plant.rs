@@ -114,6 +114,9 @@ pub struct PlantCore {
     model_input: [f64; 2 * MAX_INPUTS],
     y_true: [f64; MAX_OUTPUTS],
     previous_tick_stalled: bool,
+    /// The active controller's command for the due sample came after its
+    /// time since the last tick (flagged `ANSWERED_LATE` on the next one).
+    answered_late: bool,
     applied_seq: u64,
     /// An excitation for a frequency-response measurement (docs/control.md
     /// §14), where it is added, and its value this tick.
@@ -160,6 +163,7 @@ impl PlantCore {
             model_input: [0.0; 2 * MAX_INPUTS],
             y_true: [0.0; MAX_OUTPUTS],
             previous_tick_stalled: false,
+            answered_late: false,
             applied_seq: NO_SEQ,
             excitation: design.measurement.as_ref().map(ScheduledExcitation::new),
             excitation_now: 0.0,
@@ -226,6 +230,7 @@ impl PlantCore {
             CommandVerdict::Early
         } else if cmd.published_ns > due_by_ns {
             self.counters.late_commands += 1;
+            self.answered_late = true;
             CommandVerdict::Late
         } else if cmd.u[..self.n_inputs].iter().any(|v| !v.is_finite()) {
             self.counters.non_finite += 1;
@@ -293,6 +298,9 @@ impl PlantCore {
     ) {
         self.latencies.tick_lateness.record_span(tick_ns, woke_ns);
         let mut tick_flags = 0;
+        if std::mem::take(&mut self.answered_late) {
+            tick_flags |= flags::ANSWERED_LATE;
+        }
         // The value entering the delay line this tick: the on-time command, or
         // on a miss the last value that entered it (hold).
         let mut arriving_seq = if self.extra_delay {

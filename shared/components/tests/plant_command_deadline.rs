@@ -133,6 +133,15 @@ fn a_command_after_its_deadline_is_a_miss_and_the_input_is_held() {
     assert_eq!(after.misses, 1);
     assert_eq!(after.late_commands, 1);
     assert_ne!(after.flags & flags::HELD_INPUT, 0);
+    // The controller answered, late: flagged on that tick alone (what the
+    // supervisor's hang watch reads as an answer, not a silence).
+    let answered: Vec<usize> = out
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.flags & flags::ANSWERED_LATE != 0)
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(answered, [late_seq as usize + 1]);
     assert_eq!(after.u_applied[0], u_of(late_seq - 1), "held");
     assert_eq!(out[late_seq as usize + 2].u_applied[0], u_of(late_seq + 1));
     assert_eq!(out.last().unwrap().misses, 1);

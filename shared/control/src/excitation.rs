@@ -164,6 +164,17 @@ impl ScheduledExcitation {
         self.point
     }
 
+    /// Starts at tick `k` if its planned start has passed (a measurement
+    /// ordered on a running loop starts once designed), its whole length
+    /// kept. Allocates nothing.
+    pub fn start_no_earlier_than(&mut self, k: u64) {
+        if k > self.start_tick {
+            let shift = k - self.start_tick;
+            self.start_tick = k;
+            self.end_tick = self.end_tick.saturating_add(shift);
+        }
+    }
+
     /// Whether it runs at tick `k`: from its start to the end of its last
     /// fade-out.
     pub fn runs_at(&self, k: u64) -> bool {
@@ -290,5 +301,20 @@ mod tests {
         for w in values.windows(2) {
             assert!((w[1] - w[0]).abs() <= largest_tone_step + 1e-12);
         }
+    }
+
+    /// Started later than planned (a running loop's order, designed after
+    /// its planned start): the same excitation, shifted whole.
+    #[test]
+    fn a_late_start_shifts_the_whole_excitation() {
+        let plan = plan();
+        let mut on_time = ScheduledExcitation::new(&plan);
+        let mut late = ScheduledExcitation::new(&plan);
+        late.start_no_earlier_than(80);
+        for k in 0..700 {
+            let expected = on_time.value_at(k);
+            assert_eq!(late.value_at(k + 30), expected, "tick {k}");
+        }
+        assert!(!late.runs_at(680) && late.runs_at(679));
     }
 }

@@ -161,7 +161,14 @@ impl Multisine {
         } else {
             f1 * period_s
         };
-        let scale = cycles.round().max(1.0) / cycles;
+        // Under one cycle a period cannot hold the sweep (the grid check
+        // of a scenario refuses such a period before this).
+        if cycles < 1.0 {
+            return Err(MultisineError::NoLineInBand {
+                resolution_hz: spec.rate_hz / n as f64,
+            });
+        }
+        let scale = cycles.round() / cycles;
         let phase = |t: f64| {
             let unscaled = if ratio > 1.0 + 1e-12 {
                 2.0 * PI * f1 * period_s / ratio.ln() * (ratio.powf(t / period_s) - 1.0)

@@ -9,7 +9,7 @@
 //! The measurement's `EXCITING` flag marks the ticks it actually ran.
 
 use crate::NodeError;
-use flexloop_components::{ExcitationPlan, ScheduledExcitation};
+use flexloop_components::ScheduledExcitation;
 use flexloop_protocol::MeasureOrder;
 use flexloop_protocol::channels::MEASURE_ORDER;
 use flexloop_scenario::Scenario;
@@ -17,7 +17,9 @@ use flexloop_scenario::schema::MeasureSection;
 use flexloop_transport::{Inlet, LoopNode};
 use std::sync::mpsc::{Receiver, TryRecvError, channel};
 
-type Designed = Result<ExcitationPlan, String>;
+/// Made whole on the design thread (its sources hold every segment's
+/// period): the loop thread only moves it in.
+type Designed = Result<ScheduledExcitation, String>;
 
 pub struct MeasureOrders {
     inlet: Inlet<MeasureOrder>,
@@ -59,9 +61,9 @@ impl MeasureOrders {
             Ok(designed) => {
                 self.designing = None;
                 match designed {
-                    Ok(mut plan) => {
-                        plan.start_tick = plan.start_tick.max(k);
-                        Ok(Some(ScheduledExcitation::new(&plan)))
+                    Ok(mut excitation) => {
+                        excitation.start_no_earlier_than(k);
+                        Ok(Some(excitation))
                     }
                     Err(e) => {
                         // The supervisor checked the order: this is not expected.
@@ -85,7 +87,8 @@ impl MeasureOrders {
             let designed = scenario
                 .measurement_plan()
                 .map_err(|e| e.to_string())
-                .and_then(|plan| plan.ok_or_else(|| "no plan".to_string()));
+                .and_then(|plan| plan.ok_or_else(|| "no plan".to_string()))
+                .map(|plan| ScheduledExcitation::new(&plan));
             // The plant may have ended meanwhile: nothing to tell it then.
             let _ = send.send(designed);
         });

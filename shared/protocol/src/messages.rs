@@ -66,6 +66,10 @@ pub mod flags {
     /// to its reference for the first output at this tick (docs/control.md
     /// §14, the reference point); the plant adds nothing itself.
     pub const EXCITING_REFERENCE: u32 = 1 << 11;
+    /// Measurement: since the last tick the active controller's command for
+    /// the sample due came after its time (the tick, or its command
+    /// deadline) and was not applied: the controller answered, late.
+    pub const ANSWERED_LATE: u32 = 1 << 12;
 }
 
 /// y(k) from the plant, published at tick k.

@@ -116,6 +116,7 @@ pub fn description() -> Value {
             "STANDBY": flags::STANDBY,
             "EXCITING": flags::EXCITING,
             "EXCITING_REFERENCE": flags::EXCITING_REFERENCE,
+            "ANSWERED_LATE": flags::ANSWERED_LATE,
         },
         "handover_marks": {
             "ACTIVE": handover::ACTIVE,

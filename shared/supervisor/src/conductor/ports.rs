@@ -43,8 +43,6 @@ pub struct Ports {
     spare_status: Inlet<SpareStatus>,
     /// The plant's silence alarm: the supervisor's wait wakes on it.
     silence_alarm: WakeupListener,
-    /// The plant's count of late commands in the newest measurement read.
-    late_commands_seen: u64,
     /// Every loop channel, made before any process starts (see `ChannelHold`).
     _holds: Vec<ChannelHold>,
     node: LoopNode,
@@ -91,7 +89,6 @@ impl Ports {
                 SPARE_STATUS.qos.loop_buffer_size,
             )?,
             silence_alarm: WakeupListener::open(&node, &SILENCE_ALARM)?,
-            late_commands_seen: 0,
             _holds: holds,
             node,
             domain,
@@ -121,15 +118,14 @@ impl Ports {
         if let Some(measurements) = &self.measurements {
             while let Ok(Some(m)) = measurements.receive() {
                 replay.keep(*m);
-                // The plant counts the active controller's late commands.
-                let answered_late = m.late_commands > self.late_commands_seen;
-                self.late_commands_seen = self.late_commands_seen.max(m.late_commands);
                 core.handle(Event::Applied {
                     seq: m.seq,
                     command_seq: m.command_seq,
                     u: m.u_applied,
                     fresh: m.flags & (flags::HELD_INPUT | flags::FALLBACK) == 0,
-                    answered_late,
+                    // The active controller's command for the due sample,
+                    // late: not a stale one, a standby's or a stray's.
+                    answered_late: m.flags & flags::ANSWERED_LATE != 0,
                     stalled: m.flags & flags::STALLED_TICK != 0,
                 });
                 if m.flags & flags::END_OF_RUN != 0 {

@@ -67,12 +67,17 @@ impl Conductor {
         let replay_capacity = ((scenario.timing.rate_hz * REPLAY_SPAN.as_secs_f64()) as usize)
             .clamp(1024, MAX_REPLAY_SAMPLES);
         let activation = ports.publish_activation(Activation::INITIAL)?;
-        let n_inputs = LoopDesign::from_scenario(scenario)
-            .map(|d| d.n_inputs)
-            .unwrap_or(1);
+        let design = LoopDesign::from_scenario(scenario);
+        let n_inputs = design.as_ref().map(|d| d.n_inputs).unwrap_or(1);
+        let mut core = Core::new(Policy::of(scenario, n_inputs), activation);
+        // The scenario's own `[measure]` holds changes off as an ordered one
+        // does: a swap or a set during it would change the loop it measures.
+        if let Some(plan) = design.ok().and_then(|d| d.measurement) {
+            core.measurement_ordered(plan.start_tick, plan.end_tick());
+        }
         Ok(Self {
             ports,
-            core: Core::new(Policy::of(scenario, n_inputs), activation),
+            core,
             // Replayed measurements in flight at most: the replay queue's depth.
             replay: Replay::new(
                 replay_capacity,
@@ -524,14 +529,25 @@ impl Conductor {
         request: &flexloop_runfiles::supervision::MeasureRequest,
     ) -> Result<MeasureOutcome> {
         let start_seq = self.core.plan_measurement()?;
-        let planned = super::measuring::plan(&self.scenario, request, start_seq)?;
-        // The loop it measures, as it stands now: its design is what the
-        // measurement is judged against, whatever swaps come after.
+        // The loop it measures, as it stands now (after swaps and sets): it
+        // is checked against it, and judged against its design whatever
+        // swaps come after.
         let run_dir = RunDir::new(self.files.run_dir());
-        let snapshot = run_dir.measured_scenario(planned.outcome.start_seq);
+        let snapshot = run_dir.measured_scenario(start_seq);
         self.tuning
             .snapshot(&run_dir, &self.scenario, &snapshot)
             .context("the scenario the measurement measures")?;
+        let planned = Scenario::load(&snapshot, &self.overrides)
+            .map_err(anyhow::Error::from)
+            .and_then(|now| super::measuring::plan(&now, request, start_seq));
+        let planned = match planned {
+            Ok(planned) => planned,
+            Err(e) => {
+                // Refused: nothing of it is left in the run directory.
+                let _ = std::fs::remove_dir_all(run_dir.ordered_measurement(start_seq));
+                return Err(e);
+            }
+        };
         self.ports.send_measure_order(planned.order)?;
         let outcome = planned.outcome;
         self.core
