@@ -112,7 +112,9 @@ pub fn run_summary<O: RecordSink>(
             PerChannel {
                 measurement: recorder.measurements.gaps(),
                 estimate: recorder.estimates.gaps() + never_sent[1],
-                command: recorder.commands.gaps() + never_sent[2],
+                command: recorder.commands.gaps()
+                    + never_sent[2]
+                    + recorder.never_sent_at_start().map_or(0, |(_, n)| n),
             }
         },
         logger_cpu_ns,

@@ -17,6 +17,8 @@ pub struct ChannelCount {
     pub samples: u64,
     /// Highest sequence number seen.
     pub last_seq: Option<u64>,
+    /// The first number seen (the numbers before it are not in the window).
+    pub first_seq: Option<u64>,
     /// Missing numbers that fell out of the reorder window.
     settled_gaps: u64,
     /// Bit i: `last_seq − i` was seen (numbers before the first count as seen).
@@ -30,6 +32,7 @@ impl Default for ChannelCount {
         Self {
             samples: 0,
             last_seq: None,
+            first_seq: None,
             settled_gaps: 0,
             window: u64::MAX,
             pending: None,
@@ -76,6 +79,9 @@ impl ChannelCount {
     /// that fell out of the reorder window unseen, once the run is complete.
     fn see(&mut self, seq: u64, mut missing: impl FnMut(u64, u64)) {
         self.samples += 1;
+        if self.first_seq.is_none() {
+            self.first_seq = Some(seq);
+        }
         match self.last_seq {
             None => {
                 self.last_seq = Some(seq);
@@ -304,10 +310,24 @@ impl<O: RecordSink> Recorder<O> {
         ]
     }
 
+    /// Commands never received before the first of them, from the first
+    /// measurement this recorder saw: a controller that answered late at the
+    /// loop's start (a slow start on a loaded machine) left the plant's first
+    /// ticks without one. As (first, count).
+    pub fn never_sent_at_start(&self) -> Option<(u64, u64)> {
+        let start = self.measurements.first_seq?;
+        let first = self.commands.first_seq?;
+        (first > start).then(|| (start, first - start))
+    }
+
     /// At the end: writes the conditions still open and the gaps still in
     /// the reorder windows as events (no more samples will come).
     pub fn finish(&mut self, at_ns: u64) {
         let never_sent = self.never_sent();
+        if let Some((first, n)) = self.never_sent_at_start() {
+            self.out
+                .event(at_ns, gap("command", first, n, Some(GapCause::NotSent)));
+        }
         let out = &mut self.out;
         self.events
             .finish(at_ns, |e| out.event(e.at_ns, e.message()));
@@ -378,6 +398,8 @@ mod tests {
         // No command after 0, no estimate at all, up to the last tick (5):
         // never sent, and gaps all the same.
         assert_eq!(r.never_sent(), [None, Some((0, 7)), Some((1, 5))]);
+        // The first command was for the first tick: nothing missing before it.
+        assert_eq!(r.never_sent_at_start(), None);
         let not_sent: Vec<&EventMessage> = messages
             .iter()
             .copied()
@@ -399,6 +421,30 @@ mod tests {
                 .log_time_ns,
             1_012
         );
+    }
+
+    /// A controller whose first command came for tick 3 (a slow start):
+    /// the commands for ticks 0..=2 were never sent, gaps all the same, so
+    /// samples + gaps = ticks from the start too.
+    #[test]
+    fn commands_missing_before_the_first_are_never_sent() {
+        let mut r = Recorder::new(SampleWriter::new(Cursor::new(Vec::new()), 1_000).unwrap());
+        for seq in 0..6 {
+            r.measurement(&Measurement {
+                seq,
+                ..Default::default()
+            });
+        }
+        for seq in 3..6 {
+            r.command(&Command {
+                seq,
+                ..Default::default()
+            });
+        }
+        assert_eq!(r.never_sent_at_start(), Some((0, 3)));
+        assert_eq!(r.never_sent()[2], None);
+        let gaps = r.commands.gaps() + 3;
+        assert_eq!(r.commands.samples + gaps, 6);
     }
 }
 
